@@ -1,0 +1,338 @@
+/* raypace: volume raycasting held at a fixed frame rate.
+ *
+ * Conventions used throughout this header:
+ * - Every object is an opaque handle made by rp_X_create (or a loader) and
+ *   released by rp_X_destroy; destroy accepts NULL.
+ * - Descriptor structs are zero-initialised by the caller; a zero field
+ *   means "use the default" named in its comment.
+ * - Functions return 0 on success or a negative RP_E* code. When a call
+ *   that has a context fails, rp_last_error(ctx) says what was wrong
+ *   (file, field, value). A failed call leaves its outputs untouched and
+ *   never frees or modifies the caller's data.
+ * - Thread safety: a context and every object made from it may be used by
+ *   one thread at a time. Different contexts are independent.
+ */
+#ifndef RAYPACE_H
+#define RAYPACE_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#include "raypace_version.h"
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+#if defined(_WIN32) && defined(RP_SHARED_BUILD)
+#define RP_API __declspec(dllexport)
+#elif defined(__GNUC__)
+#define RP_API __attribute__((visibility("default")))
+#else
+#define RP_API
+#endif
+
+/* ---- Errors ------------------------------------------------------------ */
+
+/* XX(name, value, message). Values are stable across releases. */
+#define RP_ERRNO_MAP(XX)                                                      \
+  XX(EINVAL, -1, "invalid argument")                                          \
+  XX(ENOMEM, -2, "out of memory")                                             \
+  XX(ENOENT, -3, "no such file")                                              \
+  XX(EIO, -4, "input/output error")                                           \
+  XX(EFORMAT, -5, "malformed input")                                          \
+  XX(ETRUNC, -6, "data truncated")                                            \
+  XX(ERANGE, -7, "value out of range")                                        \
+  XX(EUNSUPPORTED, -8, "unsupported type, encoding or feature")               \
+  XX(ENOTFINITE, -9, "value is NaN or infinite")                              \
+  XX(EBUSY, -10, "resource busy")                                             \
+  XX(ENODEV, -11, "no usable device")                                         \
+  XX(EDEVICE, -12, "device failure")                                          \
+  XX(EBUILD, -13, "kernel build failed")                                      \
+  XX(ETIMEDOUT, -14, "deadline exceeded")                                     \
+  XX(ESTATE, -15, "call not valid in this state")
+
+typedef enum rp_errno {
+#define RP__ERRNO_ENUM(name, val, msg) RP_##name = (val),
+  RP_ERRNO_MAP(RP__ERRNO_ENUM)
+#undef RP__ERRNO_ENUM
+  RP_OK = 0
+} rp_errno;
+
+/** Returns a static message for an error code ("unknown error" otherwise).
+ *  \threadsafety any thread. \since 0.1 */
+RP_API const char *rp_strerror(int err);
+/** Returns the code's name without prefix ("EINVAL"), or "UNKNOWN".
+ *  \threadsafety any thread. \since 0.1 */
+RP_API const char *rp_err_name(int err);
+/** Returns RP_VERSION_HEX of the library actually linked. \since 0.1 */
+RP_API unsigned rp_version(void);
+/** Returns "MAJOR.MINOR.PATCH". \since 0.1 */
+RP_API const char *rp_version_string(void);
+
+/* ---- Context ----------------------------------------------------------- */
+
+typedef struct rp_context rp_context;
+
+/** Memory hooks. Both NULL: the C library's malloc and free. */
+typedef struct rp_allocator {
+  void *(*alloc)(size_t size, void *user);
+  void (*free)(void *ptr, void *user);
+  void *user;
+} rp_allocator;
+
+typedef enum rp_log_level {
+  RP_LOG_ERROR = 1,
+  RP_LOG_WARN = 2,
+  RP_LOG_INFO = 3,
+  RP_LOG_DEBUG = 4
+} rp_log_level;
+
+/** Log sink. The library prints nothing unless one is set. */
+typedef void (*rp_logger)(const char *tag, int level, int item_id,
+                          const char *msg, int line, void *user);
+
+typedef struct rp_context_desc {
+  rp_allocator allocator; /* zero: malloc/free */
+  rp_logger logger;       /* NULL: silent */
+  void *logger_user;
+  int threads;             /* worker threads for CPU passes; 0: all cores */
+  uint64_t max_volume_bytes; /* largest volume a loader accepts;
+                                0: 16 GiB */
+} rp_context_desc;
+
+/** Creates a context. `desc` may be NULL (all defaults).
+ *  \returns 0 or RP_EINVAL / RP_ENOMEM. \since 0.1 */
+RP_API int rp_context_create(const rp_context_desc *desc, rp_context **out);
+/** Destroys a context; NULL is a no-op. Objects made from it must be
+ *  destroyed first. \since 0.1 */
+RP_API void rp_context_destroy(rp_context *ctx);
+/** The message of the last failed call on this context ("" if none).
+ *  Valid until the next call on the context. \since 0.1 */
+RP_API const char *rp_last_error(const rp_context *ctx);
+
+/* ---- Volumes ----------------------------------------------------------- */
+
+typedef enum rp_voxel_type {
+  RP_U8 = 1,
+  RP_U16 = 2,
+  RP_F32 = 3
+} rp_voxel_type;
+
+typedef struct rp_volume rp_volume;
+
+typedef struct rp_volume_desc {
+  uint32_t dims[3];      /* voxels along x, y, z; all must be >= 1 */
+  rp_voxel_type type;    /* required */
+  float spacing[3];      /* voxel size; 0: 1.0 */
+  const void *data;      /* x fastest, native endianness; copied */
+} rp_volume_desc;
+
+/** Creates a volume from memory (the voxels are copied; the caller keeps
+ *  its buffer). Float volumes must hold no NaN or infinity.
+ *  \since 0.1 */
+RP_API int rp_volume_create(rp_context *ctx, const rp_volume_desc *desc,
+                            rp_volume **out);
+
+/** Loads a volume from a file: NRRD (.nrrd/.nhdr; raw or gzip encoding),
+ *  a raypace sidecar (.txt with "key: value" lines naming a raw file), or
+ *  a .raw file whose name ends in _XxYxZ_TYPE (e.g. head_64x64x93_uint16).
+ *  \returns 0, RP_ENOENT, RP_EIO, RP_EFORMAT, RP_ETRUNC, RP_ERANGE,
+ *  RP_EUNSUPPORTED, RP_ENOTFINITE or RP_ENOMEM. \since 0.1 */
+RP_API int rp_volume_load(rp_context *ctx, const char *path,
+                          rp_volume **out);
+
+typedef enum rp_generator {
+  RP_GEN_MARSCHNER_LOBB = 1, /* analytic test signal, f_M = 6, alpha = .25 */
+  RP_GEN_PHANTOM = 2,        /* CT-like: empty air, soft shell, dense core */
+  RP_GEN_NOISE = 3           /* white noise: worst case for every skip */
+} rp_generator;
+
+typedef struct rp_generate_desc {
+  rp_generator kind;  /* required */
+  uint32_t dims[3];   /* required, each >= 1 */
+  rp_voxel_type type; /* RP_U8 or RP_U16; 0: RP_U8 */
+  uint64_t seed;      /* for RP_GEN_NOISE */
+} rp_generate_desc;
+
+/** Generates a synthetic volume; the same desc gives the same voxels.
+ *  \since 0.1 */
+RP_API int rp_volume_generate(rp_context *ctx, const rp_generate_desc *desc,
+                              rp_volume **out);
+RP_API void rp_volume_destroy(rp_volume *vol);
+
+typedef struct rp_volume_info {
+  uint32_t dims[3];
+  rp_voxel_type type;
+  float spacing[3];
+  double min, max;       /* data range over all voxels */
+  uint32_t blocks[3];    /* 16^3 blocks per axis (edge blocks partial) */
+} rp_volume_info;
+
+RP_API void rp_volume_get_info(const rp_volume *vol, rp_volume_info *info);
+/** Voxels in their native type, x fastest; owned by the volume. */
+RP_API const void *rp_volume_data(const rp_volume *vol);
+/** Name of a voxel type ("uint8", "uint16", "float32"). */
+RP_API const char *rp_voxel_type_name(rp_voxel_type type);
+
+/* ---- Transfer functions ------------------------------------------------ */
+
+typedef struct rp_tf rp_tf;
+
+/** One control point. `x` is the position in [0, 1] over the volume's data
+ *  range [min, max]; colour and alpha in [0, 1]. Alpha is the opacity of
+ *  one reference step (rp_tf_desc.reference_step). */
+typedef struct rp_tf_point {
+  float x, r, g, b, a;
+} rp_tf_point;
+
+typedef struct rp_tf_desc {
+  const rp_tf_point *points; /* strictly increasing x; at least one */
+  int count;
+  float reference_step;      /* Delta_0 in voxels; 0: 1.0 */
+  int lut_size;              /* entries; 0: 1024 (min 2, max 65536) */
+} rp_tf_desc;
+
+/** Builds a transfer function. Piecewise linear between points, constant
+ *  outside them. NaN, infinities, values outside [0, 1] and unordered or
+ *  repeated x are rejected with RP_ENOTFINITE / RP_ERANGE / RP_EINVAL and
+ *  a message naming the point and field. \since 0.1 */
+RP_API int rp_tf_create(rp_context *ctx, const rp_tf_desc *desc,
+                        rp_tf **out);
+/** Builds a named preset: "transparent" (all alpha 0), "opaque" (alpha 1
+ *  everywhere), "ct-bone", "ct-soft", "mri", "ramp", "nearly-transparent".
+ *  \returns RP_EINVAL with the list of names for an unknown name. */
+RP_API int rp_tf_create_preset(rp_context *ctx, const char *name,
+                               rp_tf **out);
+/** The preset names, NULL-terminated. */
+RP_API const char *const *rp_tf_preset_names(void);
+RP_API void rp_tf_destroy(rp_tf *tf);
+RP_API float rp_tf_reference_step(const rp_tf *tf);
+/** The lookup table: lut_size RGBA entries (floats, straight colour); entry
+ *  i is the TF at x = i / (lut_size - 1). The TF used everywhere (render,
+ *  H-alpha, occupancy) is this table read with linear interpolation. */
+RP_API const float *rp_tf_lut(const rp_tf *tf, int *lut_size);
+
+/** Opacity correction: the opacity of a step `step` for a sample whose
+ *  opacity over the reference step `ref_step` is `alpha`:
+ *  1 - (1 - alpha)^(step / ref_step), evaluated in double as
+ *  -expm1((step / ref_step) * log1p(-alpha)) so that tiny and huge ratios
+ *  keep full relative precision: the result is within one float ulp of the
+ *  exact value. alpha <= 0 gives 0 and alpha >= 1 gives 1 at any step.
+ *  step and ref_step must be positive and finite (NaN otherwise). */
+RP_API float rp_opacity_correct(float alpha, float step, float ref_step);
+
+/* ---- Histograms and occupancy ------------------------------------------ */
+
+#define RP_BLOCK_SIZE 16
+#define RP_DENSITY_BINS 64
+#define RP_OPACITY_BINS 16
+
+typedef struct rp_histograms rp_histograms;
+
+/** Builds the per-block density histograms H of a volume (16^3 blocks, x
+ *  fastest, 64 bins over [min, max]) on ctx's worker threads. */
+RP_API int rp_histograms_build(rp_context *ctx, const rp_volume *vol,
+                               rp_histograms **out);
+RP_API void rp_histograms_destroy(rp_histograms *h);
+/** Number of blocks and a pointer to block `b`'s 64 counts. */
+RP_API uint32_t rp_histograms_block_count(const rp_histograms *h);
+RP_API const uint32_t *rp_histograms_block(const rp_histograms *h,
+                                           uint32_t b);
+/** The bin a value falls in (the rule H uses; DESIGN section 2). */
+RP_API int rp_histograms_bin_of(const rp_histograms *h, double value);
+
+/** Derived data for one transfer function: opacity histograms H-alpha (16
+ *  bytes per block) and the occupancy grid used for empty-space skipping.
+ */
+typedef struct rp_occupancy rp_occupancy;
+
+RP_API int rp_occupancy_build(rp_context *ctx, const rp_histograms *h,
+                              const rp_tf *tf, rp_occupancy **out);
+/** Recomputes in place for a new transfer function (no allocation). */
+RP_API int rp_occupancy_update(rp_occupancy *occ, const rp_tf *tf);
+RP_API void rp_occupancy_destroy(rp_occupancy *occ);
+/** 16 bytes per block: fraction of the block's voxels in each opacity bin,
+ *  x255, a non-empty bin never rounded to 0. Opacity bin 0 holds exactly
+ *  the voxels of zero opacity; bin j >= 1 holds (j-1)/15 < a <= j/15. */
+RP_API const uint8_t *rp_occupancy_alpha_hist(const rp_occupancy *occ);
+/** One byte per block: 1 if a ray may see non-zero opacity inside it. */
+RP_API const uint8_t *rp_occupancy_grid(const rp_occupancy *occ);
+RP_API uint32_t rp_occupancy_empty_blocks(const rp_occupancy *occ);
+
+/* ---- Cameras, render settings, images ---------------------------------- */
+
+typedef enum rp_projection {
+  RP_PERSPECTIVE = 0,
+  RP_ORTHOGRAPHIC = 1
+} rp_projection;
+
+/** A camera in world space. World space is the volume's voxel grid scaled
+ *  by its spacing, centred on the origin. */
+typedef struct rp_camera {
+  rp_projection projection;
+  float eye[3];
+  float center[3];
+  float up[3];         /* zero: +y (or +z when looking along y) */
+  float fov_y_deg;     /* perspective vertical field of view; 0: 40 */
+  float ortho_height;  /* orthographic view height; 0: bounding diameter */
+} rp_camera;
+
+/** Points `cam` at the volume centre from azimuth/elevation (degrees) and
+ *  a distance in bounding-sphere radii (1.0 touches the sphere; below 1
+ *  may put the eye inside the volume). Keeps projection and fov. */
+RP_API void rp_camera_orbit(rp_camera *cam, const rp_volume *vol,
+                            float azimuth_deg, float elevation_deg,
+                            float distance);
+
+enum {
+  RP_EFFECT_SHADING = 1u << 0, /* gradient (central differences) shading */
+  RP_EFFECT_ERT = 1u << 1,     /* early ray termination */
+  RP_EFFECT_SKIP = 1u << 2,    /* empty-space skipping from occupancy */
+  RP_EFFECT_AO = 1u << 3       /* ambient occlusion fetch (M7) */
+};
+
+typedef struct rp_render_desc {
+  uint32_t width, height;  /* output pixels; required */
+  float step;              /* Delta in voxels (finest spacing); 0: 1.0 */
+  uint32_t effects;        /* RP_EFFECT_* bits; 0: none */
+  float ert_threshold;     /* accumulated alpha to stop at; 0: 0.99 */
+} rp_render_desc;
+
+#define RP_TILE_SIZE 8
+
+/** Per 8x8-pixel tile: the truth training and accuracy reports need. */
+typedef struct rp_tile_stats {
+  uint32_t samples;    /* samples taken (TF lookups) by the tile's rays */
+  uint32_t rays_hit;   /* rays that took at least one sample */
+  float mean_depth;    /* mean over those rays of the depth of their last
+                          sample (termination or exit), in voxels of the
+                          finest spacing from the eye; 0 if none */
+} rp_tile_stats;
+
+/** Number of tiles along x and y for an image. */
+RP_API void rp_tile_grid(uint32_t width, uint32_t height, uint32_t *tiles_x,
+                         uint32_t *tiles_y);
+
+/** The scalar reference raycaster: the oracle backends are held to.
+ *  Writes width*height RGBA8 pixels (premultiplied alpha, rows top to
+ *  bottom) to `rgba` and, if `tiles` is not NULL, tiles_x*tiles_y stats.
+ *  `occ` is required when RP_EFFECT_SKIP is set and must have been built
+ *  for `tf` on this volume. Single-threaded on purpose: obviously correct
+ *  first. \since 0.1 */
+RP_API int rp_render_reference(rp_context *ctx, const rp_volume *vol,
+                               const rp_tf *tf, const rp_occupancy *occ,
+                               const rp_camera *cam,
+                               const rp_render_desc *desc, uint8_t *rgba,
+                               rp_tile_stats *tiles);
+
+/** Writes RGBA8 premultiplied pixels as an 8-bit RGB PNG composited over
+ *  `background` (RGB in [0, 1]; NULL: black). */
+RP_API int rp_write_png(rp_context *ctx, const char *path,
+                        const uint8_t *rgba, uint32_t width,
+                        uint32_t height, const float *background);
+
+#ifdef __cplusplus
+}
+#endif
+#endif /* RAYPACE_H */

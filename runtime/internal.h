@@ -1,0 +1,170 @@
+/* Declarations shared between runtime files (the rp__ prefix). Nothing here
+ * is part of the public API or ABI. */
+#ifndef RP_INTERNAL_H
+#define RP_INTERNAL_H
+
+#include <stdarg.h>
+#include <stdbool.h>
+#include <stddef.h>
+#include <stdint.h>
+
+#include "raypace.h"
+
+#define RP__ERRMSG_MAX 512
+
+struct rp_context {
+  rp_context_desc desc; /* with defaults filled in by rp__context_defaults */
+  char last_error[RP__ERRMSG_MAX];
+};
+
+struct rp_volume {
+  rp_context *ctx;
+  uint32_t dims[3];
+  rp_voxel_type type;
+  float spacing[3];
+  double min, max;
+  size_t voxel_count;
+  void *data; /* owned; voxel_count values of `type` */
+};
+
+struct rp_tf {
+  rp_context *ctx;
+  uint64_t id; /* unique per TF object: lets users of derived data check
+                  that it was derived from this TF */
+  int lut_size;
+  float reference_step;
+  float *lut; /* lut_size * 4 floats, RGBA, straight colour */
+};
+
+/* What the histograms need to know of their volume, copied so that H does
+ * not keep a pointer into an object the caller may destroy first. */
+typedef struct rp__value_range {
+  rp_voxel_type type;
+  double min, max;
+} rp__value_range;
+
+struct rp_histograms {
+  rp_context *ctx;
+  uint32_t dims[3];
+  uint32_t blocks[3];
+  uint32_t block_count;
+  rp__value_range range;
+  uint32_t *counts; /* block_count * RP_DENSITY_BINS */
+};
+
+struct rp_occupancy {
+  rp_context *ctx;
+  const rp_histograms *h; /* not owned; must outlive the occupancy */
+  uint64_t tf_id;         /* rp_tf.id of the TF it was last built for */
+  uint8_t *alpha_hist;    /* block_count * RP_OPACITY_BINS */
+  uint8_t *grid;          /* block_count */
+  /* Lowest and highest non-empty density bin over each block and its 26
+   * neighbours: depends on H only, so it is computed once at build. */
+  uint8_t *bin_lo, *bin_hi; /* bin_lo > bin_hi: no voxel at all */
+  uint32_t empty;
+};
+
+/* ---- core.c ------------------------------------------------------------ */
+
+void *rp__malloc(rp_context *ctx, size_t size);
+void *rp__calloc(rp_context *ctx, size_t count, size_t size);
+void rp__free(rp_context *ctx, void *ptr);
+/* Records a message for rp_last_error and returns `err`, so that a failing
+ * path reads `return rp__fail(ctx, RP_EINVAL, "...", ...);`. ctx may be
+ * NULL (the message is dropped). */
+int rp__fail(rp_context *ctx, int err, const char *fmt, ...)
+#if defined(__GNUC__)
+    __attribute__((format(printf, 3, 4)))
+#endif
+    ;
+void rp__clear_error(rp_context *ctx);
+int rp__thread_count(const rp_context *ctx);
+/* Runs fn(i, user) for i in [0, n) on up to ctx's thread count threads,
+ * each thread taking a contiguous range. Returns 0 or RP_ENOMEM. */
+int rp__parallel_for(const rp_context *ctx, uint32_t n,
+                     void (*fn)(uint32_t begin, uint32_t end, void *user),
+                     void *user);
+
+/* ---- volume.c ---------------------------------------------------------- */
+
+size_t rp__voxel_size(rp_voxel_type type);
+/* Takes ownership of `data` (allocated with rp__malloc on ctx) and computes
+ * the range; rejects NaN/inf in float data. On failure frees `data`. */
+int rp__volume_adopt(rp_context *ctx, const uint32_t dims[3],
+                     rp_voxel_type type, const float spacing[3], void *data,
+                     rp_volume **out);
+/* dims product and byte size with overflow checks against the context's
+ * max_volume_bytes; the message names `what` (a file or "desc"). */
+int rp__volume_size(rp_context *ctx, const char *what, const uint64_t dims[3],
+                    rp_voxel_type type, size_t *voxels, size_t *bytes);
+
+/* Voxel (i, j, k) as a double, indices already in range. */
+static inline double rp__voxel(const rp_volume *v, uint32_t i, uint32_t j,
+                               uint32_t k) {
+  size_t idx = ((size_t)k * v->dims[1] + j) * v->dims[0] + i;
+  switch (v->type) {
+  case RP_U8: return ((const uint8_t *)v->data)[idx];
+  case RP_U16: return ((const uint16_t *)v->data)[idx];
+  default: return ((const float *)v->data)[idx];
+  }
+}
+
+/* ---- volume_io.c -------------------------------------------------------- */
+
+/* A parsed file header, before any voxel is read. */
+typedef struct rp__volume_header {
+  uint64_t dims[3];
+  rp_voxel_type type;
+  float spacing[3];
+  int big_endian;   /* data stored big-endian */
+  int gzip;         /* payload is a gzip (or zlib) stream */
+  uint64_t byte_skip; /* bytes skipped before the payload; for gzip, of the
+                         inflated stream (as teem does) */
+  int skip_to_end;  /* NRRD "byte skip: -1": payload is the file's tail */
+  uint64_t line_skip; /* NRRD "line skip": lines skipped before byte skip */
+  char data_file[1024]; /* detached payload path ("" = attached) */
+} rp__volume_header;
+
+/* Parsers on memory, so that fuzz targets reach them without files.
+ * `name` is used in messages. *header_len receives the offset where an
+ * attached payload starts (NRRD only). */
+int rp__nrrd_parse(rp_context *ctx, const char *name, const uint8_t *buf,
+                   size_t len, rp__volume_header *hdr, size_t *header_len);
+int rp__sidecar_parse(rp_context *ctx, const char *name, const uint8_t *buf,
+                      size_t len, rp__volume_header *hdr);
+/* Decodes a payload (raw or gzip, any endianness) into a new volume. */
+int rp__volume_decode(rp_context *ctx, const char *name,
+                      const rp__volume_header *hdr, const uint8_t *payload,
+                      size_t len, rp_volume **out);
+
+/* ---- transfer.c -------------------------------------------------------- */
+
+/* Position of a data value in TF space: (v - min) / (max - min), 0 when the
+ * range is a single value. Not clamped. */
+static inline double rp__value_to_x(double v, double min, double max) {
+  return max > min ? (v - min) / (max - min) : 0.0;
+}
+/* The TF at x (clamped to [0, 1]), linear between LUT entries. */
+void rp__tf_sample(const rp_tf *tf, double x, float rgba[4]);
+/* Largest alpha of the interpolated LUT over [x0, x1] (clamped). */
+float rp__tf_alpha_max(const rp_tf *tf, double x0, double x1);
+/* Mean alpha of the interpolated LUT over [x0, x1]: the exact integral of
+ * the piecewise-linear function divided by the width; the value at x0 when
+ * x0 == x1. Zero exactly when alpha is zero over the whole interval. */
+double rp__tf_alpha_mean(const rp_tf *tf, double x0, double x1);
+
+/* ---- histogram.c ------------------------------------------------------- */
+
+/* Data-value interval covered by density bin b: for integer data the
+ * smallest and largest integer in the bin (lo > hi when no integer falls
+ * in it), for float data the bin's edges. */
+void rp__bin_value_range(const rp__value_range *r, int b, double *lo,
+                         double *hi);
+int rp__bin_of(const rp__value_range *r, double value);
+
+/* ---- png.c ------------------------------------------------------------- */
+
+int rp__png_write_rgb(rp_context *ctx, const char *path, const uint8_t *rgb,
+                      uint32_t width, uint32_t height);
+
+#endif /* RP_INTERNAL_H */
