@@ -22,27 +22,32 @@ static double marschner_lobb(double x, double y, double z) {
          (2.0 * (1.0 + alpha));
 }
 
+/* 1 inside (e < 0), 0 outside, linear across a band of width w: edges
+ * blur over a voxel or two as in a real scan (partial volume), instead of
+ * the staircase a hard threshold leaves under shading. */
+static double inside(double e, double w) {
+  double t = 0.5 - e / w;
+  return t < 0.0 ? 0.0 : t > 1.0 ? 1.0 : t;
+}
+
 /* A CT-like phantom: air (exactly 0) around an ellipsoidal body of soft
- * tissue, a bony shell, a dense core and two small dense inclusions. Most
- * of the box is air, so empty-space skipping has real work to do, and the
- * core is opaque under bone presets, so early termination does too. */
+ * tissue, a thin bony shell, a dense core and two small dense inclusions.
+ * Most of the box is air, so empty-space skipping has real work to do, and
+ * the core is opaque under bone presets, so early termination does too. */
 static double phantom(double x, double y, double z) {
-  double body = (x * x) / (0.80 * 0.80) + (y * y) / (0.65 * 0.65) +
-                (z * z) / (0.85 * 0.85);
-  double core = (x * x + y * y + z * z) / (0.30 * 0.30);
-  double i1 = ((x - 0.45) * (x - 0.45) + y * y + (z - 0.2) * (z - 0.2)) /
-              (0.08 * 0.08);
-  double i2 = ((x + 0.4) * (x + 0.4) + (y - 0.25) * (y - 0.25) + z * z) /
-              (0.06 * 0.06);
-  if (body > 1.0)
-    return 0.0;
-  if (core <= 1.0)
-    return 0.85 + 0.15 * (1.0 - core);
-  if (i1 <= 1.0 || i2 <= 1.0)
-    return 0.95;
-  if (body > 0.82)
-    return 0.60; /* bony shell */
-  return 0.20 + 0.05 * sin(6.0 * x) * cos(5.0 * y); /* soft tissue */
+  double body = sqrt((x * x) / (0.80 * 0.80) + (y * y) / (0.65 * 0.65) +
+                     (z * z) / (0.85 * 0.85));
+  double core = sqrt(x * x + y * y + z * z) / 0.30;
+  double i1 = sqrt((x - 0.45) * (x - 0.45) + y * y +
+                   (z - 0.2) * (z - 0.2)) / 0.08;
+  double i2 = sqrt((x + 0.4) * (x + 0.4) + (y - 0.25) * (y - 0.25) + z * z) /
+              0.06;
+  double tissue = 0.20 + 0.05 * sin(6.0 * x) * cos(5.0 * y);
+  double v = tissue * inside(body - 1.0, 0.04);
+  v = fmax(v, 0.45 * (inside(body - 1.0, 0.04) - inside(body - 0.96, 0.04)));
+  v = fmax(v, (0.85 + 0.15 * fmax(0.0, 1.0 - core)) * inside(core - 1.0, 0.1));
+  v = fmax(v, 0.95 * fmax(inside(i1 - 1.0, 0.3), inside(i2 - 1.0, 0.3)));
+  return v;
 }
 
 /* splitmix64 (Steele, Lea, Flood 2014): tiny, seedable, good enough to
@@ -57,7 +62,7 @@ static uint64_t splitmix64(uint64_t *s) {
 int rp_volume_generate(rp_context *ctx, const rp_generate_desc *desc,
                        rp_volume **out) {
   uint64_t d64[3], state;
-  size_t voxels, bytes, idx = 0;
+  size_t voxels = 0, bytes = 0, idx = 0;
   rp_voxel_type type;
   double qmax;
   void *data;

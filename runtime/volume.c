@@ -117,7 +117,7 @@ int rp__volume_adopt(rp_context *ctx, const uint32_t dims[3],
                      rp_volume **out) {
   rp_volume *v;
   uint64_t d64[3] = {dims[0], dims[1], dims[2]};
-  size_t voxels, bytes;
+  size_t voxels = 0, bytes = 0;
   int err = rp__volume_size(ctx, "volume", d64, type, &voxels, &bytes);
   if (err == 0) {
     v = rp__calloc(ctx, 1, sizeof *v);
@@ -147,7 +147,7 @@ int rp__volume_adopt(rp_context *ctx, const uint32_t dims[3],
 int rp_volume_create(rp_context *ctx, const rp_volume_desc *desc,
                      rp_volume **out) {
   uint64_t d64[3];
-  size_t voxels, bytes;
+  size_t voxels = 0, bytes = 0;
   void *copy;
   int err;
   if (ctx == NULL)

@@ -1,0 +1,264 @@
+/* Cameras: orbit placement, validation, and one ray per pixel.
+ *
+ * The spaces and formulas are stated once, in raygen.h; backends receive
+ * an rp__raygen rather than re-deriving the basis, so that a camera the
+ * reference accepts is a camera every backend sees the same way. */
+#include <math.h>
+
+#include "raygen.h"
+
+#define RP__PI 3.14159265358979323846
+#define RP__DEFAULT_FOV_DEG 40.0
+
+static double dot3(const double a[3], const double b[3]) {
+  return a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+}
+
+static void cross3(const double a[3], const double b[3], double out[3]) {
+  double c[3];
+  c[0] = a[1] * b[2] - a[2] * b[1];
+  c[1] = a[2] * b[0] - a[0] * b[2];
+  c[2] = a[0] * b[1] - a[1] * b[0];
+  out[0] = c[0];
+  out[1] = c[1];
+  out[2] = c[2];
+}
+
+/* Scales v to unit length; returns 0 when v is zero. Dividing by the
+ * largest component first keeps tiny and huge vectors from underflowing
+ * or overflowing in the squares. */
+static int normalize3(double v[3]) {
+  double m = fabs(v[0]), len;
+  int a;
+  if (fabs(v[1]) > m)
+    m = fabs(v[1]);
+  if (fabs(v[2]) > m)
+    m = fabs(v[2]);
+  if (m == 0.0)
+    return 0;
+  for (a = 0; a < 3; a++)
+    v[a] /= m;
+  len = sqrt(dot3(v, v));
+  for (a = 0; a < 3; a++)
+    v[a] /= len;
+  return 1;
+}
+
+static int parallel(const double a[3], const double b[3]) {
+  double c[3];
+  cross3(a, b, c);
+  return sqrt(dot3(c, c)) <= RP__PARALLEL_EPS;
+}
+
+/* Length of the box diagonal: the bounding sphere's diameter. */
+static double box_diameter(const rp_volume *vol) {
+  double d2 = 0.0;
+  int a;
+  for (a = 0; a < 3; a++) {
+    double e = (double)vol->dims[a] * vol->spacing[a];
+    d2 += e * e;
+  }
+  return sqrt(d2);
+}
+
+void rp_camera_orbit(rp_camera *cam, const rp_volume *vol, float azimuth_deg,
+                     float elevation_deg, float distance) {
+  double az, el, d;
+  int a;
+  if (cam == NULL || vol == NULL)
+    return;
+  az = azimuth_deg * (RP__PI / 180.0);
+  el = elevation_deg * (RP__PI / 180.0);
+  d = 0.5 * box_diameter(vol) * distance;
+  /* Azimuth 0, elevation 0 is on +z looking down -z with +y up;
+   * azimuth turns toward +x, elevation toward +y. */
+  cam->eye[0] = (float)(d * cos(el) * sin(az));
+  cam->eye[1] = (float)(d * sin(el));
+  cam->eye[2] = (float)(d * cos(el) * cos(az));
+  for (a = 0; a < 3; a++) {
+    cam->center[a] = 0.0f;
+    /* Zero selects the default, which swaps to +z at the poles; a fixed
+     * +y would make elevation +-90 an invalid camera. */
+    cam->up[a] = 0.0f;
+  }
+}
+
+static int check_vec(rp_context *ctx, const char *field, const float v[3]) {
+  int a;
+  for (a = 0; a < 3; a++)
+    if (!isfinite(v[a]))
+      return rp__fail(ctx, RP_EINVAL, "camera: cam->%s[%d] is %g; must be "
+                      "finite", field, a, (double)v[a]);
+  return 0;
+}
+
+/* The camera with its zero fov replaced by the default. Two defaults are
+ * left for rp__raygen_init: a zero up depends on the view direction, and
+ * a zero ortho_height is the box diagonal, kept in double rather than
+ * rounded into the float field. */
+static rp_camera camera_defaults(const rp_camera *in) {
+  rp_camera c = *in;
+  if (c.fov_y_deg == 0.0f)
+    c.fov_y_deg = RP__DEFAULT_FOV_DEG;
+  return c;
+}
+
+static int check_camera(rp_context *ctx, const rp_camera *cam) {
+  int err;
+  double fov = cam->fov_y_deg;
+  if (cam->projection != RP_PERSPECTIVE && cam->projection != RP_ORTHOGRAPHIC)
+    return rp__fail(ctx, RP_EINVAL, "camera: cam->projection is %d; must "
+                    "be RP_PERSPECTIVE or RP_ORTHOGRAPHIC",
+                    (int)cam->projection);
+  if ((err = check_vec(ctx, "eye", cam->eye)) != 0 ||
+      (err = check_vec(ctx, "center", cam->center)) != 0 ||
+      (err = check_vec(ctx, "up", cam->up)) != 0)
+    return err;
+  /* Both fields are checked whatever the projection: a camera switched
+   * between projections carries both, and garbage in either is a bug. */
+  if (!(fov > 0.0 && fov < 180.0))
+    return rp__fail(ctx, RP_EINVAL, "camera: cam->fov_y_deg is %g; must be "
+                    "in (0, 180) degrees (0: 40)", fov);
+  if (!(cam->ortho_height >= 0.0f) || !isfinite(cam->ortho_height))
+    return rp__fail(ctx, RP_EINVAL, "camera: cam->ortho_height is %g; must "
+                    "be finite and > 0 (0: bounding diameter)",
+                    (double)cam->ortho_height);
+  return 0;
+}
+
+int rp__raygen_init(rp_context *ctx, const rp_camera *cam_in,
+                    const rp_volume *vol, uint32_t width, uint32_t height,
+                    rp__raygen *rg) {
+  rp_camera c = camera_defaults(cam_in);
+  const rp_camera *cam = &c;
+  double up[3], aspect;
+  int a, err;
+  if ((err = check_camera(ctx, cam)) != 0)
+    return err;
+  for (a = 0; a < 3; a++) {
+    rg->eye[a] = cam->eye[a];
+    /* The difference of two floats is exact in double, so eye and
+     * center may be arbitrarily close without losing the direction. */
+    rg->f[a] = (double)cam->center[a] - (double)cam->eye[a];
+    up[a] = cam->up[a];
+  }
+  if (!normalize3(rg->f))
+    return rp__fail(ctx, RP_EINVAL, "camera: cam->center equals cam->eye; "
+                    "the view direction is undefined");
+  if (!normalize3(up)) {
+    up[0] = 0.0;
+    up[1] = 1.0;
+    up[2] = 0.0;
+    if (parallel(rg->f, up)) {
+      up[1] = 0.0;
+      up[2] = 1.0;
+    }
+  } else if (parallel(rg->f, up)) {
+    return rp__fail(ctx, RP_EINVAL, "camera: cam->up is parallel to the "
+                    "view direction (cam->center - cam->eye)");
+  }
+  cross3(rg->f, up, rg->r);
+  normalize3(rg->r);
+  cross3(rg->r, rg->f, rg->u);
+
+  rg->ortho = cam->projection == RP_ORTHOGRAPHIC;
+  rg->width = width;
+  rg->height = height;
+  aspect = (double)width / (double)height;
+  if (rg->ortho && cam->ortho_height == 0.0f)
+    rg->half_h = 0.5 * box_diameter(vol);
+  else if (rg->ortho)
+    rg->half_h = 0.5 * cam->ortho_height;
+  else
+    rg->half_h = tan(0.5 * cam->fov_y_deg * (RP__PI / 180.0));
+  rg->half_w = rg->half_h * aspect;
+
+  rg->min_spacing = vol->spacing[0];
+  for (a = 0; a < 3; a++) {
+    rg->dims[a] = vol->dims[a];
+    rg->spacing[a] = vol->spacing[a];
+    if (rg->spacing[a] < rg->min_spacing)
+      rg->min_spacing = rg->spacing[a];
+  }
+  return 0;
+}
+
+/* Slab method in voxel space, where the box is [-0.5, dims - 0.5]. An axis
+ * the ray does not move along constrains nothing when the origin lies in
+ * its slab (boundary included) and misses otherwise; testing it apart
+ * avoids the 0 * inf = NaN of the division form. */
+static void clip(const rp__raygen *rg, rp__ray *ray) {
+  double t0 = -INFINITY, t1 = INFINITY;
+  int a;
+  ray->hit = 0;
+  for (a = 0; a < 3; a++) {
+    double lo = -0.5, hi = rg->dims[a] - 0.5, ta, tb;
+    if (ray->dp[a] == 0.0) {
+      if (ray->p0[a] < lo || ray->p0[a] > hi)
+        return;
+      continue;
+    }
+    ta = (lo - ray->p0[a]) / ray->dp[a];
+    tb = (hi - ray->p0[a]) / ray->dp[a];
+    if (ta > tb) {
+      double tmp = ta;
+      ta = tb;
+      tb = tmp;
+    }
+    if (ta > t0)
+      t0 = ta;
+    if (tb < t1)
+      t1 = tb;
+  }
+  /* A unit direction has a component of at least 1/sqrt(3), so t0 and t1
+   * are finite here. A box entirely behind the origin is a miss. */
+  if (!(t0 <= t1) || t1 < 0.0)
+    return;
+  ray->t0 = t0;
+  ray->t1 = t1;
+  ray->s = t0 > 0.0 ? t0 : 0.0;
+  ray->hit = 1;
+}
+
+void rp__raygen_ray(const rp__raygen *rg, uint32_t x, uint32_t y,
+                    rp__ray *ray) {
+  double nu = 2.0 * ((double)x + 0.5) / rg->width - 1.0;
+  double nv = 1.0 - 2.0 * ((double)y + 0.5) / rg->height;
+  double su = nu * rg->half_w, sv = nv * rg->half_h;
+  int a;
+  for (a = 0; a < 3; a++) {
+    if (rg->ortho) {
+      ray->org[a] = rg->eye[a] + su * rg->r[a] + sv * rg->u[a];
+      ray->dir[a] = rg->f[a];
+    } else {
+      ray->org[a] = rg->eye[a];
+      ray->dir[a] = rg->f[a] + su * rg->r[a] + sv * rg->u[a];
+    }
+  }
+  if (!rg->ortho)
+    normalize3(ray->dir);
+  for (a = 0; a < 3; a++) {
+    ray->p0[a] = ray->org[a] / rg->spacing[a] + 0.5 * rg->dims[a] - 0.5;
+    ray->dp[a] = ray->dir[a] * (rg->min_spacing / rg->spacing[a]);
+  }
+  clip(rg, ray);
+}
+
+uint64_t rp__lattice_count(double s, double t1, double step) {
+  const double cap = 9007199254740992.0; /* 2^53 */
+  double est = floor((t1 - s) / step);
+  uint64_t k;
+  if (!(est >= 0.0))
+    est = 0.0;
+  if (est >= cap)
+    return (uint64_t)cap;
+  /* The quotient is only an estimate: the definition is the predicate
+   * s + i*step <= t1 on the positions as computed, which is monotone in
+   * i, so nudge k to the last i that satisfies it. */
+  k = (uint64_t)est;
+  while (k > 0 && s + (double)k * step > t1)
+    k--;
+  while (k + 1 < (uint64_t)cap && s + (double)(k + 1) * step <= t1)
+    k++;
+  return k + 1;
+}

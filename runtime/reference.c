@@ -1,0 +1,366 @@
+/* The scalar reference raycaster: the oracle the backends are held to.
+ *
+ * It is written to be read, not to be fast: one ray at a time, one
+ * thread, every quantity in double. The rules below are the contract the
+ * kernels reproduce (the spaces are defined in raygen.h):
+ *
+ * Lattice. A ray that meets the box on [t0, t1] samples at depths
+ * s + i*step, s = max(t0, 0), for i = 0, 1, ... while s + i*step <= t1.
+ * Each depth is computed from i, never accumulated, so that a kernel
+ * lands on the same positions whatever order it visits them in.
+ *
+ * Skipping (RP_EFFECT_SKIP). A lattice sample at voxel-space p belongs to
+ * block floor((p + 0.5) / 16) per axis, clamped to the grid: the block of
+ * the voxel whose cell holds p. Only samples i_first..i_last are taken,
+ * the first and last lattice samples in an occupied block; empty runs
+ * between them are still sampled. That makes D_front and D_back lattice
+ * depths, which a GPU depth pass can reproduce exactly. The occupancy is
+ * conservative (a block is marked when any value a sample inside it can
+ * interpolate, neighbours' voxels included, has non-zero opacity), so
+ * every skipped sample has opacity exactly 0 and adds exactly 0: skipping
+ * never changes a pixel, only the sample count.
+ *
+ * Per sample: v = trilinear value; x = rp__value_to_x(v); TF at x gives
+ * straight colour c and alpha a for the TF's reference step;
+ * a' = rp_opacity_correct(a, step, reference step). With shading, c is
+ * lit by a headlight (below). Front to back, premultiplied:
+ * C += (1 - A) a' c, A += (1 - A) a'. With ERT the ray stops after a
+ * sample that brings A to >= the threshold. A pixel channel is
+ * floor(clamp(C, 0, 1) * 255 + 0.5). */
+#include <math.h>
+
+#include "raygen.h"
+
+#define RP__DEFAULT_STEP 1.0f
+#define RP__DEFAULT_ERT 0.99f
+#define RP__KNOWN_EFFECTS                                                     \
+  (RP_EFFECT_SHADING | RP_EFFECT_ERT | RP_EFFECT_SKIP | RP_EFFECT_AO)
+/* Below this gradient magnitude (relative to the data range per world
+ * unit) the normal is noise, so the sample is lit as if facing the light
+ * rather than by a random direction. */
+#define RP__FLAT_GRADIENT 1e-6
+
+double rp__sample_trilinear(const rp_volume *vol, const double p[3]) {
+  uint32_t lo[3], hi[3];
+  double w[3], c00, c10, c01, c11, c0, c1;
+  int a;
+  for (a = 0; a < 3; a++) {
+    double top = (double)vol->dims[a] - 1.0, c = p[a], fl;
+    /* Written so that NaN lands on 0 instead of reaching the cast. */
+    if (!(c >= 0.0))
+      c = 0.0;
+    if (c > top)
+      c = top;
+    fl = floor(c);
+    lo[a] = (uint32_t)fl;
+    hi[a] = lo[a] + 1 < vol->dims[a] ? lo[a] + 1 : lo[a];
+    w[a] = c - fl;
+  }
+  /* Interpolate along x, then y, then z. */
+  c00 = (1.0 - w[0]) * rp__voxel(vol, lo[0], lo[1], lo[2]) +
+        w[0] * rp__voxel(vol, hi[0], lo[1], lo[2]);
+  c10 = (1.0 - w[0]) * rp__voxel(vol, lo[0], hi[1], lo[2]) +
+        w[0] * rp__voxel(vol, hi[0], hi[1], lo[2]);
+  c01 = (1.0 - w[0]) * rp__voxel(vol, lo[0], lo[1], hi[2]) +
+        w[0] * rp__voxel(vol, hi[0], lo[1], hi[2]);
+  c11 = (1.0 - w[0]) * rp__voxel(vol, lo[0], hi[1], hi[2]) +
+        w[0] * rp__voxel(vol, hi[0], hi[1], hi[2]);
+  c0 = (1.0 - w[1]) * c00 + w[1] * c10;
+  c1 = (1.0 - w[1]) * c01 + w[1] * c11;
+  return (1.0 - w[2]) * c0 + w[2] * c1;
+}
+
+/* Everything a ray needs besides its own geometry, defaults resolved. */
+typedef struct render_ctx {
+  const rp_volume *vol;
+  const rp_tf *tf;
+  const uint8_t *grid; /* NULL: no skipping */
+  uint32_t blocks[3];
+  double step;
+  float step_f, ref_step;
+  int shading, ert;
+  double ert_threshold; /* the float from the desc, widened exactly */
+} render_ctx;
+
+/* What one ray produced. */
+typedef struct ray_result {
+  double rgba[4];   /* premultiplied */
+  uint64_t samples; /* lattice samples taken */
+  double last_depth; /* depth of the last one; meaningless if none */
+} ray_result;
+
+static double clamp01(double v) { return v < 0.0 ? 0.0 : v > 1.0 ? 1.0 : v; }
+
+static void point_at(const rp__ray *ray, double t, double p[3]) {
+  int a;
+  for (a = 0; a < 3; a++)
+    p[a] = ray->p0[a] + t * ray->dp[a];
+}
+
+static int occupied(const render_ctx *rc, const rp__ray *ray, uint64_t i) {
+  double p[3];
+  uint32_t b[3];
+  int a;
+  point_at(ray, ray->s + (double)i * rc->step, p);
+  for (a = 0; a < 3; a++) {
+    double q = floor((p[a] + 0.5) / RP_BLOCK_SIZE);
+    if (!(q >= 0.0))
+      q = 0.0;
+    if (q > rc->blocks[a] - 1.0)
+      q = rc->blocks[a] - 1.0;
+    b[a] = (uint32_t)q;
+  }
+  return rc->grid[((size_t)b[2] * rc->blocks[1] + b[1]) * rc->blocks[0] +
+                  b[0]] != 0;
+}
+
+/* Headlight shading of straight colour `rgb` at p, in place. The gradient
+ * is central differences of the interpolated field one voxel either side
+ * along each axis, per world unit: g_a = (f(p + e_a) - f(p - e_a)) / 2 /
+ * spacing_a. The light comes from the eye, L = -dir, and lights both
+ * faces: ndotl = |g . L| / |g| (1 for a flat field). Then
+ * rgb = clamp(rgb (0.3 + 0.7 ndotl) + 0.2 ndotl^20, 0, 1). */
+static void shade(const render_ctx *rc, const rp__ray *ray, const double p[3],
+                  double rgb[3]) {
+  const rp_volume *vol = rc->vol;
+  double g[3], len, ndotl, range = vol->max - vol->min, gain, spec;
+  int a;
+  for (a = 0; a < 3; a++) {
+    double q[3] = {p[0], p[1], p[2]}, fp, fm;
+    q[a] = p[a] + 1.0;
+    fp = rp__sample_trilinear(vol, q);
+    q[a] = p[a] - 1.0;
+    fm = rp__sample_trilinear(vol, q);
+    /* Per world unit, so anisotropic spacing tilts normals correctly. */
+    g[a] = (fp - fm) * 0.5 / vol->spacing[a];
+  }
+  len = sqrt(g[0] * g[0] + g[1] * g[1] + g[2] * g[2]);
+  if (!(range > 0.0) || len / range < RP__FLAT_GRADIENT) {
+    ndotl = 1.0;
+  } else {
+    /* L = -dir. Two-sided: an iso-surface seen from behind is lit too. */
+    ndotl = fabs(-(g[0] * ray->dir[0] + g[1] * ray->dir[1] +
+                   g[2] * ray->dir[2]) / len);
+    if (ndotl > 1.0)
+      ndotl = 1.0;
+  }
+  gain = 0.3 + 0.7 * ndotl;
+  spec = 0.2 * pow(ndotl, 20.0);
+  for (a = 0; a < 3; a++)
+    rgb[a] = clamp01(rgb[a] * gain + spec);
+}
+
+static void cast(const render_ctx *rc, const rp__ray *ray, ray_result *out) {
+  const rp_volume *vol = rc->vol;
+  uint64_t n, first = 0, last, i;
+  double C[3] = {0.0, 0.0, 0.0}, A = 0.0;
+  int c;
+  out->samples = 0;
+  out->last_depth = 0.0;
+  for (c = 0; c < 4; c++)
+    out->rgba[c] = 0.0;
+  if (!ray->hit)
+    return;
+  n = rp__lattice_count(ray->s, ray->t1, rc->step);
+  last = n - 1;
+  if (rc->grid != NULL) {
+    while (first < n && !occupied(rc, ray, first))
+      first++;
+    if (first == n)
+      return;
+    while (!occupied(rc, ray, last))
+      last--;
+  }
+  for (i = first; i <= last; i++) {
+    double t = ray->s + (double)i * rc->step, p[3], v, rgb[3], alpha, w;
+    float tf[4];
+    point_at(ray, t, p);
+    v = rp__sample_trilinear(vol, p);
+    rp__tf_sample(rc->tf, rp__value_to_x(v, vol->min, vol->max), tf);
+    alpha = rp_opacity_correct(tf[3], rc->step_f, rc->ref_step);
+    for (c = 0; c < 3; c++)
+      rgb[c] = tf[c];
+    /* A transparent sample adds exactly 0 whatever its colour, so its
+     * six gradient fetches can be spared without changing a bit. */
+    if (rc->shading && alpha > 0.0)
+      shade(rc, ray, p, rgb);
+    w = (1.0 - A) * alpha;
+    for (c = 0; c < 3; c++)
+      C[c] += w * rgb[c];
+    A += w;
+    out->samples++;
+    out->last_depth = t;
+    if (rc->ert && A >= rc->ert_threshold)
+      break;
+  }
+  for (c = 0; c < 3; c++)
+    out->rgba[c] = C[c];
+  out->rgba[3] = A;
+}
+
+static uint8_t to_u8(double v) {
+  return (uint8_t)floor(clamp01(v) * 255.0 + 0.5);
+}
+
+void rp_tile_grid(uint32_t width, uint32_t height, uint32_t *tiles_x,
+                  uint32_t *tiles_y) {
+  /* Not (w + 7) / 8, which wraps for widths near 2^32. */
+  if (tiles_x != NULL)
+    *tiles_x = width / RP_TILE_SIZE + (width % RP_TILE_SIZE != 0);
+  if (tiles_y != NULL)
+    *tiles_y = height / RP_TILE_SIZE + (height % RP_TILE_SIZE != 0);
+}
+
+/* The desc with its zero fields replaced by their defaults: the one place
+ * that knows what zero means, so that everything after it (validation
+ * included) sees only real values. */
+static rp_render_desc render_desc_defaults(const rp_render_desc *in) {
+  rp_render_desc d = *in;
+  if (d.step == 0.0f)
+    d.step = RP__DEFAULT_STEP;
+  if (d.ert_threshold == 0.0f)
+    d.ert_threshold = RP__DEFAULT_ERT;
+  return d;
+}
+
+/* `desc` has its defaults filled in; NULL when the caller passed none. */
+static int check_args(rp_context *ctx, const rp_volume *vol,
+                      const rp_tf *tf, const rp_occupancy *occ,
+                      const rp_camera *cam, const rp_render_desc *desc,
+                      const uint8_t *rgba) {
+  const char *missing = vol == NULL    ? "vol"
+                        : tf == NULL   ? "tf"
+                        : cam == NULL  ? "cam"
+                        : desc == NULL ? "desc"
+                        : rgba == NULL ? "rgba"
+                                       : NULL;
+  uint64_t bytes;
+  int a;
+  if (missing != NULL)
+    return rp__fail(ctx, RP_EINVAL, "rp_render_reference: %s is NULL",
+                    missing);
+  if (desc->width == 0 || desc->height == 0)
+    return rp__fail(ctx, RP_EINVAL, "rp_render_reference: desc->width and "
+                    "desc->height must be >= 1 (got %ux%u)",
+                    (unsigned)desc->width, (unsigned)desc->height);
+  /* Cannot wrap in 64 bits: both factors are below 2^32. */
+  bytes = (uint64_t)desc->width * desc->height;
+  if (bytes > SIZE_MAX / 4)
+    return rp__fail(ctx, RP_EINVAL, "rp_render_reference: desc->width x "
+                    "desc->height (%ux%u) RGBA pixels overflow size_t",
+                    (unsigned)desc->width, (unsigned)desc->height);
+  if (!(desc->step > 0.0f && isfinite(desc->step)))
+    return rp__fail(ctx, RP_EINVAL, "rp_render_reference: desc->step is "
+                    "%g; must be finite and > 0 (0: 1.0)",
+                    (double)desc->step);
+  if (!(desc->ert_threshold > 0.0f && desc->ert_threshold <= 1.0f))
+    return rp__fail(ctx, RP_EINVAL, "rp_render_reference: "
+                    "desc->ert_threshold is %g; must be in (0, 1] (0: 0.99)",
+                    (double)desc->ert_threshold);
+  if (desc->effects & ~(uint32_t)RP__KNOWN_EFFECTS)
+    return rp__fail(ctx, RP_EINVAL, "rp_render_reference: desc->effects has "
+                    "unknown bits 0x%x",
+                    (unsigned)(desc->effects & ~(uint32_t)RP__KNOWN_EFFECTS));
+  if ((desc->effects & RP_EFFECT_SKIP) && occ == NULL)
+    return rp__fail(ctx, RP_EINVAL, "rp_render_reference: desc->effects has "
+                    "RP_EFFECT_SKIP but occ is NULL");
+  /* An occupancy passed without SKIP is unused, but a mismatched one is
+   * still a caller bug worth reporting before it bites with SKIP on. */
+  if (occ != NULL) {
+    if (occ->tf_id != tf->id)
+      return rp__fail(ctx, RP_EINVAL, "rp_render_reference: occ was built "
+                      "for another transfer function (tf id %llu, occ for "
+                      "%llu)", (unsigned long long)tf->id,
+                      (unsigned long long)occ->tf_id);
+    for (a = 0; a < 3; a++)
+      if (occ->h == NULL || occ->h->dims[a] != vol->dims[a])
+        return rp__fail(ctx, RP_EINVAL, "rp_render_reference: occ was "
+                        "built for a volume of other dims (vol is "
+                        "%ux%ux%u)", (unsigned)vol->dims[0],
+                        (unsigned)vol->dims[1], (unsigned)vol->dims[2]);
+  }
+  return 0;
+}
+
+/* Renders one tile's pixels and fills its stats. */
+static void render_tile(const render_ctx *rc, const rp__raygen *rg,
+                        uint32_t tx, uint32_t ty, uint8_t *rgba,
+                        rp_tile_stats *stats) {
+  uint32_t x0 = tx * RP_TILE_SIZE, y0 = ty * RP_TILE_SIZE, x, y;
+  uint32_t x1 = rg->width - x0 < RP_TILE_SIZE ? rg->width : x0 + RP_TILE_SIZE;
+  uint32_t y1 =
+      rg->height - y0 < RP_TILE_SIZE ? rg->height : y0 + RP_TILE_SIZE;
+  uint64_t samples = 0, hits = 0;
+  double depth_sum = 0.0;
+  for (y = y0; y < y1; y++) {
+    for (x = x0; x < x1; x++) {
+      rp__ray ray;
+      ray_result res;
+      uint8_t *px = rgba + ((size_t)y * rg->width + x) * 4;
+      int c;
+      rp__raygen_ray(rg, x, y, &ray);
+      cast(rc, &ray, &res);
+      for (c = 0; c < 4; c++)
+        px[c] = to_u8(res.rgba[c]);
+      /* No wrap: at most 64 rays of at most 2^53 samples each. The
+       * uint32 field saturates below. */
+      samples += res.samples;
+      if (res.samples > 0) {
+        hits++;
+        depth_sum += res.last_depth;
+      }
+    }
+  }
+  if (stats != NULL) {
+    stats->samples = samples > UINT32_MAX ? UINT32_MAX : (uint32_t)samples;
+    stats->rays_hit = (uint32_t)hits;
+    stats->mean_depth = hits > 0 ? (float)(depth_sum / (double)hits) : 0.0f;
+  }
+}
+
+int rp_render_reference(rp_context *ctx, const rp_volume *vol,
+                        const rp_tf *tf, const rp_occupancy *occ,
+                        const rp_camera *cam, const rp_render_desc *desc,
+                        uint8_t *rgba, rp_tile_stats *tiles) {
+  render_ctx rc;
+  rp__raygen rg;
+  rp_render_desc d;
+  uint32_t tiles_x, tiles_y, tx, ty;
+  int err;
+  if (ctx == NULL)
+    return RP_EINVAL;
+  if (desc != NULL)
+    d = render_desc_defaults(desc);
+  if ((err = check_args(ctx, vol, tf, occ, cam, desc != NULL ? &d : NULL,
+                        rgba)) != 0)
+    return err;
+  if ((err = rp__raygen_init(ctx, cam, vol, d.width, d.height, &rg)) != 0)
+    return err;
+  if (d.effects & RP_EFFECT_AO)
+    return rp__fail(ctx, RP_EUNSUPPORTED, "rp_render_reference: "
+                    "RP_EFFECT_AO: ambient occlusion arrives with the AO "
+                    "volume (M7)");
+
+  rc.vol = vol;
+  rc.tf = tf;
+  rc.grid = NULL;
+  if (d.effects & RP_EFFECT_SKIP) {
+    rc.grid = occ->grid;
+    rc.blocks[0] = occ->h->blocks[0];
+    rc.blocks[1] = occ->h->blocks[1];
+    rc.blocks[2] = occ->h->blocks[2];
+  }
+  rc.step_f = d.step;
+  rc.step = d.step;
+  rc.ref_step = rp_tf_reference_step(tf);
+  rc.shading = (d.effects & RP_EFFECT_SHADING) != 0;
+  rc.ert = (d.effects & RP_EFFECT_ERT) != 0;
+  rc.ert_threshold = d.ert_threshold;
+
+  rp_tile_grid(d.width, d.height, &tiles_x, &tiles_y);
+  for (ty = 0; ty < tiles_y; ty++)
+    for (tx = 0; tx < tiles_x; tx++)
+      render_tile(&rc, &rg, tx, ty, rgba,
+                  tiles != NULL ? &tiles[(size_t)ty * tiles_x + tx] : NULL);
+  return 0;
+}
