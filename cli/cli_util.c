@@ -1,0 +1,110 @@
+#include "cli_util.h"
+
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <time.h>
+
+int cli_error(rp_context *ctx, const char *what, int err) {
+  const char *detail = rp_last_error(ctx);
+  fprintf(stderr, "raypace: %s: %s%s%s\n", what, rp_strerror(err),
+          detail[0] ? ": " : "", detail);
+  return 1;
+}
+
+double cli_now(void) {
+  struct timespec ts;
+  clock_gettime(CLOCK_MONOTONIC, &ts);
+  return (double)ts.tv_sec + ts.tv_nsec * 1e-9;
+}
+
+int cli_parse_size(const char *s, uint32_t *w, uint32_t *h) {
+  unsigned long a, b;
+  char *end;
+  a = strtoul(s, &end, 10);
+  if (end == s || (*end != 'x' && *end != 'X'))
+    return -1;
+  s = end + 1;
+  b = strtoul(s, &end, 10);
+  if (end == s || *end != '\0' || a < 1 || b < 1 || a > 16384 || b > 16384)
+    return -1;
+  *w = (uint32_t)a;
+  *h = (uint32_t)b;
+  return 0;
+}
+
+int cli_parse_floats(const char *s, float *out, int n) {
+  int i;
+  for (i = 0; i < n; i++) {
+    char *end;
+    double v = strtod(s, &end);
+    if (end == s || !isfinite(v))
+      return -1;
+    out[i] = (float)v;
+    s = end;
+    if (i + 1 < n) {
+      if (*s != ',')
+        return -1;
+      s++;
+    }
+  }
+  return *s == '\0' ? 0 : -1;
+}
+
+static int parse_generator(rp_context *ctx, const char *spec,
+                           rp_volume **out) {
+  rp_generate_desc d = {0};
+  char buf[256], *tok, *save = NULL;
+  int field = 0, err;
+  if (strlen(spec) >= sizeof buf) {
+    fprintf(stderr, "raypace: generator spec too long\n");
+    return 1;
+  }
+  strcpy(buf, spec + 4);
+  d.dims[0] = d.dims[1] = d.dims[2] = 128;
+  d.type = RP_U8;
+  d.seed = 1;
+  for (tok = strtok_r(buf, ":", &save); tok != NULL;
+       tok = strtok_r(NULL, ":", &save), field++) {
+    unsigned x, y, z;
+    char extra;
+    if (field == 0) {
+      if (strcmp(tok, "ml") == 0 || strcmp(tok, "marschner-lobb") == 0)
+        d.kind = RP_GEN_MARSCHNER_LOBB;
+      else if (strcmp(tok, "phantom") == 0)
+        d.kind = RP_GEN_PHANTOM;
+      else if (strcmp(tok, "noise") == 0)
+        d.kind = RP_GEN_NOISE;
+      else {
+        fprintf(stderr, "raypace: generator '%s' is unknown (ml, phantom, "
+                        "noise)\n", tok);
+        return 1;
+      }
+    } else if (sscanf(tok, "%ux%ux%u%c", &x, &y, &z, &extra) == 3) {
+      d.dims[0] = x, d.dims[1] = y, d.dims[2] = z;
+    } else if (sscanf(tok, "%u%c", &x, &extra) == 1 && field == 1) {
+      d.dims[0] = d.dims[1] = d.dims[2] = x;
+    } else if (strcmp(tok, "u8") == 0) {
+      d.type = RP_U8;
+    } else if (strcmp(tok, "u16") == 0) {
+      d.type = RP_U16;
+    } else if (sscanf(tok, "%u%c", &x, &extra) == 1) {
+      d.seed = x;
+    } else {
+      fprintf(stderr, "raypace: generator field '%s' is not XxYxZ, u8, "
+                      "u16 or a seed\n", tok);
+      return 1;
+    }
+  }
+  err = rp_volume_generate(ctx, &d, out);
+  return err != 0 ? cli_error(ctx, spec, err) : 0;
+}
+
+int cli_open_volume(rp_context *ctx, const char *spec, rp_volume **out) {
+  int err;
+  if (strncmp(spec, "gen:", 4) == 0)
+    return parse_generator(ctx, spec, out);
+  err = rp_volume_load(ctx, spec, out);
+  return err != 0 ? cli_error(ctx, spec, err) : 0;
+}

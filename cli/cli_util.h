@@ -1,0 +1,22 @@
+/* Helpers shared by the raypace command's subcommands. */
+#ifndef RP_CLI_UTIL_H
+#define RP_CLI_UTIL_H
+
+#include <stdint.h>
+
+#include "raypace.h"
+
+/* Opens a volume from a file path or a generator spec
+ * "gen:KIND[:XxYxZ][:u8|u16][:SEED]" (KIND: ml, phantom, noise; default
+ * 128^3, u8). Prints the error and returns non-zero on failure. */
+int cli_open_volume(rp_context *ctx, const char *spec, rp_volume **out);
+/* Parses "WxH" (each 1..16384). */
+int cli_parse_size(const char *s, uint32_t *w, uint32_t *h);
+/* Parses n comma-separated floats. */
+int cli_parse_floats(const char *s, float *out, int n);
+/* Seconds from a monotonic clock. */
+double cli_now(void);
+/* Prints "raypace: <what>: <rp_strerror>: <last error>" to stderr. */
+int cli_error(rp_context *ctx, const char *what, int err);
+
+#endif

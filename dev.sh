@@ -1,0 +1,55 @@
+#!/bin/sh
+# Set-up, build and run on Debian 12.
+#   ./dev.sh demo   install what is missing, build, render the demo image
+#   ./dev.sh test   install what is missing, build, run every test: the
+#                   plain build, then AddressSanitizer + UBSan, then each
+#                   fuzz target over its seed corpus
+set -eu
+cd "$(dirname "$0")"
+mode=${1:-}
+case "$mode" in demo|test) ;; *)
+  echo "usage: ./dev.sh demo|test" >&2; exit 2;; esac
+
+PKGS="cmake make gcc clang libclang-rt-14-dev pkg-config zlib1g-dev
+libpng-dev libcjson-dev libuv1-dev libcmocka-dev ocl-icd-opencl-dev
+opencl-headers pocl-opencl-icd libvulkan-dev mesa-vulkan-drivers glslc"
+missing=""
+for p in $PKGS; do
+  dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "ok installed" ||
+    missing="$missing $p"
+done
+if [ -n "$missing" ]; then
+  echo "installing:$missing"
+  sudo=""
+  [ "$(id -u)" -eq 0 ] || sudo=sudo
+  $sudo apt-get update -qq
+  # shellcheck disable=SC2086 # word splitting of the list is intended
+  DEBIAN_FRONTEND=noninteractive $sudo apt-get install -y -qq \
+    --no-install-recommends $missing
+fi
+
+jobs=$(nproc 2>/dev/null || echo 2)
+build() { # build DIR [cmake args...]
+  dir=$1; shift
+  cmake -S . -B "$dir" "$@" >/dev/null
+  cmake --build "$dir" -j "$jobs"
+}
+
+if [ "$mode" = demo ]; then
+  build build -DCMAKE_BUILD_TYPE=Release
+  mkdir -p out
+  ./build/raypace render gen:phantom:160 --tf ct-bone --shading \
+    --camera 35,25,2.4 --size 512x512 -o out/demo.png
+  echo "demo image: $(pwd)/out/demo.png"
+  exit 0
+fi
+
+build build
+ctest --test-dir build -j "$jobs" --output-on-failure
+build build-asan -DRP_ASAN=ON -DRP_UBSAN=ON -DRP_BUILD_CLI=ON
+ASAN_OPTIONS=detect_leaks=1 UBSAN_OPTIONS=print_stacktrace=1 \
+  ctest --test-dir build-asan -j "$jobs" --output-on-failure \
+  -E test_install_consumer
+CC=clang build build-fuzz -DRP_FUZZ=ON -DRP_BUILD_TESTS=OFF \
+  -DRP_BUILD_CLI=OFF -DRP_BUILD_SAMPLES=OFF
+ctest --test-dir build-fuzz -j "$jobs" --output-on-failure

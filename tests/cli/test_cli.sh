@@ -1,0 +1,78 @@
+#!/bin/sh
+# The raypace command end to end: help, JSON fields, PNG output, errors.
+# usage: test_cli.sh RAYPACE_BINARY SCRATCH_DIR
+set -u
+rp=$1
+dir=$2
+mkdir -p "$dir"
+fails=0
+pass=0
+
+check() { # check NAME COMMAND...: the command must succeed
+  name=$1; shift
+  if "$@" >"$dir/out" 2>"$dir/err"; then pass=$((pass + 1)); else
+    echo "FAIL: $name"; cat "$dir/out" "$dir/err"; fails=$((fails + 1)); fi
+}
+refuse() { # refuse NAME PATTERN COMMAND...: must fail and say PATTERN
+  name=$1; pat=$2; shift 2
+  if "$@" >"$dir/out" 2>"$dir/err"; then
+    echo "FAIL: $name succeeded"; fails=$((fails + 1))
+  elif grep -q -- "$pat" "$dir/err"; then pass=$((pass + 1)); else
+    echo "FAIL: $name: stderr lacks '$pat'"; cat "$dir/err"
+    fails=$((fails + 1)); fi
+}
+has() { # has NAME PATTERN: the last output contains PATTERN
+  if grep -q -- "$2" "$dir/out"; then pass=$((pass + 1)); else
+    echo "FAIL: $1: output lacks '$2'"; cat "$dir/out"; fails=$((fails + 1))
+  fi
+}
+
+check "help" "$rp" --help; has "help" "render VOLUME"
+check "info help" "$rp" info --help; has "info help" "--histograms"
+check "render help" "$rp" render --help; has "render help" "nearly-transparent"
+check "version" "$rp" version; has "version" "raypace 0."
+
+# A 40x36x20 phantom: 3x3x2 = 18 blocks of 16^3.
+check "info json" "$rp" info gen:phantom:40x36x20 --json
+has "info dims" '"dims":	\[40, 36, 20\]'
+has "info blocks" '"block_count":	18'
+has "info type" '"type":	"uint8"'
+check "info hist" "$rp" info gen:noise:16x16x16:u16 --json --histograms
+has "info hist H" '"density_histograms"'
+has "info hist Ha" '"opacity_histograms"'
+# White noise over 64 bins, 4096 voxels: the bins are all non-empty.
+check "info text" "$rp" info gen:ml:33 --tf transparent
+has "transparent empties all" "empty blocks:  27 (100.0 %)"
+
+check "render" "$rp" render gen:phantom:48 --size 40x30 --shading \
+  -o "$dir/a.png" --json
+has "render json output" "\"output\":	\"$dir/a.png\""
+has "render json size" '"width":	40'
+if [ "$(head -c 8 "$dir/a.png" | od -An -tx1 | tr -d ' \n')" = \
+     "89504e470d0a1a0a" ]; then pass=$((pass + 1)); else
+  echo "FAIL: a.png is not a PNG"; fails=$((fails + 1)); fi
+check "render ortho" "$rp" render gen:ml:20 --ortho --camera 0,90,2 \
+  --size 9x7 --no-ert --no-skip -o "$dir/b.png"
+has "render text" "wrote $dir/b.png"
+
+refuse "missing file" "no such file" "$rp" info "$dir/does-not-exist.nrrd"
+refuse "bad preset" "known: transparent" "$rp" render gen:ml:8 --tf nope \
+  -o "$dir/c.png"
+refuse "bad size" "bad value '0x5'" "$rp" render gen:ml:8 --size 0x5 \
+  -o "$dir/c.png"
+refuse "bad generator" "unknown" "$rp" info gen:cube
+refuse "unknown backend" "not available" "$rp" render gen:ml:8 \
+  --backend warp -o "$dir/c.png"
+refuse "unwritable png" "$dir/no/such/dir/x.png" "$rp" render gen:ml:8 \
+  --size 4x4 -o "$dir/no/such/dir/x.png"
+refuse "unknown command" "unknown command" "$rp" frobnicate
+
+if [ -n "${RP_SHARED_DATA:-}" ] && [ -f "$RP_SHARED_DATA/bonsai/bonsai.txt" ]
+then
+  check "bonsai info" "$rp" info "$RP_SHARED_DATA/bonsai/bonsai.txt" --json
+  has "bonsai dims" '"dims":	\[256, 256, 256\]'
+  has "bonsai max" '"max":	255'
+fi
+
+echo "$pass passed, $fails failed"
+[ "$fails" -eq 0 ]
