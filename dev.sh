@@ -2,8 +2,9 @@
 # Set-up, build and run on Debian 12.
 #   ./dev.sh demo   install what is missing, build, render the demo image
 #   ./dev.sh test   install what is missing, build, run every test: the
-#                   plain build, then AddressSanitizer + UBSan, then each
-#                   fuzz target over its seed corpus
+#                   plain build, then AddressSanitizer + UBSan, clang's
+#                   static analyzer, and each fuzz target over its seed
+#                   corpus
 set -eu
 cd "$(dirname "$0")"
 mode=${1:-}
@@ -50,6 +51,19 @@ build build-asan -DRP_ASAN=ON -DRP_UBSAN=ON -DRP_BUILD_CLI=ON
 ASAN_OPTIONS=detect_leaks=1 UBSAN_OPTIONS=print_stacktrace=1 \
   ctest --test-dir build-asan -j "$jobs" --output-on-failure \
   -E test_install_consumer
+
+# clang --analyze: any report fails the run.
+report=$(for f in runtime/*.c cli/*.c; do
+  clang --analyze -std=c11 -D_POSIX_C_SOURCE=200809L -Iinclude -Iruntime \
+    "$f" -o /dev/null 2>&1
+done)
+if printf '%s' "$report" | grep -q "warning:"; then
+  printf '%s\n' "$report"
+  echo "clang --analyze: reports above"
+  exit 1
+fi
+echo "clang --analyze: no reports"
+
 CC=clang build build-fuzz -DRP_FUZZ=ON -DRP_BUILD_TESTS=OFF \
-  -DRP_BUILD_CLI=OFF -DRP_BUILD_SAMPLES=OFF
+  -DRP_BUILD_CLI=OFF -DRP_BUILD_SAMPLES=OFF -DRP_BUILD_BENCH=OFF
 ctest --test-dir build-fuzz -j "$jobs" --output-on-failure

@@ -324,7 +324,7 @@ int rp_render_reference(rp_context *ctx, const rp_volume *vol,
                         uint8_t *rgba, rp_tile_stats *tiles) {
   render_ctx rc;
   rp__raygen rg;
-  rp_render_desc d;
+  rp_render_desc d = {0};
   uint32_t tiles_x, tiles_y, tx, ty;
   int err;
   if (ctx == NULL)

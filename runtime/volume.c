@@ -119,25 +119,25 @@ int rp__volume_adopt(rp_context *ctx, const uint32_t dims[3],
   uint64_t d64[3] = {dims[0], dims[1], dims[2]};
   size_t voxels = 0, bytes = 0;
   int err = rp__volume_size(ctx, "volume", d64, type, &voxels, &bytes);
-  if (err == 0) {
-    v = rp__calloc(ctx, 1, sizeof *v);
-    if (v == NULL)
-      err = rp__fail(ctx, RP_ENOMEM, "volume: out of memory");
-  }
-  if (err == 0) {
-    v->ctx = ctx;
-    memcpy(v->dims, dims, sizeof v->dims);
-    v->type = type;
-    v->voxel_count = voxels;
-    v->data = data;
-    err = check_spacing(ctx, spacing, v->spacing);
-    if (err == 0)
-      err = compute_range(ctx, v);
-    if (err != 0)
-      rp__free(ctx, v);
-  }
   if (err != 0) {
     rp__free(ctx, data);
+    return err;
+  }
+  v = rp__calloc(ctx, 1, sizeof *v);
+  if (v == NULL) {
+    rp__free(ctx, data);
+    return rp__fail(ctx, RP_ENOMEM, "volume: out of memory");
+  }
+  v->ctx = ctx;
+  memcpy(v->dims, dims, sizeof v->dims);
+  v->type = type;
+  v->voxel_count = voxels;
+  v->data = data;
+  err = check_spacing(ctx, spacing, v->spacing);
+  if (err == 0)
+    err = compute_range(ctx, v);
+  if (err != 0) {
+    rp_volume_destroy(v); /* frees data too: the volume owns it now */
     return err;
   }
   *out = v;
