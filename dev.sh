@@ -22,10 +22,17 @@ done
 if [ -n "$missing" ]; then
   echo "installing:$missing"
   sudo=""
-  [ "$(id -u)" -eq 0 ] || sudo=sudo
+  if [ "$(id -u)" -ne 0 ]; then
+    command -v sudo >/dev/null 2>&1 || {
+      echo "dev.sh: not root and no sudo: install as root:$missing" >&2
+      exit 1
+    }
+    sudo=sudo
+  fi
   $sudo apt-get update -qq
-  # shellcheck disable=SC2086 # word splitting of the list is intended
-  DEBIAN_FRONTEND=noninteractive $sudo apt-get install -y -qq \
+  # env, because sudo resets the environment; splitting the list is meant.
+  # shellcheck disable=SC2086
+  $sudo env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq \
     --no-install-recommends $missing
 fi
 
@@ -51,13 +58,18 @@ build build-asan -DRP_ASAN=ON -DRP_UBSAN=ON -DRP_BUILD_CLI=ON
 ASAN_OPTIONS=detect_leaks=1 UBSAN_OPTIONS=print_stacktrace=1 \
   ctest --test-dir build-asan -j "$jobs" --output-on-failure \
   -E test_install_consumer
+# ThreadSanitizer over the tests that run worker threads.
+build build-tsan -DRP_TSAN=ON -DRP_BUILD_CLI=OFF -DRP_BUILD_SAMPLES=OFF \
+  -DRP_BUILD_BENCH=OFF
+ctest --test-dir build-tsan -j "$jobs" --output-on-failure \
+  -R "test_core|test_histogram"
 
 # clang --analyze: any report fails the run.
 report=$(for f in runtime/*.c cli/*.c; do
   clang --analyze -std=c11 -D_POSIX_C_SOURCE=200809L -Iinclude -Iruntime \
-    "$f" -o /dev/null 2>&1
+    "$f" -o /dev/null 2>&1 || true
 done)
-if printf '%s' "$report" | grep -q "warning:"; then
+if printf '%s' "$report" | grep -qE "warning:|error:"; then
   printf '%s\n' "$report"
   echo "clang --analyze: reports above"
   exit 1

@@ -39,7 +39,10 @@ int cli_parse_floats(const char *s, float *out, int n) {
   for (i = 0; i < n; i++) {
     char *end;
     double v = strtod(s, &end);
-    if (end == s || !isfinite(v))
+    /* Checked after the cast too: 1e-50 would become 0 (which the library
+     * reads as "default") and 1e39 infinity. */
+    if (end == s || !isfinite(v) || !isfinite((float)v) ||
+        (v != 0.0 && (float)v == 0.0f))
       return -1;
     out[i] = (float)v;
     s = end;
@@ -50,6 +53,14 @@ int cli_parse_floats(const char *s, float *out, int n) {
     }
   }
   return *s == '\0' ? 0 : -1;
+}
+
+int cli_parse_positive(const char *s, float *out) {
+  float v;
+  if (cli_parse_floats(s, &v, 1) != 0 || !(v > 0.0f))
+    return -1;
+  *out = v;
+  return 0;
 }
 
 static int parse_generator(rp_context *ctx, const char *spec,

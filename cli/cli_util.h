@@ -7,13 +7,17 @@
 #include "raypace.h"
 
 /* Opens a volume from a file path or a generator spec
- * "gen:KIND[:XxYxZ][:u8|u16][:SEED]" (KIND: ml, phantom, noise; default
- * 128^3, u8). Prints the error and returns non-zero on failure. */
+ * "gen:KIND[:N|:XxYxZ][:u8|u16][:SEED]" (KIND: ml, phantom, noise; a
+ * number right after KIND is the size N^3, a later one the seed; default
+ * 128^3, u8, seed 1). Prints the error and returns non-zero on failure. */
 int cli_open_volume(rp_context *ctx, const char *spec, rp_volume **out);
 /* Parses "WxH" (each 1..16384). */
 int cli_parse_size(const char *s, uint32_t *w, uint32_t *h);
-/* Parses n comma-separated floats. */
+/* Parses n comma-separated floats, refusing values a float cannot hold. */
 int cli_parse_floats(const char *s, float *out, int n);
+/* Parses one float > 0: the library reads 0 as "default", so a 0 typed on
+ * the command line must not silently become one. */
+int cli_parse_positive(const char *s, float *out);
 /* Seconds from a monotonic clock. */
 double cli_now(void);
 /* Prints "raypace: <what>: <rp_strerror>: <last error>" to stderr. */

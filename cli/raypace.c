@@ -19,8 +19,9 @@ static void usage_main(FILE *f) {
           "  render VOLUME   render one image to PNG\n"
           "  version         print the library version\n\n"
           "VOLUME is a file (.nrrd, .nhdr, sidecar .txt, NAME_XxYxZ_TYPE.raw)"
-          "\nor a generated volume gen:KIND[:XxYxZ][:u8|u16][:SEED] with KIND"
-          "\none of ml, phantom, noise (default 128^3 u8).\n"
+          "\nor a generated volume gen:KIND[:N|:XxYxZ][:u8|u16][:SEED]: KIND"
+          "\nis ml, phantom or noise; a number right after KIND is the size"
+          "\n(N^3), a later one the seed (default 128^3, u8, seed 1).\n"
           "Run 'raypace COMMAND --help' for a command's options.\n");
 }
 
@@ -241,13 +242,13 @@ static int parse_render(int argc, char **argv, render_opts *o) {
     case 't': o->tf = optarg; break;
     case 'c': bad = cli_parse_floats(optarg, o->orbit, 3); break;
     case 'O': o->ortho = 1; break;
-    case 'f': bad = cli_parse_floats(optarg, &o->fov, 1); break;
+    case 'f': bad = cli_parse_positive(optarg, &o->fov); break;
     case 's': bad = cli_parse_size(optarg, &o->width, &o->height); break;
-    case 'd': bad = cli_parse_floats(optarg, &o->step, 1); break;
+    case 'd': bad = cli_parse_positive(optarg, &o->step); break;
     case 'S': o->shading = 1; break;
     case 'E': o->ert = 0; break;
     case 'K': o->skip = 0; break;
-    case 'a': bad = cli_parse_floats(optarg, &o->ert_threshold, 1); break;
+    case 'a': bad = cli_parse_positive(optarg, &o->ert_threshold); break;
     case 'b': bad = cli_parse_floats(optarg, o->background, 3); break;
     case 'B': o->backend = optarg; break;
     case 'j': o->json = 1; break;

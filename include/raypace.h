@@ -96,7 +96,8 @@ typedef struct rp_context_desc {
   rp_allocator allocator; /* zero: malloc/free */
   rp_logger logger;       /* NULL: silent */
   void *logger_user;
-  int threads;             /* worker threads for CPU passes; 0: all cores */
+  int threads;             /* worker threads for CPU passes; 0: all cores;
+                              at most 256 are used */
   uint64_t max_volume_bytes; /* largest volume a loader accepts;
                                 0: 16 GiB */
 } rp_context_desc;
@@ -247,6 +248,9 @@ RP_API int rp_histograms_bin_of(const rp_histograms *h, double value);
  */
 typedef struct rp_occupancy rp_occupancy;
 
+/** Builds H-alpha and the occupancy grid of `tf` from `h`. The occupancy
+ *  keeps a pointer to `h` (every TF update re-reads it): `h` must outlive
+ *  it. \since 0.1 */
 RP_API int rp_occupancy_build(rp_context *ctx, const rp_histograms *h,
                               const rp_tf *tf, rp_occupancy **out);
 /** Recomputes in place for a new transfer function (no allocation). */
@@ -297,7 +301,21 @@ typedef struct rp_render_desc {
   float step;              /* Delta in voxels (finest spacing); 0: 1.0 */
   uint32_t effects;        /* RP_EFFECT_* bits; 0: none */
   float ert_threshold;     /* accumulated alpha to stop at; 0: 0.99 */
+  float image_scale;       /* rays per output pixel along each axis, in
+                              (0, 1]; 0: 1. Rays form a scaled image of
+                              rp_scaled_size() pixels over the same
+                              frustum; the output is upscaled from it. */
 } rp_render_desc;
+
+/** Size of the image actually raycast at desc->image_scale:
+ *  max(1, floor(width * scale + 0.5)) and the same for height. */
+RP_API void rp_scaled_size(const rp_render_desc *desc, uint32_t *width,
+                           uint32_t *height);
+
+/** A rectangle of the (scaled) image, [x0, x1) x [y0, y1). */
+typedef struct rp_region {
+  uint32_t x0, y0, x1, y1;
+} rp_region;
 
 #define RP_TILE_SIZE 8
 
@@ -315,8 +333,9 @@ RP_API void rp_tile_grid(uint32_t width, uint32_t height, uint32_t *tiles_x,
                          uint32_t *tiles_y);
 
 /** The scalar reference raycaster: the oracle backends are held to.
- *  Writes width*height RGBA8 pixels (premultiplied alpha, rows top to
- *  bottom) to `rgba` and, if `tiles` is not NULL, tiles_x*tiles_y stats.
+ *  Writes the scaled image's RGBA8 pixels (rp_scaled_size(); the full
+ *  width x height at scale 1; premultiplied alpha, rows top to bottom) to
+ *  `rgba` and, if `tiles` is not NULL, its tiles_x*tiles_y stats.
  *  `occ` is required when RP_EFFECT_SKIP is set and must have been built
  *  for `tf` on this volume. Single-threaded on purpose: obviously correct
  *  first. \since 0.1 */
@@ -325,6 +344,73 @@ RP_API int rp_render_reference(rp_context *ctx, const rp_volume *vol,
                                const rp_camera *cam,
                                const rp_render_desc *desc, uint8_t *rgba,
                                rp_tile_stats *tiles);
+
+/* ---- Devices ------------------------------------------------------------ */
+
+/** A device's features and limits, filled in by its backend. */
+typedef struct rp_caps {
+  char backend[32];          /* "opencl", "vulkan", "reference" */
+  char device[128];          /* the driver's device name */
+  uint32_t effects;          /* RP_EFFECT_* bits it can render */
+  uint32_t voxel_types;      /* bit (1 << rp_voxel_type) per type */
+  uint64_t global_mem_bytes;
+  uint64_t max_alloc_bytes;  /* largest single buffer */
+  uint32_t compute_units;
+  int sub_device;            /* 1 if a partition of a larger device */
+} rp_caps;
+
+typedef struct rp_device rp_device;
+
+typedef struct rp_device_desc {
+  /* "opencl", "vulkan" or "reference". NULL: the RP_BACKEND environment
+   * variable if set, else the first compiled-in backend with a device
+   * ("reference" only when named: it is the slow scalar oracle). */
+  const char *backend;
+  uint32_t index;            /* device within the backend */
+} rp_device_desc;
+
+/** The compiled-in backends, NULL-terminated. */
+RP_API const char *const *rp_backend_names(void);
+/** Devices a backend can open here (0 when its driver is missing).
+ *  \returns 0, or RP_EINVAL for an unknown backend name. */
+RP_API int rp_device_count(rp_context *ctx, const char *backend,
+                           uint32_t *count);
+/** Opens a device. RP_ENODEV when no backend has one (the message lists
+ *  what was tried). \since 0.1 */
+RP_API int rp_device_create(rp_context *ctx, const rp_device_desc *desc,
+                            rp_device **out);
+RP_API void rp_device_destroy(rp_device *dev);
+RP_API void rp_device_get_caps(const rp_device *dev, rp_caps *caps);
+/** Uploads a volume (native voxel type). The device keeps its own copy;
+ *  the volume may be destroyed afterwards. */
+RP_API int rp_device_set_volume(rp_device *dev, const rp_volume *vol);
+/** Uploads a transfer function with the occupancy built for it (for the
+ *  current volume): LUT, H-alpha and the occupancy grid. */
+RP_API int rp_device_set_tf(rp_device *dev, const rp_tf *tf,
+                            const rp_occupancy *occ);
+/** Depth pass: per ray of the scaled image, D_front and D_back (2 floats,
+ *  voxel units; +inf/-inf where no occupied block is met). `front_back`
+ *  may be NULL: the result also stays on the device for rendering. */
+RP_API int rp_device_depth_pass(rp_device *dev, const rp_camera *cam,
+                                const rp_render_desc *desc,
+                                float *front_back);
+/** ERT pre-pass: per pre-pass ray (one per 4x4 scaled pixels, grid
+ *  ceil(w/4) x ceil(h/4)), the estimated termination depth or +inf.
+ *  Deterministic for (seed, frame). */
+RP_API int rp_device_ert_prepass(rp_device *dev, const rp_camera *cam,
+                                 const rp_render_desc *desc, uint32_t seed,
+                                 uint32_t frame, float *d_ert);
+/** Raycasts `region` of the scaled image (NULL: all of it) into `rgba`
+ *  (scaled width x height RGBA8, only the region's pixels written) and
+ *  the region's tiles into `tiles` (may be NULL). Runs the depth pass
+ *  first unless the last one was for the same camera and settings.
+ *  Region corners must lie on the 8x8 tile grid or the image edge. */
+RP_API int rp_device_render(rp_device *dev, const rp_camera *cam,
+                            const rp_render_desc *desc,
+                            const rp_region *region, uint8_t *rgba,
+                            rp_tile_stats *tiles);
+/** Device time of the last operation in nanoseconds (0 if unknown). */
+RP_API uint64_t rp_device_last_time_ns(const rp_device *dev);
 
 /** Writes RGBA8 premultiplied pixels as an 8-bit RGB PNG composited over
  *  `background` (RGB in [0, 1]; NULL: black). */

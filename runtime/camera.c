@@ -222,8 +222,13 @@ static void clip(const rp__raygen *rg, rp__ray *ray) {
 
 void rp__raygen_ray(const rp__raygen *rg, uint32_t x, uint32_t y,
                     rp__ray *ray) {
-  double nu = 2.0 * ((double)x + 0.5) / rg->width - 1.0;
-  double nv = 1.0 - 2.0 * ((double)y + 0.5) / rg->height;
+  rp__raygen_ray_at(rg, (double)x + 0.5, (double)y + 0.5, ray);
+}
+
+void rp__raygen_ray_at(const rp__raygen *rg, double px, double py,
+                       rp__ray *ray) {
+  double nu = 2.0 * px / rg->width - 1.0;
+  double nv = 1.0 - 2.0 * py / rg->height;
   double su = nu * rg->half_w, sv = nv * rg->half_h;
   int a;
   for (a = 0; a < 3; a++) {

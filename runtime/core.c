@@ -1,11 +1,15 @@
 /* Context, errors, version, allocation and the CPU worker pool. */
 #include <pthread.h>
+#include <stdatomic.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 #include <unistd.h>
 
 #include "internal.h"
+
+/* rp__parallel_for keeps its workers on the stack. */
+#define RP__MAX_THREADS 256
 
 #define RP__VERSION_STR2(a, b, c) #a "." #b "." #c
 #define RP__VERSION_STR(a, b, c) RP__VERSION_STR2(a, b, c)
@@ -63,8 +67,10 @@ static rp_context_desc context_defaults(const rp_context_desc *in) {
   }
   if (d.threads <= 0) {
     long n = sysconf(_SC_NPROCESSORS_ONLN);
-    d.threads = n > 0 ? (int)(n > 256 ? 256 : n) : 1;
+    d.threads = n > 0 ? (int)(n > RP__MAX_THREADS ? RP__MAX_THREADS : n) : 1;
   }
+  if (d.threads > RP__MAX_THREADS)
+    d.threads = RP__MAX_THREADS;
   if (d.max_volume_bytes == 0)
     d.max_volume_bytes = (uint64_t)16 << 30;
   return d;
@@ -142,6 +148,11 @@ void rp__clear_error(rp_context *ctx) {
     ctx->last_error[0] = '\0';
 }
 
+uint64_t rp__next_id(void) {
+  static atomic_uint_fast64_t next = 1;
+  return atomic_fetch_add(&next, 1);
+}
+
 int rp__thread_count(const rp_context *ctx) { return ctx->desc.threads; }
 
 typedef struct worker {
@@ -162,7 +173,7 @@ static void *worker_main(void *arg) {
  * The calling thread takes the first range itself. */
 int rp__parallel_for(const rp_context *ctx, uint32_t n,
                      void (*fn)(uint32_t, uint32_t, void *), void *user) {
-  worker ws[256];
+  worker ws[RP__MAX_THREADS];
   uint32_t t, threads = (uint32_t)rp__thread_count(ctx), started = 0;
   int err = 0;
   if (threads > n)

@@ -9,12 +9,12 @@ int rp__bin_of(const rp__value_range *r, double value) {
   double b;
   if (r->type != RP_F32) {
     /* (v - min) * 64 / (max - min + 1) in integer arithmetic: exact, so
-     * brute force and every backend agree to the voxel. */
-    int64_t v = (int64_t)value, lo = (int64_t)r->min, hi = (int64_t)r->max;
-    if (v <= lo)
+     * brute force and every backend agree to the voxel. Values outside
+     * [min, max] (and NaN) are settled before any cast to an integer. */
+    int64_t v, lo = (int64_t)r->min, hi = (int64_t)r->max;
+    if (!(value > r->min))
       return 0;
-    if (v >= hi)
-      v = hi;
+    v = value >= r->max ? hi : (int64_t)value;
     return (int)((v - lo) * RP_DENSITY_BINS / (hi - lo + 1));
   }
   if (!(r->max > r->min) || !(value > r->min))
@@ -90,6 +90,7 @@ int rp_histograms_build(rp_context *ctx, const rp_volume *vol,
   rp_histograms *h;
   build_job job;
   uint8_t *table = NULL;
+  uint64_t nblocks = 1;
   int a, err;
   if (ctx == NULL)
     return RP_EINVAL;
@@ -100,12 +101,21 @@ int rp_histograms_build(rp_context *ctx, const rp_volume *vol,
   if (h == NULL)
     return rp__fail(ctx, RP_ENOMEM, "histograms: out of memory");
   h->ctx = ctx;
-  h->block_count = 1;
   for (a = 0; a < 3; a++) {
     h->dims[a] = vol->dims[a];
-    h->blocks[a] = (vol->dims[a] + RP_BLOCK_SIZE - 1) / RP_BLOCK_SIZE;
-    h->block_count *= h->blocks[a];
+    h->blocks[a] = rp__blocks_along(vol->dims[a]);
+    nblocks *= h->blocks[a];
   }
+  /* Blocks and their rows are counted in 32 bits and the counters fill
+   * block_count * 64 words: refuse grids beyond that, not wrap. */
+  if (nblocks > UINT32_MAX / RP_DENSITY_BINS) {
+    rp__free(ctx, h);
+    return rp__fail(ctx, RP_ERANGE, "histograms: %u x %u x %u blocks are "
+                    "more than this build can count", vol->dims[0] / 16u,
+                    vol->dims[1] / 16u, vol->dims[2] / 16u);
+  }
+  h->block_count = (uint32_t)nblocks;
+  h->vol_id = vol->id;
   h->range.type = vol->type;
   h->range.min = vol->min;
   h->range.max = vol->max;

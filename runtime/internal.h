@@ -19,6 +19,7 @@ struct rp_context {
 
 struct rp_volume {
   rp_context *ctx;
+  uint64_t id; /* unique per volume object (rp__next_id) */
   uint32_t dims[3];
   rp_voxel_type type;
   float spacing[3];
@@ -29,8 +30,8 @@ struct rp_volume {
 
 struct rp_tf {
   rp_context *ctx;
-  uint64_t id; /* unique per TF object: lets users of derived data check
-                  that it was derived from this TF */
+  uint64_t id; /* unique per TF object (rp__next_id): lets users of
+                  derived data check that it was derived from this TF */
   int lut_size;
   float reference_step;
   float *lut; /* lut_size * 4 floats, RGBA, straight colour */
@@ -45,6 +46,7 @@ typedef struct rp__value_range {
 
 struct rp_histograms {
   rp_context *ctx;
+  uint64_t vol_id; /* rp_volume.id of the volume it was built from */
   uint32_t dims[3];
   uint32_t blocks[3];
   uint32_t block_count;
@@ -78,6 +80,10 @@ int rp__fail(rp_context *ctx, int err, const char *fmt, ...)
 #endif
     ;
 void rp__clear_error(rp_context *ctx);
+/* A process-wide unique, never-zero id for volumes and transfer functions,
+ * so derived data (histograms, occupancy, device uploads) can be checked
+ * against what it was derived from. */
+uint64_t rp__next_id(void);
 int rp__thread_count(const rp_context *ctx);
 /* Runs fn(i, user) for i in [0, n) on up to ctx's thread count threads,
  * each thread taking a contiguous range. Returns 0 or RP_ENOMEM. */
@@ -86,6 +92,12 @@ int rp__parallel_for(const rp_context *ctx, uint32_t n,
                      void *user);
 
 /* ---- volume.c ---------------------------------------------------------- */
+
+/* 16^3 blocks along an axis of d voxels. Not (d + 15) / 16, which wraps
+ * for d near 2^32. */
+static inline uint32_t rp__blocks_along(uint32_t d) {
+  return d / RP_BLOCK_SIZE + (d % RP_BLOCK_SIZE != 0);
+}
 
 size_t rp__voxel_size(rp_voxel_type type);
 /* Takes ownership of `data` (allocated with rp__malloc on ctx) and computes

@@ -61,6 +61,10 @@ int rp__raygen_init(rp_context *ctx, const rp_camera *cam,
 /* The ray through pixel (x, y), clipped against the volume box. */
 void rp__raygen_ray(const rp__raygen *rg, uint32_t x, uint32_t y,
                     rp__ray *ray);
+/* The ray through continuous image position (px, py), where pixel (x, y)
+ * covers [x, x+1) x [y, y+1): rp__raygen_ray is (x + 0.5, y + 0.5). */
+void rp__raygen_ray_at(const rp__raygen *rg, double px, double py,
+                       rp__ray *ray);
 
 /* Number of lattice samples s + i*step (i = 0, 1, ...) that are <= t1,
  * each position computed as s + i*step exactly as the renderer does.

@@ -29,7 +29,7 @@
  * floor(clamp(C, 0, 1) * 255 + 0.5). */
 #include <math.h>
 
-#include "raygen.h"
+#include "passes.h"
 
 #define RP__DEFAULT_STEP 1.0f
 #define RP__DEFAULT_ERT 0.99f
@@ -99,19 +99,8 @@ static void point_at(const rp__ray *ray, double t, double p[3]) {
 
 static int occupied(const render_ctx *rc, const rp__ray *ray, uint64_t i) {
   double p[3];
-  uint32_t b[3];
-  int a;
   point_at(ray, ray->s + (double)i * rc->step, p);
-  for (a = 0; a < 3; a++) {
-    double q = floor((p[a] + 0.5) / RP_BLOCK_SIZE);
-    if (!(q >= 0.0))
-      q = 0.0;
-    if (q > rc->blocks[a] - 1.0)
-      q = rc->blocks[a] - 1.0;
-    b[a] = (uint32_t)q;
-  }
-  return rc->grid[((size_t)b[2] * rc->blocks[1] + b[1]) * rc->blocks[0] +
-                  b[0]] != 0;
+  return rc->grid[rp__block_of(p, rc->blocks)] != 0;
 }
 
 /* Headlight shading of straight colour `rgb` at p, in place. The gradient
@@ -214,13 +203,55 @@ void rp_tile_grid(uint32_t width, uint32_t height, uint32_t *tiles_x,
 /* The desc with its zero fields replaced by their defaults: the one place
  * that knows what zero means, so that everything after it (validation
  * included) sees only real values. */
-static rp_render_desc render_desc_defaults(const rp_render_desc *in) {
+rp_render_desc rp__render_desc_defaults(const rp_render_desc *in) {
   rp_render_desc d = *in;
   if (d.step == 0.0f)
     d.step = RP__DEFAULT_STEP;
   if (d.ert_threshold == 0.0f)
     d.ert_threshold = RP__DEFAULT_ERT;
+  if (d.image_scale == 0.0f)
+    d.image_scale = 1.0f;
   return d;
+}
+
+void rp_scaled_size(const rp_render_desc *desc, uint32_t *width,
+                    uint32_t *height) {
+  double s = desc->image_scale == 0.0f ? 1.0 : desc->image_scale;
+  double w = floor(desc->width * s + 0.5), h = floor(desc->height * s + 0.5);
+  if (!(s > 0.0 && s <= 1.0)) /* invalid scales are refused elsewhere */
+    s = 1.0, w = desc->width, h = desc->height;
+  *width = w < 1.0 ? 1u : (uint32_t)w;
+  *height = h < 1.0 ? 1u : (uint32_t)h;
+}
+
+int rp__check_render_desc(rp_context *ctx, const char *fn,
+                          const rp_render_desc *desc) {
+  uint64_t bytes;
+  if (desc->width == 0 || desc->height == 0)
+    return rp__fail(ctx, RP_EINVAL, "%s: desc->width and desc->height must "
+                    "be >= 1 (got %ux%u)", fn, (unsigned)desc->width,
+                    (unsigned)desc->height);
+  /* Cannot wrap in 64 bits: both factors are below 2^32. */
+  bytes = (uint64_t)desc->width * desc->height;
+  if (bytes > SIZE_MAX / 4)
+    return rp__fail(ctx, RP_EINVAL, "%s: desc->width x desc->height "
+                    "(%ux%u) RGBA pixels overflow size_t", fn,
+                    (unsigned)desc->width, (unsigned)desc->height);
+  if (!(desc->step > 0.0f && isfinite(desc->step)))
+    return rp__fail(ctx, RP_EINVAL, "%s: desc->step is %g; must be finite "
+                    "and > 0 (0: 1.0)", fn, (double)desc->step);
+  if (!(desc->ert_threshold > 0.0f && desc->ert_threshold <= 1.0f))
+    return rp__fail(ctx, RP_EINVAL, "%s: desc->ert_threshold is %g; must "
+                    "be in (0, 1] (0: 0.99)", fn,
+                    (double)desc->ert_threshold);
+  if (!(desc->image_scale > 0.0f && desc->image_scale <= 1.0f))
+    return rp__fail(ctx, RP_EINVAL, "%s: desc->image_scale is %g; must be "
+                    "in (0, 1] (0: 1)", fn, (double)desc->image_scale);
+  if (desc->effects & ~(uint32_t)RP__KNOWN_EFFECTS)
+    return rp__fail(ctx, RP_EINVAL, "%s: desc->effects has unknown bits "
+                    "0x%x", fn,
+                    (unsigned)(desc->effects & ~(uint32_t)RP__KNOWN_EFFECTS));
+  return 0;
 }
 
 /* `desc` has its defaults filled in; NULL when the caller passed none. */
@@ -234,33 +265,12 @@ static int check_args(rp_context *ctx, const rp_volume *vol,
                         : desc == NULL ? "desc"
                         : rgba == NULL ? "rgba"
                                        : NULL;
-  uint64_t bytes;
-  int a;
+  int err;
   if (missing != NULL)
     return rp__fail(ctx, RP_EINVAL, "rp_render_reference: %s is NULL",
                     missing);
-  if (desc->width == 0 || desc->height == 0)
-    return rp__fail(ctx, RP_EINVAL, "rp_render_reference: desc->width and "
-                    "desc->height must be >= 1 (got %ux%u)",
-                    (unsigned)desc->width, (unsigned)desc->height);
-  /* Cannot wrap in 64 bits: both factors are below 2^32. */
-  bytes = (uint64_t)desc->width * desc->height;
-  if (bytes > SIZE_MAX / 4)
-    return rp__fail(ctx, RP_EINVAL, "rp_render_reference: desc->width x "
-                    "desc->height (%ux%u) RGBA pixels overflow size_t",
-                    (unsigned)desc->width, (unsigned)desc->height);
-  if (!(desc->step > 0.0f && isfinite(desc->step)))
-    return rp__fail(ctx, RP_EINVAL, "rp_render_reference: desc->step is "
-                    "%g; must be finite and > 0 (0: 1.0)",
-                    (double)desc->step);
-  if (!(desc->ert_threshold > 0.0f && desc->ert_threshold <= 1.0f))
-    return rp__fail(ctx, RP_EINVAL, "rp_render_reference: "
-                    "desc->ert_threshold is %g; must be in (0, 1] (0: 0.99)",
-                    (double)desc->ert_threshold);
-  if (desc->effects & ~(uint32_t)RP__KNOWN_EFFECTS)
-    return rp__fail(ctx, RP_EINVAL, "rp_render_reference: desc->effects has "
-                    "unknown bits 0x%x",
-                    (unsigned)(desc->effects & ~(uint32_t)RP__KNOWN_EFFECTS));
+  if ((err = rp__check_render_desc(ctx, "rp_render_reference", desc)) != 0)
+    return err;
   if ((desc->effects & RP_EFFECT_SKIP) && occ == NULL)
     return rp__fail(ctx, RP_EINVAL, "rp_render_reference: desc->effects has "
                     "RP_EFFECT_SKIP but occ is NULL");
@@ -272,12 +282,11 @@ static int check_args(rp_context *ctx, const rp_volume *vol,
                       "for another transfer function (tf id %llu, occ for "
                       "%llu)", (unsigned long long)tf->id,
                       (unsigned long long)occ->tf_id);
-    for (a = 0; a < 3; a++)
-      if (occ->h == NULL || occ->h->dims[a] != vol->dims[a])
-        return rp__fail(ctx, RP_EINVAL, "rp_render_reference: occ was "
-                        "built for a volume of other dims (vol is "
-                        "%ux%ux%u)", (unsigned)vol->dims[0],
-                        (unsigned)vol->dims[1], (unsigned)vol->dims[2]);
+    /* Same dims is not enough: an occupancy of another volume would let
+     * skipping drop visible samples without a trace. */
+    if (occ->h->vol_id != vol->id)
+      return rp__fail(ctx, RP_EINVAL, "rp_render_reference: occ was "
+                      "built from the histograms of another volume");
   }
   return 0;
 }
@@ -318,19 +327,50 @@ static void render_tile(const render_ctx *rc, const rp__raygen *rg,
   }
 }
 
+void rp__reference_render(const rp_volume *vol, const rp_tf *tf,
+                          const uint8_t *grid, const uint32_t blocks[3],
+                          const rp__raygen *rg, const rp_render_desc *d,
+                          const rp_region *region, uint8_t *rgba,
+                          rp_tile_stats *tiles) {
+  render_ctx rc;
+  uint32_t tiles_x, tx, ty;
+  rc.vol = vol;
+  rc.tf = tf;
+  rc.grid = (d->effects & RP_EFFECT_SKIP) ? grid : NULL;
+  if (rc.grid != NULL) {
+    rc.blocks[0] = blocks[0];
+    rc.blocks[1] = blocks[1];
+    rc.blocks[2] = blocks[2];
+  }
+  rc.step_f = d->step;
+  rc.step = d->step;
+  rc.ref_step = rp_tf_reference_step(tf);
+  rc.shading = (d->effects & RP_EFFECT_SHADING) != 0;
+  rc.ert = (d->effects & RP_EFFECT_ERT) != 0;
+  rc.ert_threshold = d->ert_threshold;
+  rp_tile_grid(rg->width, rg->height, &tiles_x, NULL);
+  /* Region corners lie on the tile grid or the image edge, so the tiles
+   * it touches are exactly its own. */
+  for (ty = region->y0 / RP_TILE_SIZE;
+       ty * RP_TILE_SIZE < region->y1; ty++)
+    for (tx = region->x0 / RP_TILE_SIZE;
+         tx * RP_TILE_SIZE < region->x1; tx++)
+      render_tile(&rc, rg, tx, ty, rgba,
+                  tiles != NULL ? &tiles[(size_t)ty * tiles_x + tx] : NULL);
+}
+
 int rp_render_reference(rp_context *ctx, const rp_volume *vol,
                         const rp_tf *tf, const rp_occupancy *occ,
                         const rp_camera *cam, const rp_render_desc *desc,
                         uint8_t *rgba, rp_tile_stats *tiles) {
-  render_ctx rc;
   rp__raygen rg;
   rp_render_desc d = {0};
-  uint32_t tiles_x, tiles_y, tx, ty;
+  rp_region all = {0, 0, 0, 0};
   int err;
   if (ctx == NULL)
     return RP_EINVAL;
   if (desc != NULL)
-    d = render_desc_defaults(desc);
+    d = rp__render_desc_defaults(desc);
   if ((err = check_args(ctx, vol, tf, occ, cam, desc != NULL ? &d : NULL,
                         rgba)) != 0)
     return err;
@@ -340,27 +380,12 @@ int rp_render_reference(rp_context *ctx, const rp_volume *vol,
     return rp__fail(ctx, RP_EUNSUPPORTED, "rp_render_reference: "
                     "RP_EFFECT_AO: ambient occlusion arrives with the AO "
                     "volume (M7)");
-
-  rc.vol = vol;
-  rc.tf = tf;
-  rc.grid = NULL;
-  if (d.effects & RP_EFFECT_SKIP) {
-    rc.grid = occ->grid;
-    rc.blocks[0] = occ->h->blocks[0];
-    rc.blocks[1] = occ->h->blocks[1];
-    rc.blocks[2] = occ->h->blocks[2];
-  }
-  rc.step_f = d.step;
-  rc.step = d.step;
-  rc.ref_step = rp_tf_reference_step(tf);
-  rc.shading = (d.effects & RP_EFFECT_SHADING) != 0;
-  rc.ert = (d.effects & RP_EFFECT_ERT) != 0;
-  rc.ert_threshold = d.ert_threshold;
-
-  rp_tile_grid(d.width, d.height, &tiles_x, &tiles_y);
-  for (ty = 0; ty < tiles_y; ty++)
-    for (tx = 0; tx < tiles_x; tx++)
-      render_tile(&rc, &rg, tx, ty, rgba,
-                  tiles != NULL ? &tiles[(size_t)ty * tiles_x + tx] : NULL);
+  /* Rays on the scaled grid, frustum of the full output. */
+  rp_scaled_size(&d, &rg.width, &rg.height);
+  all.x1 = rg.width;
+  all.y1 = rg.height;
+  rp__reference_render(vol, tf, occ != NULL ? occ->grid : NULL,
+                       occ != NULL ? occ->h->blocks : NULL, &rg, &d, &all,
+                       rgba, tiles);
   return 0;
 }

@@ -8,15 +8,12 @@
  * the renderer read the table, a point of zero opacity between two table
  * entries could make the grid call a block empty that the renderer sees. */
 #include <math.h>
-#include <stdatomic.h>
 #include <string.h>
 
 #include "internal.h"
 
 #define RP__LUT_DEFAULT 1024
 #define RP__LUT_MAX 65536
-
-static atomic_uint_fast64_t next_tf_id = 1;
 
 float rp_opacity_correct(float alpha, float step, float ref_step) {
   double r, a;
@@ -121,7 +118,7 @@ int rp_tf_create(rp_context *ctx, const rp_tf_desc *desc, rp_tf **out) {
     return rp__fail(ctx, RP_ENOMEM, "transfer function: out of memory");
   }
   tf->ctx = ctx;
-  tf->id = atomic_fetch_add(&next_tf_id, 1);
+  tf->id = rp__next_id();
   tf->lut_size = n;
   tf->reference_step =
       desc->reference_step != 0.0f ? desc->reference_step : 1.0f;

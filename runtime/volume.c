@@ -129,6 +129,7 @@ int rp__volume_adopt(rp_context *ctx, const uint32_t dims[3],
     return rp__fail(ctx, RP_ENOMEM, "volume: out of memory");
   }
   v->ctx = ctx;
+  v->id = rp__next_id();
   memcpy(v->dims, dims, sizeof v->dims);
   v->type = type;
   v->voxel_count = voxels;
@@ -189,7 +190,7 @@ void rp_volume_get_info(const rp_volume *vol, rp_volume_info *info) {
   for (a = 0; a < 3; a++) {
     info->dims[a] = vol->dims[a];
     info->spacing[a] = vol->spacing[a];
-    info->blocks[a] = (vol->dims[a] + RP_BLOCK_SIZE - 1) / RP_BLOCK_SIZE;
+    info->blocks[a] = rp__blocks_along(vol->dims[a]);
   }
   info->type = vol->type;
   info->min = vol->min;

@@ -23,6 +23,8 @@ static void every_error_has_a_name_and_message(void **state) {
   assert_string_equal(rp_err_name(12345), "UNKNOWN");
 }
 
+/* The header, the library and the build system (CMake project version,
+ * which also goes into raypace.pc and the package config) must agree. */
 static void version_matches_header(void **state) {
   char expect[32];
   (void)state;
@@ -30,6 +32,7 @@ static void version_matches_header(void **state) {
   snprintf(expect, sizeof expect, "%d.%d.%d", RP_VERSION_MAJOR,
            RP_VERSION_MINOR, RP_VERSION_PATCH);
   assert_string_equal(rp_version_string(), expect);
+  assert_string_equal(rp_version_string(), RP_PROJECT_VERSION);
 }
 
 /* An allocator that counts and can fail the n-th allocation. */

@@ -180,6 +180,31 @@ static void bin_value_ranges_are_exact(void **state) {
   }
 }
 
+/* Values outside [min, max], and NaN, never reach an integer cast: below
+ * is bin 0, above is the bin of max, for every voxel type. */
+static void bin_of_outside_the_range(void **state) {
+  rp__value_range u8 = {RP_U8, 3, 200}, f32 = {RP_F32, -2, 6};
+  (void)state;
+  assert_int_equal(rp__bin_of(&u8, -5), 0);
+  assert_int_equal(rp__bin_of(&u8, 1e30), rp__bin_of(&u8, 200));
+  assert_int_equal(rp__bin_of(&u8, -1e30), 0);
+  assert_int_equal(rp__bin_of(&u8, NAN), 0);
+  assert_int_equal(rp__bin_of(&u8, 200), 63);
+  assert_int_equal(rp__bin_of(&f32, 1e30), 63);
+  assert_int_equal(rp__bin_of(&f32, NAN), 0);
+  assert_int_equal(rp__bin_of(&f32, -1e30), 0);
+}
+
+/* Block counts for axes near 2^32 must not wrap to 0. */
+static void block_counts_do_not_wrap(void **state) {
+  (void)state;
+  assert_int_equal(rp__blocks_along(1), 1);
+  assert_int_equal(rp__blocks_along(16), 1);
+  assert_int_equal(rp__blocks_along(17), 2);
+  assert_int_equal(rp__blocks_along(UINT32_MAX), 268435456u);
+  assert_int_equal(rp__blocks_along(UINT32_MAX - 14), 268435456u);
+}
+
 static void threads_do_not_change_h(void **state) {
   rp_context_desc cd = {0};
   rp_context *one = NULL, *many = NULL;
@@ -188,9 +213,9 @@ static void threads_do_not_change_h(void **state) {
   (void)state;
   cd.threads = 1;
   assert_int_equal(rp_context_create(&cd, &one), 0);
-  cd.threads = 7;
+  cd.threads = 300; /* more than the pool holds: capped, not overrun */
   assert_int_equal(rp_context_create(&cd, &many), 0);
-  v = gen(one, RP_GEN_NOISE, 70, 50, 40, RP_U16);
+  v = gen(one, RP_GEN_NOISE, 20, 330, 250, RP_U16); /* 336 rows */
   assert_int_equal(rp_histograms_build(one, v, &h1), 0);
   assert_int_equal(rp_histograms_build(many, v, &h2), 0);
   assert_memory_equal(rp_histograms_block(h1, 0), rp_histograms_block(h2, 0),
@@ -268,6 +293,12 @@ static rp_tf *pts_tf(rp_context *ctx) {
 static void brute_bin_range(const rp_volume_info *in, int b, double *lo,
                             double *hi) {
   double v, first = -1, last = -2;
+  if (in->type == RP_F32) { /* 64 equal parts of [min, max] */
+    double w = (in->max - in->min) / 64;
+    *lo = in->min + b * w;
+    *hi = b == 63 ? in->max : in->min + (b + 1) * w;
+    return;
+  }
   for (v = in->min; v <= in->max; v++) {
     if (brute_bin(in, v) == b) {
       if (first < 0)
@@ -296,8 +327,9 @@ static void check_alpha_and_occupancy(rp_context *ctx, const rp_volume *vol,
   for (b = 0; b < 64; b++) {
     double a;
     brute_bin_range(&in, b, &bin_lo[b], &bin_hi[b]);
-    a = bin_lo[b] >= 0 ? pts_mean(to_x(&in, bin_lo[b]), to_x(&in, bin_hi[b]))
-                       : 0;
+    a = bin_lo[b] <= bin_hi[b]
+            ? pts_mean(to_x(&in, bin_lo[b]), to_x(&in, bin_hi[b]))
+            : 0;
     bin_op[b] = a == 0 ? 0 : (int)ceil(a * 15 - 1e-12);
     if (a > 0 && bin_op[b] < 1)
       bin_op[b] = 1;
@@ -390,6 +422,24 @@ static void alpha_hist_and_occupancy_match_brute_force(void **state) {
   v = gen(ctx, RP_GEN_NOISE, 1, 1, 1, RP_U8);
   check_alpha_and_occupancy(ctx, v, "1x1x1");
   rp_volume_destroy(v);
+  {
+    /* Float voxels: the phantom rescaled to [-1, 3]. */
+    rp_volume_desc d = {0};
+    rp_volume *ph = gen(ctx, RP_GEN_PHANTOM, 37, 40, 33, RP_U8);
+    const uint8_t *src = rp_volume_data(ph);
+    size_t i, n = (size_t)37 * 40 * 33;
+    float *vox = malloc(n * sizeof *vox);
+    assert_non_null(vox);
+    for (i = 0; i < n; i++)
+      vox[i] = -1.0f + 4.0f * src[i] / 255.0f;
+    d.dims[0] = 37, d.dims[1] = 40, d.dims[2] = 33, d.type = RP_F32;
+    d.data = vox;
+    assert_int_equal(rp_volume_create(ctx, &d, &v), 0);
+    check_alpha_and_occupancy(ctx, v, "phantom float");
+    rp_volume_destroy(v);
+    rp_volume_destroy(ph);
+    free(vox);
+  }
   rp_context_destroy(ctx);
 }
 
@@ -461,6 +511,8 @@ int main(void) {
       cmocka_unit_test(h_bin_edges_float),
       cmocka_unit_test(bin_value_ranges_are_exact),
       cmocka_unit_test(threads_do_not_change_h),
+      cmocka_unit_test(bin_of_outside_the_range),
+      cmocka_unit_test(block_counts_do_not_wrap),
       cmocka_unit_test(alpha_hist_and_occupancy_match_brute_force),
       cmocka_unit_test(interpolation_crossing_a_peak_keeps_blocks),
       cmocka_unit_test(real_volumes_match_brute_force),

@@ -129,7 +129,7 @@ static void image_free(image *im) {
 static void render(rp_context *ctx, const rp_volume *vol, const rp_tf *tf,
                    const rp_occupancy *occ, const rp_camera *cam,
                    float step, uint32_t effects, image *im) {
-  rp_render_desc d = {im->w, im->h, step, effects, 0.0f};
+  rp_render_desc d = {im->w, im->h, step, effects, 0.0f, 0.0f};
   int err = rp_render_reference(ctx, vol, tf, occ, cam, &d, im->rgba,
                                 im->tiles);
   if (err != 0)
@@ -807,7 +807,8 @@ static void test_ert_bound(void **state) {
     render(ctx, ph, tf, NULL, &cam, 1.0f, RP_EFFECT_SHADING, &full);
     for (k = 0; k < 3; k++) {
       rp_render_desc d = {cut.w, cut.h, 1.0f,
-                          RP_EFFECT_SHADING | RP_EFFECT_ERT, thresholds[k]};
+                          RP_EFFECT_SHADING | RP_EFFECT_ERT, thresholds[k],
+                          0.0f};
       double thr = thresholds[k] != 0.0f ? thresholds[k] : 0.99f;
       double bound = (1.0 - thr) * 255.0 + 1.0;
       size_t i;
@@ -1040,7 +1041,7 @@ static void test_bad_arguments(void **state) {
   occ_pair o = make_occ(ctx, vol, tf), o2 = make_occ(ctx, vol, tf2);
   occ_pair o3 = make_occ(ctx, other, tf);
   rp_camera good = orbit(vol, RP_PERSPECTIVE, 10, 10, 2), cam;
-  rp_render_desc ok = {4, 4, 0.0f, 0, 0.0f}, d;
+  rp_render_desc ok = {4, 4, 0.0f, 0, 0.0f, 0.0f}, d;
   uint8_t rgba[4 * 4 * 4];
   uint32_t tx, ty;
   (void)state;
@@ -1106,10 +1107,22 @@ static void test_bad_arguments(void **state) {
     expect_fail(ctx, vol, tf, o2.occ, &good, &d, rgba, &bc);
   }
   {
-    bad_case bc = {"occ of another volume", RP_EINVAL, "dims"};
+    bad_case bc = {"occ of another volume", RP_EINVAL, "another volume"};
     d = ok;
     d.effects = RP_EFFECT_SKIP;
     expect_fail(ctx, vol, tf, o3.occ, &good, &d, rgba, &bc);
+  }
+  {
+    /* Same dims, other voxels: dims alone cannot tell them apart. */
+    rp_volume *twin = const_volume(ctx, 8, 8, 8, NULL);
+    occ_pair ot = make_occ(ctx, twin, tf);
+    bad_case bc = {"occ of a same-size volume", RP_EINVAL,
+                   "another volume"};
+    d = ok;
+    d.effects = RP_EFFECT_SKIP;
+    expect_fail(ctx, vol, tf, ot.occ, &good, &d, rgba, &bc);
+    free_occ(ot);
+    rp_volume_destroy(twin);
   }
 #define CAM_CASE(stmt, needle)                                                \
   do {                                                                        \

@@ -61,6 +61,12 @@ refuse "bad preset" "known: transparent" "$rp" render gen:ml:8 --tf nope \
 refuse "bad size" "bad value '0x5'" "$rp" render gen:ml:8 --size 0x5 \
   -o "$dir/c.png"
 refuse "bad generator" "unknown" "$rp" info gen:cube
+refuse "zero step" "bad value '0'" "$rp" render gen:ml:8 --step 0 \
+  -o "$dir/c.png"
+refuse "underflowing step" "bad value '1e-50'" "$rp" render gen:ml:8 \
+  --step 1e-50 -o "$dir/c.png"
+refuse "overflowing fov" "bad value '1e39'" "$rp" render gen:ml:8 \
+  --fov 1e39 -o "$dir/c.png"
 refuse "unknown backend" "not available" "$rp" render gen:ml:8 \
   --backend warp -o "$dir/c.png"
 refuse "unwritable png" "$dir/no/such/dir/x.png" "$rp" render gen:ml:8 \

@@ -1,0 +1,98 @@
+/* raypace backend interface: what a device backend implements.
+ *
+ * The front end (runtime/backend.c) validates every call and resolves all
+ * defaults before it reaches a backend, so a backend trusts its inputs
+ * (STYLE rules 7-9). An op a backend lacks is NULL.
+ *
+ * Everything a kernel needs for one frame is in rp_frame_params, in the
+ * plain float/uint form kernels consume. The geometry is that of the
+ * scalar reference (runtime/raygen.h, runtime/reference.c); a backend
+ * reproduces it in float. */
+#ifndef RAYPACE_BACKEND_H
+#define RAYPACE_BACKEND_H
+
+#include <stdint.h>
+
+#include "raypace.h"
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+/* Bumped whenever rp_backend_ops or rp_frame_params change layout. */
+#define RP_BACKEND_ABI 1
+
+/* Coarse ERT pre-pass geometry (DESIGN section 3). */
+#define RP_ERT_RAY_STRIDE 4    /* one pre-pass ray per 4x4 pixels */
+#define RP_ERT_COARSE_STEP 8.0f /* half a block, in voxels */
+
+/* One frame's parameters, defaults resolved. The camera is rp__raygen in
+ * float: ray through scaled-image pixel (x, y) has NDC
+ * nu = 2 (x + 0.5) / width - 1, nv = 1 - 2 (y + 0.5) / height, then
+ * perspective: org = eye, dir = normalize(f + nu*half_w*r + nv*half_h*u);
+ * orthographic: org = eye + nu*half_w*r + nv*half_h*u, dir = f.
+ * Voxel space: p = (org + t*min_spacing*dir) * inv_spacing + dims/2 - 0.5.
+ */
+typedef struct rp_frame_params {
+  float eye[3], f[3], r[3], u[3];
+  float half_w, half_h;    /* of the OUTPUT frustum */
+  int32_t ortho;
+  uint32_t width, height;  /* rays: the scaled image's pixels */
+  float dims[3];
+  float inv_spacing[3];
+  float min_spacing;
+  uint32_t idims[3];
+  uint32_t blocks[3];      /* 16^3 block grid */
+  float step;              /* Delta, voxels */
+  float ref_step;          /* the TF's Delta_0 */
+  float ert_threshold;
+  uint32_t effects;        /* RP_EFFECT_* */
+  float value_min, value_max; /* TF position x = (v - min) / (max - min) */
+  uint32_t lut_size;
+  uint32_t ert_seed, frame; /* ERT pre-pass random stream */
+} rp_frame_params;
+
+typedef struct rp_backend_ops {
+  void (*destroy)(void *impl);
+  /* Voxels in their native type, x fastest. */
+  int (*upload_volume)(void *impl, const rp_volume *vol);
+  /* lut_size RGBA float entries (straight colour, alpha per ref step). */
+  int (*upload_tf)(void *impl, const float *lut, uint32_t lut_size);
+  /* One byte per block (occupied), and 16 bytes per block (H-alpha). */
+  int (*upload_occupancy)(void *impl, const uint8_t *grid,
+                          const uint8_t *alpha_hist,
+                          const uint32_t blocks[3]);
+  /* Per ray of the scaled image, (D_front, D_back) in voxel units; a ray
+   * that meets no occupied block (or misses) gets (+inf, -inf). Without
+   * RP_EFFECT_SKIP: the box clip (max(t0, 0), t1). Result stays on the
+   * device for raycast; copied to `front_back` (2 floats per ray) when
+   * not NULL. */
+  int (*depth_pass)(void *impl, const rp_frame_params *p,
+                    float *front_back);
+  /* Per pre-pass ray ((width + 3) / 4 x (height + 3) / 4), the estimated
+   * termination depth, or +inf when the estimate never terminates. */
+  int (*ert_prepass)(void *impl, const rp_frame_params *p, float *d_ert);
+  /* Raycasts `region` using the last depth pass's result; writes the
+   * region's RGBA8 pixels into `rgba` (width x height, premultiplied) and
+   * the stats of its tiles into `tiles` (tiles_x x tiles_y of the scaled
+   * image). `fetches`, when not NULL, receives per-tile volume fetch
+   * counts (a variant built for counting; used by tests). */
+  int (*raycast)(void *impl, const rp_frame_params *p, const rp_region *r,
+                 uint8_t *rgba, rp_tile_stats *tiles, uint64_t *fetches);
+  /* Device time of the last operation, nanoseconds. */
+  uint64_t (*last_time_ns)(void *impl);
+} rp_backend_ops;
+
+typedef struct rp_backend_bootstrap {
+  const char *name;
+  /* Number of devices usable here (0 when the driver is missing); never
+   * fails loudly: probing is how selection skips absent drivers. */
+  int (*probe)(rp_context *ctx, uint32_t *device_count);
+  int (*create)(rp_context *ctx, uint32_t index, const rp_backend_ops **ops,
+                void **impl, rp_caps *caps);
+} rp_backend_bootstrap;
+
+#ifdef __cplusplus
+}
+#endif
+#endif /* RAYPACE_BACKEND_H */

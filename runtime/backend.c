@@ -1,0 +1,555 @@
+/* Devices: the backend registry, selection, and the front end that
+ * validates every call before it reaches a backend (STYLE rules 7-9).
+ *
+ * The "reference" device is not a vtable backend: it runs the scalar C
+ * passes (reference.c, depth.c, ert.c) on the camera in double, exactly as
+ * rp_render_reference does, so that it IS the oracle rather than a float
+ * copy of it. Every other device receives rp_frame_params. */
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+#include <time.h>
+
+#include "passes.h"
+#include "raypace_backend.h"
+
+#ifdef RP_WITH_OPENCL
+extern const rp_backend_bootstrap rp_cl_bootstrap;
+#endif
+#ifdef RP_WITH_VULKAN
+extern const rp_backend_bootstrap rp_vk_bootstrap;
+#endif
+
+/* Selection order when none is named: the first with a device. */
+static const rp_backend_bootstrap *const registry[] = {
+#ifdef RP_WITH_OPENCL
+    &rp_cl_bootstrap,
+#endif
+#ifdef RP_WITH_VULKAN
+    &rp_vk_bootstrap,
+#endif
+    NULL};
+
+#define REFERENCE "reference"
+
+struct rp_device {
+  rp_context *ctx;
+  const rp_backend_ops *ops; /* NULL: the reference device */
+  void *impl;
+  rp_caps caps;
+  /* The scene as uploaded. `shape` is a volume without voxels: what the
+   * camera code needs (dims, spacing) to resolve a camera. */
+  int have_volume, have_tf;
+  rp_volume shape;
+  uint32_t blocks[3];
+  uint64_t vol_id, tf_id;
+  float ref_step;
+  uint32_t lut_size;
+  /* The reference device's own copies of the scene. */
+  rp_volume *ref_vol;
+  rp_tf ref_tf;
+  uint8_t *ref_grid, *ref_alpha;
+  /* The frame the device's current depth-pass result belongs to. */
+  int depth_valid;
+  rp_frame_params depth_params;
+  uint64_t last_ns;
+};
+
+const char *const *rp_backend_names(void) {
+  static const char *names[sizeof registry / sizeof registry[0] + 1];
+  size_t i;
+  for (i = 0; registry[i] != NULL; i++)
+    names[i] = registry[i]->name;
+  names[i++] = REFERENCE;
+  names[i] = NULL;
+  return names;
+}
+
+static const rp_backend_bootstrap *find(const char *name) {
+  size_t i;
+  for (i = 0; registry[i] != NULL; i++)
+    if (strcmp(registry[i]->name, name) == 0)
+      return registry[i];
+  return NULL;
+}
+
+static int unknown_backend(rp_context *ctx, const char *name) {
+  char list[256] = "";
+  const char *const *n;
+  for (n = rp_backend_names(); *n != NULL; n++) {
+    strncat(list, list[0] ? ", " : "", sizeof list - strlen(list) - 1);
+    strncat(list, *n, sizeof list - strlen(list) - 1);
+  }
+  return rp__fail(ctx, RP_EINVAL, "backend '%s' is not compiled in; "
+                  "available: %s", name, list);
+}
+
+int rp_device_count(rp_context *ctx, const char *backend, uint32_t *count) {
+  const rp_backend_bootstrap *b;
+  if (ctx == NULL)
+    return RP_EINVAL;
+  if (backend == NULL || count == NULL)
+    return rp__fail(ctx, RP_EINVAL, "rp_device_count: backend and count "
+                    "are required");
+  if (strcmp(backend, REFERENCE) == 0) {
+    *count = 1;
+    return 0;
+  }
+  if ((b = find(backend)) == NULL)
+    return unknown_backend(ctx, backend);
+  *count = 0;
+  if (b->probe(ctx, count) != 0)
+    *count = 0; /* a failing probe means "no device", not an error */
+  return 0;
+}
+
+static void reference_caps(rp_caps *caps) {
+  memset(caps, 0, sizeof *caps);
+  strcpy(caps->backend, REFERENCE);
+  strcpy(caps->device, "scalar C reference (one thread)");
+  caps->effects = RP_EFFECT_SHADING | RP_EFFECT_ERT | RP_EFFECT_SKIP;
+  caps->voxel_types = (1u << RP_U8) | (1u << RP_U16) | (1u << RP_F32);
+  caps->global_mem_bytes = UINT64_MAX;
+  caps->max_alloc_bytes = SIZE_MAX;
+  caps->compute_units = 1;
+}
+
+static int open_backend(rp_context *ctx, const char *name, uint32_t index,
+                        rp_device *dev) {
+  const rp_backend_bootstrap *b = find(name);
+  uint32_t count = 0;
+  int err;
+  if (b == NULL)
+    return unknown_backend(ctx, name);
+  if (b->probe(ctx, &count) != 0 || index >= count)
+    return rp__fail(ctx, RP_ENODEV, "backend '%s' has %u device(s) here; "
+                    "index %u requested (driver missing?)", name, count,
+                    index);
+  memset(&dev->caps, 0, sizeof dev->caps);
+  err = b->create(ctx, index, &dev->ops, &dev->impl, &dev->caps);
+  if (err != 0)
+    return err;
+  if (dev->caps.backend[0] == '\0')
+    strncpy(dev->caps.backend, name, sizeof dev->caps.backend - 1);
+  return 0;
+}
+
+int rp_device_create(rp_context *ctx, const rp_device_desc *desc,
+                     rp_device **out) {
+  rp_device_desc d = {0};
+  rp_device *dev;
+  const char *name;
+  int err = RP_ENODEV;
+  size_t i;
+  if (ctx == NULL)
+    return RP_EINVAL;
+  if (out == NULL)
+    return rp__fail(ctx, RP_EINVAL, "rp_device_create: out is required");
+  if (desc != NULL)
+    d = *desc;
+  name = d.backend;
+  if (name == NULL || name[0] == '\0') {
+    name = getenv("RP_BACKEND");
+    if (name != NULL && name[0] == '\0')
+      name = NULL;
+  }
+  dev = rp__calloc(ctx, 1, sizeof *dev);
+  if (dev == NULL)
+    return rp__fail(ctx, RP_ENOMEM, "rp_device_create: out of memory");
+  dev->ctx = ctx;
+  if (name != NULL && strcmp(name, REFERENCE) == 0) {
+    if (d.index != 0) {
+      rp__free(ctx, dev);
+      return rp__fail(ctx, RP_ENODEV, "backend 'reference' has one device; "
+                      "index %u requested", d.index);
+    }
+    reference_caps(&dev->caps);
+    err = 0;
+  } else if (name != NULL) {
+    err = open_backend(ctx, name, d.index, dev);
+  } else {
+    char tried[256] = "";
+    for (i = 0; registry[i] != NULL && err != 0; i++) {
+      uint32_t count = 0;
+      strncat(tried, tried[0] ? ", " : "", sizeof tried - strlen(tried) - 1);
+      strncat(tried, registry[i]->name, sizeof tried - strlen(tried) - 1);
+      if (registry[i]->probe(ctx, &count) == 0 && d.index < count)
+        err = open_backend(ctx, registry[i]->name, d.index, dev);
+    }
+    if (err == RP_ENODEV)
+      rp__fail(ctx, RP_ENODEV, "no backend has device %u (tried: %s); "
+               "name backend 'reference' for the scalar C renderer",
+               d.index, tried[0] ? tried : "none compiled in");
+  }
+  if (err != 0) {
+    rp__free(ctx, dev);
+    return err;
+  }
+  *out = dev;
+  return 0;
+}
+
+static void drop_reference_scene(rp_device *dev) {
+  rp_volume_destroy(dev->ref_vol);
+  dev->ref_vol = NULL;
+  rp__free(dev->ctx, dev->ref_tf.lut);
+  dev->ref_tf.lut = NULL;
+  rp__free(dev->ctx, dev->ref_grid);
+  rp__free(dev->ctx, dev->ref_alpha);
+  dev->ref_grid = dev->ref_alpha = NULL;
+}
+
+void rp_device_destroy(rp_device *dev) {
+  if (dev == NULL)
+    return;
+  if (dev->ops != NULL)
+    dev->ops->destroy(dev->impl);
+  drop_reference_scene(dev);
+  rp__free(dev->ctx, dev);
+}
+
+void rp_device_get_caps(const rp_device *dev, rp_caps *caps) {
+  if (dev != NULL && caps != NULL)
+    *caps = dev->caps;
+}
+
+uint64_t rp_device_last_time_ns(const rp_device *dev) {
+  return dev != NULL ? dev->last_ns : 0;
+}
+
+static uint64_t now_ns(void) {
+  struct timespec ts;
+  clock_gettime(CLOCK_MONOTONIC, &ts);
+  return (uint64_t)ts.tv_sec * 1000000000u + (uint64_t)ts.tv_nsec;
+}
+
+static void record_time(rp_device *dev, uint64_t start) {
+  dev->last_ns = dev->ops != NULL ? dev->ops->last_time_ns(dev->impl)
+                                  : now_ns() - start;
+}
+
+int rp_device_set_volume(rp_device *dev, const rp_volume *vol) {
+  rp_context *ctx;
+  size_t bytes;
+  int err, a;
+  uint64_t t0 = now_ns();
+  if (dev == NULL)
+    return RP_EINVAL;
+  ctx = dev->ctx;
+  if (vol == NULL)
+    return rp__fail(ctx, RP_EINVAL, "rp_device_set_volume: vol is NULL");
+  if (!(dev->caps.voxel_types & (1u << vol->type)))
+    return rp__fail(ctx, RP_EUNSUPPORTED, "rp_device_set_volume: device "
+                    "'%s' cannot hold %s voxels", dev->caps.device,
+                    rp_voxel_type_name(vol->type));
+  bytes = vol->voxel_count * rp__voxel_size(vol->type);
+  if (bytes > dev->caps.max_alloc_bytes)
+    return rp__fail(ctx, RP_ENOMEM, "rp_device_set_volume: %zu bytes "
+                    "exceed the device's largest buffer (%llu bytes)", bytes,
+                    (unsigned long long)dev->caps.max_alloc_bytes);
+  if (dev->ops != NULL) {
+    err = dev->ops->upload_volume(dev->impl, vol);
+  } else {
+    rp_volume_desc d = {0};
+    rp_volume *copy = NULL;
+    for (a = 0; a < 3; a++) {
+      d.dims[a] = vol->dims[a];
+      d.spacing[a] = vol->spacing[a];
+    }
+    d.type = vol->type;
+    d.data = vol->data;
+    err = rp_volume_create(ctx, &d, &copy);
+    if (err == 0) {
+      rp_volume_destroy(dev->ref_vol);
+      dev->ref_vol = copy;
+    }
+  }
+  if (err != 0)
+    return err;
+  /* A new volume invalidates the TF upload: occupancy is per volume. */
+  dev->have_volume = 1;
+  dev->have_tf = 0;
+  dev->depth_valid = 0;
+  dev->vol_id = vol->id;
+  dev->shape = *vol;
+  dev->shape.data = NULL;
+  dev->shape.ctx = ctx;
+  for (a = 0; a < 3; a++)
+    dev->blocks[a] = rp__blocks_along(vol->dims[a]);
+  record_time(dev, t0);
+  return 0;
+}
+
+int rp_device_set_tf(rp_device *dev, const rp_tf *tf,
+                     const rp_occupancy *occ) {
+  rp_context *ctx;
+  uint32_t nb;
+  int err;
+  uint64_t t0 = now_ns();
+  if (dev == NULL)
+    return RP_EINVAL;
+  ctx = dev->ctx;
+  if (tf == NULL || occ == NULL)
+    return rp__fail(ctx, RP_EINVAL, "rp_device_set_tf: tf and occ are "
+                    "required");
+  if (!dev->have_volume)
+    return rp__fail(ctx, RP_ESTATE, "rp_device_set_tf: no volume on the "
+                    "device yet (rp_device_set_volume first)");
+  if (occ->tf_id != tf->id)
+    return rp__fail(ctx, RP_EINVAL, "rp_device_set_tf: occ was built for "
+                    "another transfer function");
+  if (occ->h->vol_id != dev->vol_id)
+    return rp__fail(ctx, RP_EINVAL, "rp_device_set_tf: occ was built from "
+                    "the histograms of another volume than the device "
+                    "holds");
+  nb = occ->h->block_count;
+  if (dev->ops != NULL) {
+    err = dev->ops->upload_tf(dev->impl, tf->lut, (uint32_t)tf->lut_size);
+    if (err == 0)
+      err = dev->ops->upload_occupancy(dev->impl, occ->grid, occ->alpha_hist,
+                                       occ->h->blocks);
+  } else {
+    float *lut = rp__malloc(ctx, (size_t)tf->lut_size * 4 * sizeof(float));
+    uint8_t *grid = rp__malloc(ctx, nb);
+    uint8_t *alpha = rp__malloc(ctx, (size_t)nb * RP_OPACITY_BINS);
+    err = 0;
+    if (lut == NULL || grid == NULL || alpha == NULL) {
+      rp__free(ctx, lut);
+      rp__free(ctx, grid);
+      rp__free(ctx, alpha);
+      err = rp__fail(ctx, RP_ENOMEM, "rp_device_set_tf: out of memory");
+    } else {
+      memcpy(lut, tf->lut, (size_t)tf->lut_size * 4 * sizeof(float));
+      memcpy(grid, occ->grid, nb);
+      memcpy(alpha, occ->alpha_hist, (size_t)nb * RP_OPACITY_BINS);
+      rp__free(ctx, dev->ref_tf.lut);
+      rp__free(ctx, dev->ref_grid);
+      rp__free(ctx, dev->ref_alpha);
+      dev->ref_tf = *tf;
+      dev->ref_tf.lut = lut;
+      dev->ref_grid = grid;
+      dev->ref_alpha = alpha;
+    }
+  }
+  if (err != 0) {
+    dev->have_tf = 0; /* a half-done upload must not be rendered with */
+    return err;
+  }
+  dev->have_tf = 1;
+  dev->depth_valid = 0;
+  dev->tf_id = tf->id;
+  dev->ref_step = tf->reference_step;
+  dev->lut_size = (uint32_t)tf->lut_size;
+  record_time(dev, t0);
+  return 0;
+}
+
+/* The checks every frame operation shares, then the camera resolved for
+ * the scaled image and its float form for the kernels. */
+static int prepare_frame(rp_device *dev, const char *fn,
+                         const rp_camera *cam, const rp_render_desc *desc,
+                         rp_render_desc *d, rp__raygen *rg,
+                         rp_frame_params *p) {
+  rp_context *ctx = dev->ctx;
+  int err, a;
+  uint32_t unsupported;
+  if (cam == NULL || desc == NULL)
+    return rp__fail(ctx, RP_EINVAL, "%s: cam and desc are required", fn);
+  if (!dev->have_volume || !dev->have_tf)
+    return rp__fail(ctx, RP_ESTATE, "%s: the device has no %s yet", fn,
+                    dev->have_volume ? "transfer function (rp_device_set_tf)"
+                                     : "volume (rp_device_set_volume)");
+  *d = rp__render_desc_defaults(desc);
+  if ((err = rp__check_render_desc(ctx, fn, d)) != 0)
+    return err;
+  unsupported = d->effects & ~dev->caps.effects;
+  if (unsupported != 0)
+    return rp__fail(ctx, RP_EUNSUPPORTED, "%s: device '%s' (%s) cannot "
+                    "render effects 0x%x", fn, dev->caps.device,
+                    dev->caps.backend, (unsigned)unsupported);
+  if ((err = rp__raygen_init(ctx, cam, &dev->shape, d->width, d->height,
+                             rg)) != 0)
+    return err;
+  rp_scaled_size(d, &rg->width, &rg->height);
+  memset(p, 0, sizeof *p);
+  for (a = 0; a < 3; a++) {
+    p->eye[a] = (float)rg->eye[a];
+    p->f[a] = (float)rg->f[a];
+    p->r[a] = (float)rg->r[a];
+    p->u[a] = (float)rg->u[a];
+    p->dims[a] = (float)rg->dims[a];
+    p->inv_spacing[a] = (float)(1.0 / rg->spacing[a]);
+    p->idims[a] = dev->shape.dims[a];
+    p->blocks[a] = dev->blocks[a];
+  }
+  p->half_w = (float)rg->half_w;
+  p->half_h = (float)rg->half_h;
+  p->ortho = rg->ortho;
+  p->width = rg->width;
+  p->height = rg->height;
+  p->min_spacing = (float)rg->min_spacing;
+  p->step = d->step;
+  p->ref_step = dev->ref_step;
+  p->ert_threshold = d->ert_threshold;
+  p->effects = d->effects;
+  p->value_min = (float)dev->shape.min;
+  p->value_max = (float)dev->shape.max;
+  p->lut_size = dev->lut_size;
+  return 0;
+}
+
+/* Whether the device's depth result is the one `p` needs: everything
+ * but the ERT stream and the ERT threshold shapes it. */
+static int same_depth_frame(const rp_frame_params *a,
+                            const rp_frame_params *b) {
+  rp_frame_params x = *a, y = *b;
+  x.ert_seed = y.ert_seed = 0;
+  x.frame = y.frame = 0;
+  x.ert_threshold = y.ert_threshold = 0;
+  x.effects &= RP_EFFECT_SKIP;
+  y.effects &= RP_EFFECT_SKIP;
+  return memcmp(&x, &y, sizeof x) == 0;
+}
+
+static void reference_depth(const rp_device *dev, const rp__raygen *rg,
+                            const rp_render_desc *d, float *front_back) {
+  const uint8_t *grid = (d->effects & RP_EFFECT_SKIP) ? dev->ref_grid : NULL;
+  uint32_t x, y;
+  for (y = 0; y < rg->height; y++)
+    for (x = 0; x < rg->width; x++) {
+      rp__ray ray;
+      double f, b;
+      size_t i = ((size_t)y * rg->width + x) * 2;
+      rp__raygen_ray(rg, x, y, &ray);
+      rp__depth_ray(&ray, rg->dims, grid, dev->blocks, &f, &b);
+      front_back[i] = (float)f;
+      front_back[i + 1] = (float)b;
+    }
+}
+
+int rp_device_depth_pass(rp_device *dev, const rp_camera *cam,
+                         const rp_render_desc *desc, float *front_back) {
+  rp_render_desc d;
+  rp__raygen rg;
+  rp_frame_params p;
+  uint64_t t0 = now_ns();
+  int err;
+  if (dev == NULL)
+    return RP_EINVAL;
+  if ((err = prepare_frame(dev, "rp_device_depth_pass", cam, desc, &d, &rg,
+                           &p)) != 0)
+    return err;
+  if (dev->ops != NULL) {
+    err = dev->ops->depth_pass(dev->impl, &p, front_back);
+  } else if (front_back != NULL) {
+    /* The reference raycast derives its own skipping range per ray, so
+     * its depth pass is only ever computed to be looked at. */
+    reference_depth(dev, &rg, &d, front_back);
+  }
+  if (err != 0) {
+    dev->depth_valid = 0;
+    return err;
+  }
+  dev->depth_valid = 1;
+  dev->depth_params = p;
+  record_time(dev, t0);
+  return 0;
+}
+
+int rp_device_ert_prepass(rp_device *dev, const rp_camera *cam,
+                          const rp_render_desc *desc, uint32_t seed,
+                          uint32_t frame, float *d_ert) {
+  rp_render_desc d;
+  rp__raygen rg;
+  rp_frame_params p;
+  uint64_t t0 = now_ns();
+  int err;
+  if (dev == NULL)
+    return RP_EINVAL;
+  if (d_ert == NULL)
+    return rp__fail(dev->ctx, RP_EINVAL, "rp_device_ert_prepass: d_ert is "
+                    "NULL");
+  if ((err = prepare_frame(dev, "rp_device_ert_prepass", cam, desc, &d, &rg,
+                           &p)) != 0)
+    return err;
+  p.ert_seed = seed;
+  p.frame = frame;
+  if (dev->ops != NULL)
+    err = dev->ops->ert_prepass(dev->impl, &p, d_ert);
+  else
+    rp__ert_prepass(&rg, dev->ref_grid, dev->ref_alpha, dev->blocks,
+                    dev->ref_step, d.ert_threshold, seed, frame, d_ert);
+  if (err != 0)
+    return err;
+  record_time(dev, t0);
+  return 0;
+}
+
+static int check_region(rp_context *ctx, const rp_region *r, uint32_t w,
+                        uint32_t h) {
+  if (!(r->x0 < r->x1 && r->x1 <= w && r->y0 < r->y1 && r->y1 <= h))
+    return rp__fail(ctx, RP_EINVAL, "rp_device_render: region [%u,%u)x"
+                    "[%u,%u) is empty or outside the %ux%u scaled image",
+                    r->x0, r->x1, r->y0, r->y1, w, h);
+  if (r->x0 % RP_TILE_SIZE || r->y0 % RP_TILE_SIZE ||
+      (r->x1 % RP_TILE_SIZE && r->x1 != w) ||
+      (r->y1 % RP_TILE_SIZE && r->y1 != h))
+    return rp__fail(ctx, RP_EINVAL, "rp_device_render: region [%u,%u)x"
+                    "[%u,%u) has a corner off the 8x8 tile grid", r->x0,
+                    r->x1, r->y0, r->y1);
+  return 0;
+}
+
+int rp__device_render(rp_device *dev, const rp_camera *cam,
+                      const rp_render_desc *desc, const rp_region *region,
+                      uint8_t *rgba, rp_tile_stats *tiles,
+                      uint64_t *fetches) {
+  rp_render_desc d;
+  rp__raygen rg;
+  rp_frame_params p;
+  rp_region all = {0, 0, 0, 0};
+  uint64_t t0;
+  int err;
+  if (dev == NULL)
+    return RP_EINVAL;
+  if (rgba == NULL)
+    return rp__fail(dev->ctx, RP_EINVAL, "rp_device_render: rgba is NULL");
+  if ((err = prepare_frame(dev, "rp_device_render", cam, desc, &d, &rg,
+                           &p)) != 0)
+    return err;
+  all.x1 = rg.width;
+  all.y1 = rg.height;
+  if (region == NULL)
+    region = &all;
+  else if ((err = check_region(dev->ctx, region, rg.width, rg.height)) != 0)
+    return err;
+  t0 = now_ns();
+  if (dev->ops == NULL) {
+    if (fetches != NULL)
+      return rp__fail(dev->ctx, RP_EUNSUPPORTED, "rp_device_render: the "
+                      "reference device does not count fetches");
+    rp__reference_render(dev->ref_vol, &dev->ref_tf, dev->ref_grid,
+                         dev->blocks, &rg, &d, region, rgba, tiles);
+    record_time(dev, t0);
+    return 0;
+  }
+  if (!dev->depth_valid || !same_depth_frame(&dev->depth_params, &p)) {
+    if ((err = dev->ops->depth_pass(dev->impl, &p, NULL)) != 0) {
+      dev->depth_valid = 0;
+      return err;
+    }
+    dev->depth_valid = 1;
+    dev->depth_params = p;
+  }
+  if ((err = dev->ops->raycast(dev->impl, &p, region, rgba, tiles,
+                               fetches)) != 0)
+    return err;
+  record_time(dev, t0);
+  return 0;
+}
+
+int rp_device_render(rp_device *dev, const rp_camera *cam,
+                     const rp_render_desc *desc, const rp_region *region,
+                     uint8_t *rgba, rp_tile_stats *tiles) {
+  return rp__device_render(dev, cam, desc, region, rgba, tiles, NULL);
+}

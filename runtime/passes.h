@@ -1,0 +1,72 @@
+/* The per-frame passes in scalar C: the depth pass and the ERT pre-pass
+ * of DESIGN section 3, written as backends/README.md states them. They are
+ * the reference the OpenCL and Vulkan kernels are held to, and the
+ * "reference" backend's implementation. */
+#ifndef RP_PASSES_H
+#define RP_PASSES_H
+
+#include <stdint.h>
+
+#include "raygen.h"
+
+/* Index of the 16^3 block holding voxel-space point p: floor((p + 0.5) /
+ * 16) per axis, clamped to the grid; x fastest. */
+uint32_t rp__block_of(const double p[3], const uint32_t blocks[3]);
+
+/* Depth of one ray: with `grid` (skipping), where the first occupied
+ * block is entered and the last one left, clipped to [s, t1]; without,
+ * [s, t1]. No occupied block, or a miss: front = +inf, back = -inf. */
+void rp__depth_ray(const rp__ray *ray, const double dims[3],
+                   const uint8_t *grid, const uint32_t blocks[3],
+                   double *front, double *back);
+
+/* The hybrid Tausworthe generator (GPU Gems 3, ch. 37) and its seeding
+ * by (seed, frame, ray id): backends/README.md. */
+typedef struct rp__taus {
+  uint32_t z1, z2, z3, z4;
+} rp__taus;
+
+uint32_t rp__ert_mix(uint32_t x);
+void rp__taus_seed(rp__taus *t, uint32_t seed, uint32_t frame,
+                   uint32_t ray_id);
+uint32_t rp__taus_next(rp__taus *t);
+/* The opacity bin tau selects from 16 H-alpha bytes (integer arithmetic,
+ * so every backend picks the same bin), and that bin's opacity. */
+int rp__ert_pick_bin(const uint8_t h[16], uint32_t tau);
+double rp__ert_bin_alpha(int bin);
+
+/* Size of the pre-pass ray grid for a width x height (scaled) image. */
+void rp__ert_grid(uint32_t width, uint32_t height, uint32_t *gw,
+                  uint32_t *gh);
+
+/* The ERT pre-pass for every pre-pass ray of `rg` (already at the scaled
+ * size): d_ert[gw * gh] receives the estimated termination depth or
+ * +inf. */
+void rp__ert_prepass(const rp__raygen *rg, const uint8_t *grid,
+                     const uint8_t *alpha_hist, const uint32_t blocks[3],
+                     float ref_step, float threshold, uint32_t seed,
+                     uint32_t frame, float *d_ert);
+
+/* The render desc with its zero fields replaced by defaults (the one
+ * place that knows them), and its validation (message prefixed by fn). */
+rp_render_desc rp__render_desc_defaults(const rp_render_desc *in);
+int rp__check_render_desc(rp_context *ctx, const char *fn,
+                          const rp_render_desc *desc);
+
+/* The reference raycast of `region` of rg's (scaled) image; `d` resolved
+ * and checked, `grid` NULL when not skipping. Writes only the region's
+ * pixels and tiles (tiles: the whole image's grid, row-major). */
+void rp__reference_render(const rp_volume *vol, const rp_tf *tf,
+                          const uint8_t *grid, const uint32_t blocks[3],
+                          const rp__raygen *rg, const rp_render_desc *d,
+                          const rp_region *region, uint8_t *rgba,
+                          rp_tile_stats *tiles);
+
+/* rp_device_render that can also return per-tile fetch counts (backends
+ * with a counting variant; tests check the cost model's k with it). */
+int rp__device_render(rp_device *dev, const rp_camera *cam,
+                      const rp_render_desc *desc, const rp_region *region,
+                      uint8_t *rgba, rp_tile_stats *tiles,
+                      uint64_t *fetches);
+
+#endif /* RP_PASSES_H */

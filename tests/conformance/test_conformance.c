@@ -1,0 +1,506 @@
+/* Backend conformance, written once and run per backend (ctest registers it
+ * with RP_BACKEND=reference|opencl|vulkan; exit code 77 when that backend
+ * has no device here).
+ *
+ * Every image is compared with rp_render_reference, the scalar oracle, over
+ * a matrix of volumes, transfer functions, effects, cameras, viewports and
+ * image scales. The tolerance (backends/README.md): per volume, at most
+ * 0.1 % of pixels more than 2/255 off in any channel and none more than
+ * 8/255; tile sample counts within one per ray; fetches exactly k per
+ * sample, k = 1 + 6 with shading (DESIGN section 5); the ERT pre-pass
+ * equal to the C evaluation of the same generator and seed, a ray's
+ * termination differing by one coarse step on at most 0.1 % of rays. */
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "passes.h"
+#include "raypace_backend.h"
+#include "test_util.h"
+
+static const char *backend_name(void) {
+  const char *b = getenv("RP_BACKEND");
+  return b != NULL && b[0] != '\0' ? b : "reference";
+}
+
+/* Accumulated over one volume's matrix. */
+typedef struct tally {
+  uint64_t pixels, over2, compared_tiles;
+  int worst;
+  char worst_at[160];
+} tally;
+
+typedef struct scene {
+  const char *name;
+  rp_volume *vol;
+  rp_histograms *h;
+} scene;
+
+static rp_context *ctx;
+static rp_device *dev;
+static int device_counts_fetches = 1;
+
+static rp_camera camera(const rp_volume *vol, int kind) {
+  rp_camera c = {0};
+  switch (kind) {
+  case 0: /* outside, perspective */
+    rp_camera_orbit(&c, vol, 30, 20, 2.2f);
+    break;
+  case 1: /* grazing: looking along a face, rays skim the box */
+    rp_camera_orbit(&c, vol, 90, 0, 1.6f);
+    c.center[1] = c.eye[1] = 0.49f * (float)vol->dims[1] * vol->spacing[1];
+    break;
+  case 2: /* zoomed in: a narrow field of view */
+    rp_camera_orbit(&c, vol, -40, 35, 2.0f);
+    c.fov_y_deg = 9.0f;
+    break;
+  case 3: /* inside the volume */
+    rp_camera_orbit(&c, vol, 200, -15, 0.35f);
+    c.fov_y_deg = 70.0f;
+    break;
+  default: /* orthographic */
+    c.projection = RP_ORTHOGRAPHIC;
+    rp_camera_orbit(&c, vol, 45, 35, 3.0f);
+    break;
+  }
+  return c;
+}
+#define CAMERAS 5
+
+static const char *camera_name(int kind) {
+  static const char *const n[] = {"outside", "grazing", "zoomed", "inside",
+                                  "ortho"};
+  return n[kind];
+}
+
+static void compare(tally *t, const char *what, const uint8_t *got,
+                    const uint8_t *want, const rp_tile_stats *gt,
+                    const rp_tile_stats *wt, uint32_t w, uint32_t h) {
+  uint32_t i, tx, ty, k;
+  rp_tile_grid(w, h, &tx, &ty);
+  for (i = 0; i < w * h; i++) {
+    int worst = 0, c;
+    for (c = 0; c < 4; c++) {
+      int d = abs((int)got[4 * i + c] - (int)want[4 * i + c]);
+      worst = d > worst ? d : worst;
+    }
+    t->pixels++;
+    t->over2 += worst > 2;
+    if (worst > t->worst) {
+      t->worst = worst;
+      snprintf(t->worst_at, sizeof t->worst_at, "%s pixel (%u, %u)", what,
+               i % w, i / w);
+    }
+  }
+  for (k = 0; k < tx * ty; k++) {
+    uint32_t x0 = (k % tx) * RP_TILE_SIZE, y0 = (k / tx) * RP_TILE_SIZE;
+    uint32_t rays = ((w - x0) < RP_TILE_SIZE ? w - x0 : RP_TILE_SIZE) *
+                    ((h - y0) < RP_TILE_SIZE ? h - y0 : RP_TILE_SIZE);
+    int64_t d = (int64_t)gt[k].samples - (int64_t)wt[k].samples;
+    if (llabs(d) > (int64_t)rays)
+      fail_msg("%s: tile %u takes %u samples, reference %u (more than one "
+               "per ray apart)", what, k, gt[k].samples, wt[k].samples);
+    t->compared_tiles++;
+  }
+}
+
+static void finish(const tally *t, const char *name) {
+  print_message("%s on %s: %llu pixels, %llu over 2/255 (%.4f %%), worst "
+                "%d/255 at %s\n", backend_name(), name,
+                (unsigned long long)t->pixels,
+                (unsigned long long)t->over2,
+                100.0 * (double)t->over2 / (double)t->pixels, t->worst,
+                t->worst ? t->worst_at : "-");
+  if (t->worst > 8)
+    fail_msg("%s: a pixel is %d/255 off (%s); the bound is 8", name,
+             t->worst, t->worst_at);
+  if ((double)t->over2 > 0.001 * (double)t->pixels)
+    fail_msg("%s: %llu of %llu pixels over 2/255; the bound is 0.1 %%",
+             name, (unsigned long long)t->over2,
+             (unsigned long long)t->pixels);
+}
+
+typedef struct frame {
+  uint32_t w, h;
+  uint8_t *got, *want;
+  rp_tile_stats *gt, *wt;
+  uint64_t *fetches;
+} frame;
+
+static void frame_alloc(frame *f, uint32_t w, uint32_t h) {
+  uint32_t tx, ty;
+  rp_tile_grid(w, h, &tx, &ty);
+  f->w = w, f->h = h;
+  f->got = calloc((size_t)w * h, 4);
+  f->want = calloc((size_t)w * h, 4);
+  f->gt = calloc((size_t)tx * ty, sizeof *f->gt);
+  f->wt = calloc((size_t)tx * ty, sizeof *f->wt);
+  f->fetches = calloc((size_t)tx * ty, sizeof *f->fetches);
+  assert_true(f->got && f->want && f->gt && f->wt && f->fetches);
+}
+
+static void frame_free(frame *f) {
+  free(f->got), free(f->want), free(f->gt), free(f->wt), free(f->fetches);
+}
+
+/* One render on the device and on the reference, compared. */
+static void check_render(tally *t, const scene *s, const rp_tf *tf,
+                         const rp_occupancy *occ, const rp_camera *cam,
+                         const rp_render_desc *d, const char *what,
+                         int count_fetches) {
+  frame f;
+  uint32_t sw, sh, tx, ty, k;
+  int err;
+  rp_scaled_size(d, &sw, &sh);
+  frame_alloc(&f, sw, sh);
+  err = rp_render_reference(ctx, s->vol, tf, occ, cam, d, f.want, f.wt);
+  if (err != 0)
+    fail_msg("%s: reference: %s", what, rp_last_error(ctx));
+  err = rp__device_render(dev, cam, d, NULL, f.got, f.gt,
+                          count_fetches ? f.fetches : NULL);
+  if (err == RP_EUNSUPPORTED && count_fetches) {
+    device_counts_fetches = 0;
+    count_fetches = 0;
+    err = rp__device_render(dev, cam, d, NULL, f.got, f.gt, NULL);
+  }
+  if (err != 0)
+    fail_msg("%s: %s: %s", what, backend_name(), rp_last_error(ctx));
+  compare(t, what, f.got, f.want, f.gt, f.wt, sw, sh);
+  if (count_fetches) {
+    uint64_t k_fetch = 1 + ((d->effects & RP_EFFECT_SHADING) ? 6 : 0);
+    rp_tile_grid(sw, sh, &tx, &ty);
+    for (k = 0; k < tx * ty; k++)
+      if (f.fetches[k] != k_fetch * f.gt[k].samples)
+        fail_msg("%s: tile %u: %llu fetches for %u samples; the cost model "
+                 "says k = %llu", what, k, (unsigned long long)f.fetches[k],
+                 f.gt[k].samples, (unsigned long long)k_fetch);
+  }
+  frame_free(&f);
+}
+
+static const char *const tfs[] = {"ct-bone", "transparent", "opaque",
+                                  "nearly-transparent", "mri"};
+#define TFS 5
+static const uint32_t effect_sets[] = {
+    0, RP_EFFECT_SHADING, RP_EFFECT_ERT, RP_EFFECT_SKIP,
+    RP_EFFECT_SHADING | RP_EFFECT_ERT | RP_EFFECT_SKIP};
+#define EFFECT_SETS 5
+
+static void run_matrix(scene *s, uint32_t w, uint32_t h, int full) {
+  tally t = {0};
+  int ti, e, c;
+  assert_int_equal(rp_device_set_volume(dev, s->vol), 0);
+  for (ti = 0; ti < TFS; ti++) {
+    rp_tf *tf = NULL;
+    rp_occupancy *occ = NULL;
+    assert_int_equal(rp_tf_create_preset(ctx, tfs[ti], &tf), 0);
+    assert_int_equal(rp_occupancy_build(ctx, s->h, tf, &occ), 0);
+    if (rp_device_set_tf(dev, tf, occ) != 0)
+      fail_msg("set_tf: %s", rp_last_error(ctx));
+    for (e = 0; e < EFFECT_SETS; e++) {
+      for (c = 0; c < CAMERAS; c++) {
+        rp_camera cam = camera(s->vol, c);
+        rp_render_desc d = {0};
+        char what[160];
+        /* The full cross product on the first TF; the others with every
+         * effect set from two cameras, which is where they differ. */
+        if (!full && c > 1)
+          continue;
+        if (ti > 0 && c != 0 && c != 3)
+          continue;
+        d.width = w, d.height = h, d.effects = effect_sets[e];
+        snprintf(what, sizeof what, "%s tf %s effects 0x%x camera %s",
+                 s->name, tfs[ti], effect_sets[e], camera_name(c));
+        check_render(&t, s, tf, occ, &cam, &d, what, c == 0);
+      }
+    }
+    rp_occupancy_destroy(occ);
+    rp_tf_destroy(tf);
+  }
+  finish(&t, s->name);
+}
+
+static scene make_scene(const char *name, rp_generator kind, uint32_t x,
+                        uint32_t y, uint32_t z, rp_voxel_type type) {
+  scene s = {name, NULL, NULL};
+  rp_generate_desc g = {0};
+  g.kind = kind, g.dims[0] = x, g.dims[1] = y, g.dims[2] = z;
+  g.type = type, g.seed = 3;
+  assert_int_equal(rp_volume_generate(ctx, &g, &s.vol), 0);
+  assert_int_equal(rp_histograms_build(ctx, s.vol, &s.h), 0);
+  return s;
+}
+
+static void drop_scene(scene *s) {
+  rp_histograms_destroy(s->h);
+  rp_volume_destroy(s->vol);
+}
+
+static void matrix_phantom_u8(void **state) {
+  scene s = make_scene("phantom 48^3 u8", RP_GEN_PHANTOM, 48, 48, 48, RP_U8);
+  (void)state;
+  run_matrix(&s, 32, 24, 1);
+  drop_scene(&s);
+}
+
+static void matrix_marschner_lobb_u16(void **state) {
+  scene s = make_scene("Marschner-Lobb 41x37x29 u16", RP_GEN_MARSCHNER_LOBB,
+                       41, 37, 29, RP_U16);
+  (void)state;
+  run_matrix(&s, 24, 20, 1);
+  drop_scene(&s);
+}
+
+static void matrix_noise(void **state) {
+  scene s = make_scene("noise 23x17x30 u8", RP_GEN_NOISE, 23, 17, 30, RP_U8);
+  (void)state;
+  run_matrix(&s, 20, 16, 0);
+  drop_scene(&s);
+}
+
+/* Float voxels: Marschner-Lobb rescaled to [-3, 5]. */
+static void matrix_float(void **state) {
+  scene s = make_scene("ML 33x20x26 float", RP_GEN_MARSCHNER_LOBB, 33, 20,
+                       26, RP_U16);
+  rp_volume_desc d = {0};
+  rp_volume *fv = NULL;
+  size_t i, n = (size_t)33 * 20 * 26;
+  float *vox = malloc(n * sizeof *vox);
+  const uint16_t *src = rp_volume_data(s.vol);
+  (void)state;
+  assert_non_null(vox);
+  for (i = 0; i < n; i++)
+    vox[i] = -3.0f + 8.0f * src[i] / 65535.0f;
+  d.dims[0] = 33, d.dims[1] = 20, d.dims[2] = 26, d.type = RP_F32;
+  d.data = vox;
+  d.spacing[0] = 1.0f, d.spacing[1] = 1.5f, d.spacing[2] = 0.75f;
+  assert_int_equal(rp_volume_create(ctx, &d, &fv), 0);
+  free(vox);
+  drop_scene(&s);
+  s.vol = fv;
+  assert_int_equal(rp_histograms_build(ctx, fv, &s.h), 0);
+  run_matrix(&s, 24, 18, 0);
+  drop_scene(&s);
+}
+
+/* 1x1, 7x513 and a 0.5 image scale, every effect set. */
+static void odd_viewports_and_scales(void **state) {
+  static const uint32_t sizes[][2] = {{1, 1}, {7, 513}, {40, 30}, {9, 2}};
+  static const float scales[] = {1.0f, 1.0f, 0.5f, 1.0f};
+  scene s = make_scene("phantom 40x33x21", RP_GEN_PHANTOM, 40, 33, 21, RP_U8);
+  rp_tf *tf = NULL;
+  rp_occupancy *occ = NULL;
+  tally t = {0};
+  size_t v;
+  int e, c;
+  (void)state;
+  assert_int_equal(rp_device_set_volume(dev, s.vol), 0);
+  assert_int_equal(rp_tf_create_preset(ctx, "ct-soft", &tf), 0);
+  assert_int_equal(rp_occupancy_build(ctx, s.h, tf, &occ), 0);
+  assert_int_equal(rp_device_set_tf(dev, tf, occ), 0);
+  for (v = 0; v < sizeof sizes / sizeof sizes[0]; v++)
+    for (e = 0; e < EFFECT_SETS; e++)
+      for (c = 0; c < CAMERAS; c += 2) {
+        rp_camera cam = camera(s.vol, c);
+        rp_render_desc d = {0};
+        char what[160];
+        d.width = sizes[v][0], d.height = sizes[v][1];
+        d.image_scale = scales[v];
+        d.effects = effect_sets[e];
+        snprintf(what, sizeof what, "%ux%u scale %g effects 0x%x camera %s",
+                 d.width, d.height, (double)d.image_scale, d.effects,
+                 camera_name(c));
+        check_render(&t, &s, tf, occ, &cam, &d, what, 1);
+      }
+  finish(&t, "odd viewports");
+  rp_occupancy_destroy(occ);
+  rp_tf_destroy(tf);
+  drop_scene(&s);
+}
+
+/* Real volumes when ../shared/data is there: 8 and 16 bit, anisotropic. */
+static void matrix_real_volumes(void **state) {
+  static const char *const names[] = {"bonsai", "headsq_ct",
+                                      "vx_smallhead_ct"};
+  size_t i;
+  int any = 0;
+  (void)state;
+  for (i = 0; i < sizeof names / sizeof names[0]; i++) {
+    char path[1024];
+    scene s = {names[i], NULL, NULL};
+    if (rp_test_data_volume(names[i], path, sizeof path) == NULL)
+      continue;
+    any = 1;
+    if (rp_volume_load(ctx, path, &s.vol) != 0)
+      fail_msg("%s: %s", path, rp_last_error(ctx));
+    assert_int_equal(rp_histograms_build(ctx, s.vol, &s.h), 0);
+    run_matrix(&s, 24, 24, 0);
+    drop_scene(&s);
+  }
+  if (!any)
+    skip();
+}
+
+/* Depth pass against the C DDA; ERT pre-pass against the C generator. */
+static void depth_and_ert_passes(void **state) {
+  scene s = make_scene("phantom 64x50x40", RP_GEN_PHANTOM, 64, 50, 40, RP_U8);
+  rp_device *ref = NULL;
+  rp_device_desc rd = {0};
+  rp_tf *tf = NULL;
+  rp_occupancy *occ = NULL;
+  int c, e;
+  uint64_t rays = 0, differ = 0, depth_rays = 0, depth_differ = 0;
+  (void)state;
+  rd.backend = "reference";
+  assert_int_equal(rp_device_create(ctx, &rd, &ref), 0);
+  assert_int_equal(rp_tf_create_preset(ctx, "ct-soft", &tf), 0);
+  assert_int_equal(rp_occupancy_build(ctx, s.h, tf, &occ), 0);
+  assert_int_equal(rp_device_set_volume(dev, s.vol), 0);
+  assert_int_equal(rp_device_set_tf(dev, tf, occ), 0);
+  assert_int_equal(rp_device_set_volume(ref, s.vol), 0);
+  assert_int_equal(rp_device_set_tf(ref, tf, occ), 0);
+  for (c = 0; c < CAMERAS; c++) {
+    for (e = 0; e < 2; e++) {
+      rp_camera cam = camera(s.vol, c);
+      rp_render_desc d = {0};
+      uint32_t gw, gh, i;
+      float *a, *b;
+      d.width = 61, d.height = 45;
+      d.effects = e ? RP_EFFECT_SKIP : 0;
+      a = malloc(sizeof(float) * 2 * 61 * 45);
+      b = malloc(sizeof(float) * 2 * 61 * 45);
+      assert_int_equal(rp_device_depth_pass(dev, &cam, &d, a), 0);
+      assert_int_equal(rp_device_depth_pass(ref, &cam, &d, b), 0);
+      for (i = 0; i < 2 * 61 * 45; i++) {
+        float tol = 1e-3f * fmaxf(1.0f, fabsf(b[i]));
+        depth_rays++;
+        if (!(a[i] == b[i] || fabsf(a[i] - b[i]) <= tol))
+          depth_differ++;
+      }
+      rp__ert_grid(61, 45, &gw, &gh);
+      d.effects = RP_EFFECT_SKIP | RP_EFFECT_ERT;
+      d.ert_threshold = e ? 0.5f : 0.0f;
+      assert_int_equal(rp_device_ert_prepass(dev, &cam, &d, 1234, 7, a), 0);
+      assert_int_equal(rp_device_ert_prepass(ref, &cam, &d, 1234, 7, b), 0);
+      for (i = 0; i < gw * gh; i++) {
+        rays++;
+        if (a[i] == b[i] || fabsf(a[i] - b[i]) <= 1e-3f * fabsf(b[i]))
+          continue;
+        /* Float rounding may move a termination by one coarse step. */
+        if (isinf(a[i]) || isinf(b[i]) ||
+            fabsf(fabsf(a[i] - b[i]) - RP_ERT_COARSE_STEP) > 1e-2f)
+          fail_msg("ERT ray %u (camera %s): %g vs reference %g", i,
+                   camera_name(c), (double)a[i], (double)b[i]);
+        differ++;
+      }
+      free(a);
+      free(b);
+    }
+  }
+  print_message("%s: ERT pre-pass: %llu of %llu rays one step off; depth "
+                "pass: %llu of %llu values off\n", backend_name(),
+                (unsigned long long)differ, (unsigned long long)rays,
+                (unsigned long long)depth_differ,
+                (unsigned long long)depth_rays);
+  assert_true((double)differ <= 0.001 * (double)rays);
+  assert_true((double)depth_differ <= 0.001 * (double)depth_rays);
+  rp_device_destroy(ref);
+  rp_occupancy_destroy(occ);
+  rp_tf_destroy(tf);
+  drop_scene(&s);
+}
+
+/* Regions: four tile-aligned quadrants rendered apart equal one render of
+ * the whole image, and each call writes only its own region. */
+static void regions_compose(void **state) {
+  scene s = make_scene("phantom 40^3", RP_GEN_PHANTOM, 40, 40, 40, RP_U8);
+  rp_tf *tf = NULL;
+  rp_occupancy *occ = NULL;
+  rp_camera cam = camera(s.vol, 0);
+  rp_render_desc d = {0};
+  uint8_t whole[37 * 29 * 4], parts[37 * 29 * 4];
+  rp_tile_stats tw[5 * 4], tp[5 * 4];
+  rp_region q[4] = {{0, 0, 16, 16}, {16, 0, 37, 16}, {0, 16, 16, 29},
+                    {16, 16, 37, 29}};
+  rp_region bad = {3, 0, 16, 8};
+  int i;
+  (void)state;
+  assert_int_equal(rp_tf_create_preset(ctx, "ct-bone", &tf), 0);
+  assert_int_equal(rp_occupancy_build(ctx, s.h, tf, &occ), 0);
+  assert_int_equal(rp_device_set_volume(dev, s.vol), 0);
+  assert_int_equal(rp_device_set_tf(dev, tf, occ), 0);
+  d.width = 37, d.height = 29;
+  d.effects = RP_EFFECT_SHADING | RP_EFFECT_ERT | RP_EFFECT_SKIP;
+  assert_int_equal(rp_device_render(dev, &cam, &d, NULL, whole, tw), 0);
+  memset(parts, 0xab, sizeof parts);
+  memset(tp, 0xab, sizeof tp);
+  for (i = 0; i < 4; i++)
+    assert_int_equal(rp_device_render(dev, &cam, &d, &q[i], parts, tp), 0);
+  assert_memory_equal(whole, parts, sizeof whole);
+  assert_memory_equal(tw, tp, sizeof tw);
+  assert_int_equal(rp_device_render(dev, &cam, &d, &bad, parts, tp),
+                   RP_EINVAL);
+  assert_non_null(strstr(rp_last_error(ctx), "tile grid"));
+  rp_occupancy_destroy(occ);
+  rp_tf_destroy(tf);
+  drop_scene(&s);
+}
+
+/* Calls in the wrong state or with bad arguments never reach the backend
+ * and say what is wrong. */
+static void front_end_validates(void **state) {
+  rp_device *fresh = NULL;
+  rp_device_desc dd = {0};
+  rp_camera cam = {0};
+  rp_render_desc d = {0};
+  uint8_t px[4];
+  (void)state;
+  dd.backend = backend_name();
+  assert_int_equal(rp_device_create(ctx, &dd, &fresh), 0);
+  cam.eye[2] = 5;
+  d.width = d.height = 1;
+  assert_int_equal(rp_device_render(fresh, &cam, &d, NULL, px, NULL),
+                   RP_ESTATE);
+  assert_non_null(strstr(rp_last_error(ctx), "volume"));
+  assert_int_equal(rp_device_set_tf(fresh, NULL, NULL), RP_EINVAL);
+  dd.backend = "no-such-backend";
+  assert_int_equal(rp_device_create(ctx, &dd, &fresh), RP_EINVAL);
+  assert_non_null(strstr(rp_last_error(ctx), "available"));
+  rp_device_destroy(fresh);
+  rp_device_destroy(NULL);
+}
+
+int main(void) {
+  const struct CMUnitTest tests[] = {
+      cmocka_unit_test(front_end_validates),
+      cmocka_unit_test(regions_compose),
+      cmocka_unit_test(depth_and_ert_passes),
+      cmocka_unit_test(odd_viewports_and_scales),
+      cmocka_unit_test(matrix_phantom_u8),
+      cmocka_unit_test(matrix_marschner_lobb_u16),
+      cmocka_unit_test(matrix_noise),
+      cmocka_unit_test(matrix_float),
+      cmocka_unit_test(matrix_real_volumes),
+  };
+  rp_device_desc dd = {0};
+  rp_caps caps;
+  int rc, err;
+  assert_int_equal(rp_context_create(NULL, &ctx), 0);
+  dd.backend = backend_name();
+  err = rp_device_create(ctx, &dd, &dev);
+  if (err != 0) {
+    printf("conformance: backend '%s' unavailable here: %s\n",
+           backend_name(), rp_last_error(ctx));
+    rp_context_destroy(ctx);
+    return 77;
+  }
+  rp_device_get_caps(dev, &caps);
+  printf("conformance: %s device '%s'\n", caps.backend, caps.device);
+  rc = cmocka_run_group_tests(tests, NULL, NULL);
+  if (!device_counts_fetches)
+    printf("conformance: this device does not count fetches\n");
+  rp_device_destroy(dev);
+  rp_context_destroy(ctx);
+  return rc;
+}
