@@ -54,7 +54,12 @@ static void usage_render(FILE *f) {
           "  --ert-threshold A     stop rays at this opacity (default 0.99)"
           "\n"
           "  --background R,G,B    PNG background in [0,1] (default 0,0,0)\n"
-          "  --backend NAME        reference (the scalar oracle)\n"
+          "  --backend NAME        opencl, vulkan or reference (the scalar\n"
+          "                        oracle); default: the first with a device\n"
+          "  --device N            device index within the backend (default "
+          "0)\n"
+          "  --scale S             image scale in (0, 1]: rays per output\n"
+          "                        pixel per axis (default 1)\n"
           "  --json                print a JSON summary on stdout\n\n"
           "presets:");
   for (p = rp_tf_preset_names(); *p != NULL; p++)
@@ -205,7 +210,8 @@ out:
 
 typedef struct render_opts {
   const char *volume, *out, *tf, *backend;
-  float orbit[3], background[3], fov, step, ert_threshold;
+  float orbit[3], background[3], fov, step, ert_threshold, scale;
+  uint32_t device;
   uint32_t width, height;
   int ortho, shading, ert, skip, json;
 } render_opts;
@@ -224,6 +230,8 @@ static int parse_render(int argc, char **argv, render_opts *o) {
       {"ert-threshold", required_argument, 0, 'a'},
       {"background", required_argument, 0, 'b'},
       {"backend", required_argument, 0, 'B'},
+      {"device", required_argument, 0, 'D'},
+      {"scale", required_argument, 0, 'x'},
       {"json", no_argument, 0, 'j'},
       {"output", required_argument, 0, 'o'},
       {"help", no_argument, 0, 'h'},
@@ -231,7 +239,7 @@ static int parse_render(int argc, char **argv, render_opts *o) {
   int c, li = 0;
   memset(o, 0, sizeof *o);
   o->tf = "ct-bone";
-  o->backend = "reference";
+  o->backend = NULL;
   o->orbit[0] = 30, o->orbit[1] = 20, o->orbit[2] = 2.5f;
   o->width = o->height = 512;
   o->ert = o->skip = 1;
@@ -251,6 +259,16 @@ static int parse_render(int argc, char **argv, render_opts *o) {
     case 'a': bad = cli_parse_positive(optarg, &o->ert_threshold); break;
     case 'b': bad = cli_parse_floats(optarg, o->background, 3); break;
     case 'B': o->backend = optarg; break;
+    case 'D': {
+      char *end;
+      unsigned long v = strtoul(optarg, &end, 10);
+      bad = end == optarg || *end != '\0' || v > 1024;
+      o->device = (uint32_t)v;
+      break;
+    }
+    case 'x':
+      bad = cli_parse_positive(optarg, &o->scale) || o->scale > 1.0f;
+      break;
     case 'j': o->json = 1; break;
     case 'o': o->out = optarg; break;
     case 'h': usage_render(stdout); return 1;
@@ -266,13 +284,26 @@ static int parse_render(int argc, char **argv, render_opts *o) {
     usage_render(stderr);
     return 2;
   }
-  if (strcmp(o->backend, "reference") != 0) {
-    fprintf(stderr, "raypace render: backend '%s' is not available; "
-                    "available: reference\n", o->backend);
-    return 2;
-  }
   o->volume = argv[optind];
   return 0;
+}
+
+/* Opens the named backend, or the first with a device; without any, the
+ * reference, saying so (an app would rather get a slow image than none). */
+static int open_device(rp_context *ctx, const render_opts *o,
+                       rp_device **dev) {
+  rp_device_desc dd = {0};
+  int err;
+  dd.backend = o->backend;
+  dd.index = o->device;
+  err = rp_device_create(ctx, &dd, dev);
+  if (err == RP_ENODEV && o->backend == NULL && o->device == 0) {
+    fprintf(stderr, "raypace render: %s; using the reference\n",
+            rp_last_error(ctx));
+    dd.backend = "reference";
+    err = rp_device_create(ctx, &dd, dev);
+  }
+  return err != 0 ? cli_error(ctx, "--backend", err) : 0;
 }
 
 static int cmd_render(int argc, char **argv) {
@@ -282,11 +313,13 @@ static int cmd_render(int argc, char **argv) {
   rp_tf *tf = NULL;
   rp_histograms *h = NULL;
   rp_occupancy *occ = NULL;
+  rp_device *dev = NULL;
+  rp_caps caps;
   rp_camera cam = {0};
   rp_render_desc rd = {0};
-  uint8_t *rgba = NULL;
+  uint8_t *rgba = NULL, *out = NULL;
   rp_tile_stats *tiles = NULL;
-  uint32_t tx, ty, t;
+  uint32_t tx, ty, t, sw, sh;
   uint64_t samples = 0, rays = 0;
   double t0, t_render, depth_sum = 0;
   int err, rc = 1;
@@ -301,12 +334,18 @@ static int cmd_render(int argc, char **argv) {
     cli_error(ctx, "--tf", err);
     goto out;
   }
-  if (o.skip) {
-    if ((err = rp_histograms_build(ctx, vol, &h)) != 0 ||
-        (err = rp_occupancy_build(ctx, h, tf, &occ)) != 0) {
-      cli_error(ctx, "occupancy", err);
-      goto out;
-    }
+  if ((err = rp_histograms_build(ctx, vol, &h)) != 0 ||
+      (err = rp_occupancy_build(ctx, h, tf, &occ)) != 0) {
+    cli_error(ctx, "occupancy", err);
+    goto out;
+  }
+  if (open_device(ctx, &o, &dev) != 0)
+    goto out;
+  rp_device_get_caps(dev, &caps);
+  if ((err = rp_device_set_volume(dev, vol)) != 0 ||
+      (err = rp_device_set_tf(dev, tf, occ)) != 0) {
+    cli_error(ctx, "upload", err);
+    goto out;
   }
   cam.projection = o.ortho ? RP_ORTHOGRAPHIC : RP_PERSPECTIVE;
   cam.fov_y_deg = o.fov;
@@ -315,23 +354,27 @@ static int cmd_render(int argc, char **argv) {
   rd.height = o.height;
   rd.step = o.step;
   rd.ert_threshold = o.ert_threshold;
+  rd.image_scale = o.scale;
   rd.effects = (o.shading ? RP_EFFECT_SHADING : 0) |
                (o.ert ? RP_EFFECT_ERT : 0) | (o.skip ? RP_EFFECT_SKIP : 0);
-  rp_tile_grid(o.width, o.height, &tx, &ty);
-  rgba = malloc((size_t)o.width * o.height * 4);
+  rp_scaled_size(&rd, &sw, &sh);
+  rp_tile_grid(sw, sh, &tx, &ty);
+  rgba = malloc((size_t)sw * sh * 4);
+  out = malloc((size_t)o.width * o.height * 4);
   tiles = malloc((size_t)tx * ty * sizeof *tiles);
-  if (rgba == NULL || tiles == NULL) {
+  if (rgba == NULL || out == NULL || tiles == NULL) {
     fprintf(stderr, "raypace render: out of memory\n");
     goto out;
   }
   t0 = cli_now();
-  err = rp_render_reference(ctx, vol, tf, occ, &cam, &rd, rgba, tiles);
+  err = rp_device_render(dev, &cam, &rd, NULL, rgba, tiles);
   t_render = cli_now() - t0;
   if (err != 0) {
     cli_error(ctx, "render", err);
     goto out;
   }
-  if ((err = rp_write_png(ctx, o.out, rgba, o.width, o.height,
+  rp_image_upscale(rgba, sw, sh, out, o.width, o.height);
+  if ((err = rp_write_png(ctx, o.out, out, o.width, o.height,
                           o.background)) != 0) {
     cli_error(ctx, o.out, err);
     goto out;
@@ -344,27 +387,35 @@ static int cmd_render(int argc, char **argv) {
   if (o.json) {
     cJSON *root = cJSON_CreateObject();
     cJSON_AddStringToObject(root, "output", o.out);
-    cJSON_AddStringToObject(root, "backend", o.backend);
+    cJSON_AddStringToObject(root, "backend", caps.backend);
+    cJSON_AddStringToObject(root, "device", caps.device);
     cJSON_AddNumberToObject(root, "width", o.width);
     cJSON_AddNumberToObject(root, "height", o.height);
+    cJSON_AddNumberToObject(root, "scaled_width", sw);
+    cJSON_AddNumberToObject(root, "scaled_height", sh);
     cJSON_AddStringToObject(root, "tf", o.tf);
     cJSON_AddNumberToObject(root, "samples", (double)samples);
     cJSON_AddNumberToObject(root, "rays_hit", (double)rays);
     cJSON_AddNumberToObject(root, "mean_depth",
                             rays ? depth_sum / rays : 0.0);
     cJSON_AddNumberToObject(root, "render_ms", t_render * 1e3);
+    cJSON_AddNumberToObject(root, "device_ms",
+                            rp_device_last_time_ns(dev) * 1e-6);
     cJSON_AddNumberToObject(root, "samples_per_s",
                             t_render > 0 ? samples / t_render : 0.0);
     rc = print_json(root);
   } else {
-    printf("wrote %s (%ux%u, %llu samples, %.1f ms, %.2f M samples/s)\n",
-           o.out, o.width, o.height, (unsigned long long)samples,
-           t_render * 1e3, t_render > 0 ? samples / t_render / 1e6 : 0.0);
+    printf("wrote %s (%ux%u on %s '%s', %llu samples, %.1f ms, %.2f M "
+           "samples/s)\n", o.out, o.width, o.height, caps.backend,
+           caps.device, (unsigned long long)samples, t_render * 1e3,
+           t_render > 0 ? samples / t_render / 1e6 : 0.0);
     rc = 0;
   }
 out:
   free(rgba);
+  free(out);
   free(tiles);
+  rp_device_destroy(dev);
   rp_occupancy_destroy(occ);
   rp_histograms_destroy(h);
   rp_tf_destroy(tf);

@@ -412,6 +412,13 @@ RP_API int rp_device_render(rp_device *dev, const rp_camera *cam,
 /** Device time of the last operation in nanoseconds (0 if unknown). */
 RP_API uint64_t rp_device_last_time_ns(const rp_device *dev);
 
+/** Resamples an RGBA8 premultiplied image bilinearly to another size
+ *  (pixel centres aligned, edges clamped): how an image rendered at a
+ *  scale < 1 becomes the output. Equal sizes copy. \since 0.1 */
+RP_API void rp_image_upscale(const uint8_t *src, uint32_t src_w,
+                             uint32_t src_h, uint8_t *dst, uint32_t dst_w,
+                             uint32_t dst_h);
+
 /** Writes RGBA8 premultiplied pixels as an 8-bit RGB PNG composited over
  *  `background` (RGB in [0, 1]; NULL: black). */
 RP_API int rp_write_png(rp_context *ctx, const char *path,

@@ -106,9 +106,11 @@ int rp__volume_adopt(rp_context *ctx, const uint32_t dims[3],
                      rp_voxel_type type, const float spacing[3], void *data,
                      rp_volume **out);
 /* dims product and byte size with overflow checks against the context's
- * max_volume_bytes; the message names `what` (a file or "desc"). */
-int rp__volume_size(rp_context *ctx, const char *what, const uint64_t dims[3],
-                    rp_voxel_type type, size_t *voxels, size_t *bytes);
+ * max_volume_bytes; the message names `what` (a file or function) and
+ * `field` (how the source names the sizes: "field 'dims'", ...). */
+int rp__volume_size(rp_context *ctx, const char *what, const char *field,
+                    const uint64_t dims[3], rp_voxel_type type,
+                    size_t *voxels, size_t *bytes);
 
 /* Voxel (i, j, k) as a double, indices already in range. */
 static inline double rp__voxel(const rp_volume *v, uint32_t i, uint32_t j,

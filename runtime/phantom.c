@@ -82,7 +82,8 @@ int rp_volume_generate(rp_context *ctx, const rp_generate_desc *desc,
     return rp__fail(ctx, RP_EINVAL, "rp_volume_generate: field 'kind': "
                     "value %d is not a generator", (int)desc->kind);
   d64[0] = desc->dims[0], d64[1] = desc->dims[1], d64[2] = desc->dims[2];
-  err = rp__volume_size(ctx, "rp_volume_generate", d64, type, &voxels,
+  err = rp__volume_size(ctx, "rp_volume_generate", "field 'dims'", d64,
+                        type, &voxels,
                         &bytes);
   if (err != 0)
     return err;

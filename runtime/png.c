@@ -1,13 +1,19 @@
 /* PNG output through libpng.
  *
- * The image goes to "<path>.tmp" and is renamed over `path` only once it
- * is complete, so that a failed write (full disk, libpng error) leaves an
- * existing file as it was, as the API promises for every output. */
+ * The image goes to a temporary file beside `path` and is renamed over it
+ * only once it is complete, so that a failed write (full disk, libpng
+ * error) leaves an existing file as it was, as the API promises for every
+ * output. The temporary gets a fresh name from mkstemp: a fixed name such
+ * as "<path>.tmp" would clobber a file of the caller's and race with a
+ * second writer of the same path. */
 #include <errno.h>
 #include <math.h>
 #include <png.h>
 #include <stdio.h>
+#include <stdlib.h>
 #include <string.h>
+#include <sys/stat.h>
+#include <unistd.h>
 
 #include "internal.h"
 
@@ -59,18 +65,30 @@ static int guarded_write(png_structp png, png_infop info, FILE *f,
   return 0;
 }
 
-static int write_file(rp_context *ctx, const char *path, const char *tmp,
+/* `tmp` holds the mkstemp template "<path>.XXXXXX" and receives the
+ * name. Every failure after mkstemp unlinks the temporary. */
+static int write_file(rp_context *ctx, const char *path, char *tmp,
                       const uint8_t *rgb, uint32_t width, uint32_t height) {
   png_error_box box = {{0}};
   png_structp png;
   png_infop info = NULL;
   FILE *f;
-  int failed;
-  f = fopen(tmp, "wb");
-  if (f == NULL) {
+  int fd, failed;
+  fd = mkstemp(tmp);
+  if (fd < 0) {
     int e = errno;
-    return rp__fail(ctx, e == ENOENT ? RP_ENOENT : RP_EIO,
-                    "png: cannot create %s: %s", tmp, strerror(e));
+    return rp__fail(ctx, e == ENOENT || e == ENOTDIR ? RP_ENOENT : RP_EIO,
+                    "png: cannot create a temporary file beside %s: %s",
+                    path, strerror(e));
+  }
+  /* mkstemp makes the file 0600; an image is for others to read too, as
+   * fopen would have made it under the usual umask. */
+  if (fchmod(fd, 0644) != 0 || (f = fdopen(fd, "wb")) == NULL) {
+    int e = errno;
+    close(fd);
+    unlink(tmp);
+    return rp__fail(ctx, e == ENOMEM ? RP_ENOMEM : RP_EIO,
+                    "png: cannot prepare %s: %s", tmp, strerror(e));
   }
   png = png_create_write_struct(PNG_LIBPNG_VER_STRING, &box, on_png_error,
                                 on_png_warning);
@@ -79,7 +97,7 @@ static int write_file(rp_context *ctx, const char *path, const char *tmp,
   if (png == NULL || info == NULL) {
     png_destroy_write_struct(&png, &info);
     fclose(f);
-    remove(tmp);
+    unlink(tmp);
     return rp__fail(ctx, RP_ENOMEM, "png: %s: libpng could not allocate "
                     "its state", path);
   }
@@ -91,12 +109,12 @@ static int write_file(rp_context *ctx, const char *path, const char *tmp,
     failed = 1;
   }
   if (!failed && rename(tmp, path) != 0) {
-    snprintf(box.msg, sizeof box.msg, "cannot rename %s: %s", tmp,
+    snprintf(box.msg, sizeof box.msg, "cannot replace it: %s",
              strerror(errno));
     failed = 1;
   }
   if (failed) {
-    remove(tmp);
+    unlink(tmp);
     return rp__fail(ctx, RP_EIO, "png: writing %s failed: %s", path,
                     box.msg);
   }
@@ -113,12 +131,14 @@ int rp__png_write_rgb(rp_context *ctx, const char *path, const uint8_t *rgb,
     return rp__fail(ctx, RP_ERANGE, "png: %s: %ux%u is outside PNG's "
                     "1..2^31-1 pixels a side", path, (unsigned)width,
                     (unsigned)height);
+  /* In the same directory, so that the rename stays on one file system
+   * and is atomic. */
   len = strlen(path);
-  tmp = rp__malloc(ctx, len + sizeof ".tmp");
+  tmp = rp__malloc(ctx, len + sizeof ".XXXXXX");
   if (tmp == NULL)
     return rp__fail(ctx, RP_ENOMEM, "png: %s: out of memory", path);
   memcpy(tmp, path, len);
-  memcpy(tmp + len, ".tmp", sizeof ".tmp");
+  memcpy(tmp + len, ".XXXXXX", sizeof ".XXXXXX");
   err = write_file(ctx, path, tmp, rgb, width, height);
   rp__free(ctx, tmp);
   return err;

@@ -22,8 +22,9 @@ const char *rp_voxel_type_name(rp_voxel_type type) {
   }
 }
 
-int rp__volume_size(rp_context *ctx, const char *what, const uint64_t dims[3],
-                    rp_voxel_type type, size_t *voxels, size_t *bytes) {
+int rp__volume_size(rp_context *ctx, const char *what, const char *field,
+                    const uint64_t dims[3], rp_voxel_type type,
+                    size_t *voxels, size_t *bytes) {
   uint64_t n = 1, b;
   size_t vs = rp__voxel_size(type);
   int a;
@@ -32,26 +33,26 @@ int rp__volume_size(rp_context *ctx, const char *what, const uint64_t dims[3],
                     "not a voxel type", what, (int)type);
   for (a = 0; a < 3; a++) {
     if (dims[a] == 0)
-      return rp__fail(ctx, RP_ERANGE, "%s: field 'dims': axis %d is 0 "
-                      "(every axis needs at least one voxel)", what, a);
+      return rp__fail(ctx, RP_ERANGE, "%s: %s: axis %d is 0 "
+                      "(every axis needs at least one voxel)", what, field, a);
     if (__builtin_mul_overflow(n, dims[a], &n))
-      return rp__fail(ctx, RP_ERANGE, "%s: field 'dims': %llu x %llu x "
-                      "%llu voxels overflow 64 bits", what,
+      return rp__fail(ctx, RP_ERANGE, "%s: %s: %llu x %llu x "
+                      "%llu voxels overflow 64 bits", what, field,
                       (unsigned long long)dims[0],
                       (unsigned long long)dims[1],
                       (unsigned long long)dims[2]);
   }
   if (__builtin_mul_overflow(n, (uint64_t)vs, &b) || b > SIZE_MAX ||
       b > ctx->desc.max_volume_bytes)
-    return rp__fail(ctx, RP_ERANGE, "%s: field 'dims': %llu x %llu x %llu "
+    return rp__fail(ctx, RP_ERANGE, "%s: %s: %llu x %llu x %llu "
                     "%s voxels exceed the limit of %llu bytes "
-                    "(rp_context_desc.max_volume_bytes)", what,
+                    "(rp_context_desc.max_volume_bytes)", what, field,
                     (unsigned long long)dims[0], (unsigned long long)dims[1],
                     (unsigned long long)dims[2], rp_voxel_type_name(type),
                     (unsigned long long)ctx->desc.max_volume_bytes);
   if (dims[0] > UINT32_MAX || dims[1] > UINT32_MAX || dims[2] > UINT32_MAX)
-    return rp__fail(ctx, RP_ERANGE, "%s: field 'dims': an axis exceeds "
-                    "2^32 - 1 voxels", what);
+    return rp__fail(ctx, RP_ERANGE, "%s: %s: an axis exceeds "
+                    "2^32 - 1 voxels", what, field);
   *voxels = (size_t)n;
   *bytes = (size_t)b;
   return 0;
@@ -118,7 +119,8 @@ int rp__volume_adopt(rp_context *ctx, const uint32_t dims[3],
   rp_volume *v;
   uint64_t d64[3] = {dims[0], dims[1], dims[2]};
   size_t voxels = 0, bytes = 0;
-  int err = rp__volume_size(ctx, "volume", d64, type, &voxels, &bytes);
+  int err = rp__volume_size(ctx, "volume", "field 'dims'", d64, type,
+                            &voxels, &bytes);
   if (err != 0) {
     rp__free(ctx, data);
     return err;
@@ -160,7 +162,8 @@ int rp_volume_create(rp_context *ctx, const rp_volume_desc *desc,
     return rp__fail(ctx, RP_EINVAL, "rp_volume_create: field 'data' is "
                     "NULL");
   d64[0] = desc->dims[0], d64[1] = desc->dims[1], d64[2] = desc->dims[2];
-  err = rp__volume_size(ctx, "rp_volume_create", d64, desc->type, &voxels,
+  err = rp__volume_size(ctx, "rp_volume_create", "field 'dims'", d64,
+                        desc->type, &voxels,
                         &bytes);
   if (err != 0)
     return err;

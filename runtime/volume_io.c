@@ -7,9 +7,10 @@
  * only rp_volume_load touches the file system. Every failure goes through
  * rp__fail with the file, the field and the value, and leaves *out alone.
  *
- * rp_volume_load tells the formats apart in this order: NRRD by its magic
- * "NRRD" at byte 0; a .raw file by its name (its bytes can be anything);
- * a sidecar by at least two of the lines "file:", "dims:" and "type:".
+ * rp_volume_load tells the formats apart in this order: a .raw file by its
+ * name (its bytes can be anything, "NRRD" included); NRRD by its magic
+ * "NRRD" at byte 0; a sidecar by at least two of the lines "file:", "dims:"
+ * and "type:". Only regular files are opened: a FIFO would block.
  *
  * Policy decisions (tests/test_volume_io.c holds us to them):
  * - A size of 0 is RP_ERANGE, like a product too large for size_t or for
@@ -24,6 +25,7 @@
  * - Lines are at most MAX_LINE bytes; a longer one is RP_EFORMAT. */
 #define ZLIB_CONST
 #include <errno.h>
+#include <fcntl.h>
 #include <float.h>
 #include <limits.h>
 #include <locale.h>
@@ -33,6 +35,7 @@
 #include <string.h>
 #include <sys/stat.h>
 #include <sys/types.h>
+#include <unistd.h>
 #include <zlib.h>
 
 #include "internal.h"
@@ -43,6 +46,12 @@
 #define HEAD_MAX ((size_t)1 << 20)
 /* Read and inflate granularity. */
 #define CHUNK ((size_t)64 << 10)
+
+/* Calls to inflate() made by this thread, which only tests read: they hold
+ * the decoder to a bounded number of calls per inflated byte. Thread-local,
+ * so that concurrent loads do not race on it. */
+extern _Thread_local unsigned long rp__inflate_calls;
+_Thread_local unsigned long rp__inflate_calls;
 
 /* Fields whose repetition is an error, one bit each. */
 enum {
@@ -68,6 +77,23 @@ typedef struct type_name {
   const char *name;
   rp_voxel_type type;
 } type_name;
+
+/* How each format names a header's sizes and spacing, so that a message
+ * about them points at the text the user wrote. */
+typedef struct header_fields {
+  const char *dims;
+  const char *spacing;
+} header_fields;
+
+static const header_fields nrrd_fields_named = {"field 'sizes'",
+                                                "field 'spacings'"};
+static const header_fields sidecar_fields_named = {"field 'dims'",
+                                                   "field 'spacing'"};
+static const header_fields raw_fields_named = {"the dims in the file name",
+                                               "field 'spacing'"};
+/* A header handed to rp__volume_decode: its struct's own field names. */
+static const header_fields memory_fields_named = {"field 'dims'",
+                                                  "field 'spacing'"};
 
 /* ---- Text helpers ------------------------------------------------------ */
 
@@ -300,22 +326,26 @@ static int parse_sizes(rp_context *ctx, const char *name, const char *field,
   return 0;
 }
 
-/* A voxel spacing must be a positive, finite float. */
+/* A voxel spacing must be a positive, finite float. `text` is what the
+ * file says for `axis`: a number, or a vector whose length is v. */
 static int check_spacing(rp_context *ctx, const char *name, const char *field,
-                         const char *text, double v, float *out) {
+                         int axis, const char *text, double v, float *out) {
   char sv[64];
   float f;
   if (!isfinite(v))
-    return rp__fail(ctx, RP_ENOTFINITE, "%s: %s '%s' is not finite", name,
-                    field, shown(sv, text));
+    return rp__fail(ctx, RP_ENOTFINITE,
+                    "%s: field '%s': axis %d value '%s' is not finite", name,
+                    field, axis, shown(sv, text));
   if (!(v > 0.0) || v > FLT_MAX)
     return rp__fail(ctx, RP_ERANGE,
-                    "%s: %s '%s' is not a positive float", name, field,
-                    shown(sv, text));
+                    "%s: field '%s': axis %d value '%s' is not a positive "
+                    "float",
+                    name, field, axis, shown(sv, text));
   f = (float)v;
   if (!(f > 0.0f))
-    return rp__fail(ctx, RP_ERANGE, "%s: %s '%s' is too small", name, field,
-                    shown(sv, text));
+    return rp__fail(ctx, RP_ERANGE,
+                    "%s: field '%s': axis %d value '%s' is too small", name,
+                    field, axis, shown(sv, text));
   *out = f;
   return 0;
 }
@@ -331,7 +361,8 @@ static int parse_spacings(rp_context *ctx, const char *name,
     if (n == 3 || !parse_double(tok, &v))
       return rp__fail(ctx, RP_EFORMAT, "%s: %s '%s' is not three numbers",
                       name, field, shown(sv, copy));
-    if ((rc = check_spacing(ctx, name, field, tok, v, &spacing[n])) != 0)
+    if ((rc = check_spacing(ctx, name, field, n, tok, v, &spacing[n])) !=
+        0)
       return rc;
     n++;
   }
@@ -347,13 +378,14 @@ static int parse_spacings(rp_context *ctx, const char *name,
 static int parse_directions(rp_context *ctx, const char *name,
                             const char *field, const char *value,
                             float spacing[3]) {
-  char sv[64], comp[64];
+  char sv[64], comp[64], vec[64];
   const char *p = value;
   int axis, ncomp_first = 0, rc;
   for (axis = 0; axis < 3; axis++) {
     const char *close;
     double sum = 0.0;
     int ncomp = 0;
+    size_t vn;
     while (is_space((unsigned char)*p))
       p++;
     if (*p != '(')
@@ -364,6 +396,12 @@ static int parse_directions(rp_context *ctx, const char *name,
     if (close == NULL)
       return rp__fail(ctx, RP_EFORMAT, "%s: %s '%s': missing ')'", name,
                       field, shown(sv, value));
+    /* This axis's vector, for a message about its length. */
+    vn = (size_t)(close - p) + 1;
+    if (vn >= sizeof vec)
+      vn = sizeof vec - 1;
+    memcpy(vec, p, vn);
+    vec[vn] = '\0';
     p++;
     while (p <= close) {
       const char *end = p;
@@ -394,7 +432,7 @@ static int parse_directions(rp_context *ctx, const char *name,
       return rp__fail(ctx, RP_EFORMAT,
                       "%s: %s '%s': vectors differ in length", name, field,
                       shown(sv, value));
-    if ((rc = check_spacing(ctx, name, field, value, sqrt(sum),
+    if ((rc = check_spacing(ctx, name, field, axis, vec, sqrt(sum),
                             &spacing[axis])) != 0)
       return rc;
   }
@@ -422,21 +460,30 @@ static int set_data_file(rp_context *ctx, const char *name, const char *field,
 
 /* Sizes, type and spacing of a header, then the byte size against the
  * context's limit. Shared by the parsers and the decoder, which may be
- * handed a header that no parser produced. */
+ * handed a header that no parser produced. Messages name the field as
+ * `fields` says the format calls it. */
 static int check_header(rp_context *ctx, const char *name,
+                        const header_fields *fields,
                         const rp__volume_header *hdr, size_t *bytes) {
   size_t voxels;
   int i;
   for (i = 0; i < 3; i++)
     if (!isfinite(hdr->spacing[i]) || !(hdr->spacing[i] > 0.0f))
       return rp__fail(ctx, RP_ERANGE,
-                      "%s: spacing %g must be positive and finite", name,
-                      (double)hdr->spacing[i]);
+                      "%s: %s: axis %d value %g must be positive and finite",
+                      name, fields->spacing, i, (double)hdr->spacing[i]);
   if (memchr(hdr->data_file, '\0', sizeof hdr->data_file) == NULL)
     return rp__fail(ctx, RP_EINVAL, "%s: data file name is not terminated",
                     name);
-  /* Type, sizes of at least 1 and below 2^32, and the byte limit. */
-  return rp__volume_size(ctx, name, hdr->dims, hdr->type, &voxels, bytes);
+  /* The type first, so that rp__volume_size's messages are about sizes
+   * only and `what` can name the sizes' field. */
+  if (rp__voxel_size(hdr->type) == 0)
+    return rp__fail(ctx, RP_EUNSUPPORTED,
+                    "%s: field 'type': value %d is not a voxel type", name,
+                    (int)hdr->type);
+  /* Sizes of at least 1 and below 2^32, and the byte limit. */
+  return rp__volume_size(ctx, name, fields->dims, hdr->dims, hdr->type,
+                         &voxels, bytes);
 }
 
 static void header_init(rp__volume_header *hdr) {
@@ -651,7 +698,7 @@ int rp__nrrd_parse(rp_context *ctx, const char *name, const uint8_t *buf,
   if (h.skip_to_end && h.gzip)
     return rp__fail(ctx, RP_EUNSUPPORTED,
                     "%s: byte skip -1 needs raw encoding, not gzip", name);
-  if ((rc = check_header(ctx, name, &h, &bytes)) != 0)
+  if ((rc = check_header(ctx, name, &nrrd_fields_named, &h, &bytes)) != 0)
     return rc;
   *hdr = h;
   if (header_len != NULL)
@@ -748,7 +795,8 @@ int rp__sidecar_parse(rp_context *ctx, const char *name, const uint8_t *buf,
     if (!(seen & required[i].bit))
       return rp__fail(ctx, RP_EFORMAT, "%s: missing key '%s'", name,
                       required[i].name);
-  if ((rc = check_header(ctx, name, &h, &bytes)) != 0)
+  if ((rc = check_header(ctx, name, &sidecar_fields_named, &h, &bytes)) !=
+      0)
     return rc;
   if ((seen & F_BYTES) && declared != (uint64_t)bytes)
     return rp__fail(ctx, RP_EFORMAT,
@@ -812,7 +860,7 @@ static int raw_name_parse(rp_context *ctx, const char *path,
   const char *base = strrchr(path, '/');
   const char *type_sep, *dims_sep, *p;
   char type[32];
-  size_t n, stem;
+  size_t n, stem, bytes;
   rp__volume_header h;
   int rc;
   base = base != NULL ? base + 1 : path;
@@ -844,6 +892,8 @@ static int raw_name_parse(rp_context *ctx, const char *path,
   if (h.dims[0] == 0 || h.dims[1] == 0 || h.dims[2] == 0)
     return rp__fail(ctx, RP_ERANGE,
                     "%s: sizes in the file name must be at least 1", path);
+  if ((rc = check_header(ctx, path, &raw_fields_named, &h, &bytes)) != 0)
+    return rc;
   *hdr = h;
   return 0;
 }
@@ -998,15 +1048,17 @@ static void z_free(voidpf opaque, voidpf ptr) {
 /* Inflates a gzip or zlib stream into exactly `bytes` bytes. The output
  * grows as data arrives (doubling, capped at `bytes`): a small file that
  * claims huge sizes runs out of input and fails with RP_ETRUNC long before
- * it could make us allocate what it claims. */
+ * it could make us allocate what it claims. The byte skip is inflated into
+ * a window of up to CHUNK bytes of its own: the output buffer of a tiny
+ * volume would take one inflate call per skipped byte. */
 static int decode_gzip(rp_context *ctx, const char *name,
                        const rp__volume_header *hdr, source *src,
                        size_t bytes, uint8_t **out) {
   enum { SKIP, FILL, SPILL };
   uint8_t spill[64];
-  uint8_t *in = NULL, *data = NULL;
+  uint8_t *in = NULL, *data = NULL, *window = NULL;
   uint64_t skip = hdr->byte_skip;
-  size_t cap, have = 0;
+  size_t cap, wcap, have = 0;
   int rc = 0, zrc, in_end = 0, inited = 0;
   z_stream zs;
 
@@ -1018,7 +1070,14 @@ static int decode_gzip(rp_context *ctx, const char *name,
   data = rp__malloc(ctx, cap);
   if (src->fp != NULL)
     in = rp__malloc(ctx, CHUNK);
-  if (data == NULL || (src->fp != NULL && in == NULL)) {
+  /* The output buffer serves as the window when it is as large. */
+  wcap = skip < CHUNK ? (size_t)skip : CHUNK;
+  if (wcap > cap)
+    window = rp__malloc(ctx, wcap);
+  else
+    wcap = cap;
+  if (data == NULL || (src->fp != NULL && in == NULL) ||
+      (wcap > cap && window == NULL)) {
     rc = rp__fail(ctx, RP_ENOMEM, "%s: out of memory", name);
     goto done;
   }
@@ -1050,8 +1109,8 @@ static int decode_gzip(rp_context *ctx, const char *name,
     }
     if (skip > 0) {
       mode = SKIP; /* inflated bytes before the payload: discard */
-      zs.next_out = data;
-      zs.avail_out = (uInt)(skip < cap ? skip : cap);
+      zs.next_out = window != NULL ? window : data;
+      zs.avail_out = (uInt)(skip < wcap ? skip : wcap);
     } else if (have < cap) {
       mode = FILL;
       zs.next_out = data + have;
@@ -1076,6 +1135,7 @@ static int decode_gzip(rp_context *ctx, const char *name,
     }
     before = zs.avail_out;
     zrc = inflate(&zs, Z_NO_FLUSH);
+    rp__inflate_calls++;
     if (mode == SKIP)
       skip -= before - zs.avail_out;
     else if (mode == FILL)
@@ -1122,6 +1182,7 @@ static int decode_gzip(rp_context *ctx, const char *name,
 done:
   if (inited)
     inflateEnd(&zs);
+  rp__free(ctx, window);
   rp__free(ctx, in);
   if (rc != 0) {
     rp__free(ctx, data);
@@ -1197,7 +1258,7 @@ int rp__volume_decode(rp_context *ctx, const char *name,
   if (hdr == NULL || out == NULL || (payload == NULL && len > 0))
     return rp__fail(ctx, RP_EINVAL, "%s: rp__volume_decode: NULL argument",
                     name);
-  if ((rc = check_header(ctx, name, hdr, &bytes)) != 0)
+  if ((rc = check_header(ctx, name, &memory_fields_named, hdr, &bytes)) != 0)
     return rc;
   if (hdr->skip_to_end && hdr->gzip)
     return rp__fail(ctx, RP_EUNSUPPORTED,
@@ -1210,61 +1271,108 @@ int rp__volume_decode(rp_context *ctx, const char *name,
 
 /* ---- Files --------------------------------------------------------------- */
 
-/* Opens a regular file for reading. `owner`, when not NULL, is the header
- * that named it, for the message. */
-static int open_file(rp_context *ctx, const char *path, const char *owner,
-                     FILE **fp, uint64_t *size) {
+static int no_such_file(rp_context *ctx, const char *path,
+                        const char *owner) {
+  return owner != NULL
+             ? rp__fail(ctx, RP_ENOENT, "%s: data file %s: no such file",
+                        owner, path)
+             : rp__fail(ctx, RP_ENOENT, "%s: no such file", path);
+}
+
+static int not_regular(rp_context *ctx, const char *path,
+                       const char *owner) {
+  return owner != NULL
+             ? rp__fail(ctx, RP_EIO, "%s: data file %s: not a regular file",
+                        owner, path)
+             : rp__fail(ctx, RP_EIO, "%s: not a regular file", path);
+}
+
+/* Opens a regular file for reading; NULL with *rc set on failure. `owner`,
+ * when not NULL, is the header that named it, for the message. A FIFO
+ * blocks in open() until a writer comes, and opening a device may act on
+ * it, so the path's type is checked before it is opened; the open itself
+ * does not block either, and the type is checked again on the descriptor,
+ * in case the path changed in between. */
+static FILE *open_file(rp_context *ctx, const char *path, const char *owner,
+                       uint64_t *size, int *rc) {
   struct stat st;
-  FILE *f = fopen(path, "rb");
-  int err = errno;
-  if (f == NULL) {
-    if (err == ENOENT || err == ENOTDIR)
-      return owner != NULL
-                 ? rp__fail(ctx, RP_ENOENT,
-                            "%s: data file %s: no such file", owner, path)
-                 : rp__fail(ctx, RP_ENOENT, "%s: no such file", path);
-    return rp__fail(ctx, RP_EIO, "%s: cannot open: %s", path, strerror(err));
-  }
-  if (fstat(fileno(f), &st) != 0) {
+  FILE *f = NULL;
+  int fd, flags, err;
+  if (stat(path, &st) != 0) {
     err = errno;
-    fclose(f);
-    return rp__fail(ctx, RP_EIO, "%s: cannot stat: %s", path, strerror(err));
+    *rc = err == ENOENT || err == ENOTDIR
+              ? no_such_file(ctx, path, owner)
+              : rp__fail(ctx, RP_EIO, "%s: cannot stat: %s", path,
+                         strerror(err));
+    return NULL;
   }
   if (!S_ISREG(st.st_mode)) {
-    fclose(f);
-    return rp__fail(ctx, RP_EIO, "%s: not a regular file", path);
+    *rc = not_regular(ctx, path, owner);
+    return NULL;
   }
-  *fp = f;
+  fd = open(path, O_RDONLY | O_NONBLOCK | O_CLOEXEC);
+  if (fd < 0) {
+    err = errno;
+    *rc = err == ENOENT || err == ENOTDIR
+              ? no_such_file(ctx, path, owner)
+              : rp__fail(ctx, RP_EIO, "%s: cannot open: %s", path,
+                         strerror(err));
+    return NULL;
+  }
+  if (fstat(fd, &st) != 0) {
+    err = errno;
+    close(fd);
+    *rc = rp__fail(ctx, RP_EIO, "%s: cannot stat: %s", path, strerror(err));
+    return NULL;
+  }
+  if (!S_ISREG(st.st_mode)) {
+    close(fd);
+    *rc = not_regular(ctx, path, owner);
+    return NULL;
+  }
+  /* Reads block as usual from here on. */
+  flags = fcntl(fd, F_GETFL);
+  if (flags != -1 && fcntl(fd, F_SETFL, flags & ~O_NONBLOCK) != -1)
+    f = fdopen(fd, "rb");
+  if (f == NULL) {
+    err = errno;
+    close(fd);
+    *rc = rp__fail(ctx, err == ENOMEM ? RP_ENOMEM : RP_EIO,
+                   "%s: cannot open: %s", path, strerror(err));
+    return NULL;
+  }
   *size = (uint64_t)st.st_size;
-  return 0;
+  return f;
 }
 
 /* The file `file` names relative to the directory of `header`, in memory
- * from rp__malloc. Absolute names are kept as they are. */
-static int resolve(rp_context *ctx, const char *header, const char *file,
-                   char **out) {
+ * from rp__malloc; NULL when out of memory (recorded). Absolute names are
+ * kept as they are. */
+static char *resolve(rp_context *ctx, const char *header, const char *file) {
   const char *slash = strrchr(header, '/');
   size_t dir = file[0] == '/' || slash == NULL
                    ? 0
                    : (size_t)(slash - header) + 1;
   size_t n = strlen(file);
   char *p = rp__malloc(ctx, dir + n + 1);
-  if (p == NULL)
-    return rp__fail(ctx, RP_ENOMEM, "%s: out of memory", header);
+  if (p == NULL) {
+    rp__fail(ctx, RP_ENOMEM, "%s: out of memory", header);
+    return NULL;
+  }
   memcpy(p, header, dir);
   memcpy(p + dir, file, n + 1);
-  *out = p;
-  return 0;
+  return p;
 }
 
 /* Decodes the payload of `fp`, from byte `offset` to its end. */
 static int decode_file(rp_context *ctx, const char *name,
+                       const header_fields *fields,
                        const rp__volume_header *hdr, FILE *fp, uint64_t size,
                        uint64_t offset, rp_volume **out) {
   source src;
   size_t bytes = 0;
   int rc;
-  if ((rc = check_header(ctx, name, hdr, &bytes)) != 0)
+  if ((rc = check_header(ctx, name, fields, hdr, &bytes)) != 0)
     return rc;
   if (offset > size || fseeko(fp, (off_t)offset, SEEK_SET) != 0)
     return rp__fail(ctx, RP_EIO, "%s: seek error", name);
@@ -1276,17 +1384,19 @@ static int decode_file(rp_context *ctx, const char *name,
 
 /* The payload of a header that names a data file. */
 static int decode_data_file(rp_context *ctx, const char *path,
+                            const header_fields *fields,
                             const rp__volume_header *hdr, rp_volume **out) {
-  char *data_path = NULL;
-  FILE *fp = NULL;
+  char *data_path = resolve(ctx, path, hdr->data_file);
+  FILE *fp;
   uint64_t size = 0;
-  int rc = resolve(ctx, path, hdr->data_file, &data_path);
-  if (rc == 0)
-    rc = open_file(ctx, data_path, path, &fp, &size);
-  if (rc == 0)
-    rc = decode_file(ctx, data_path, hdr, fp, size, 0, out);
-  if (fp != NULL)
+  int rc = RP_ENOMEM;
+  if (data_path == NULL)
+    return rc;
+  fp = open_file(ctx, data_path, path, &size, &rc);
+  if (fp != NULL) {
+    rc = decode_file(ctx, data_path, fields, hdr, fp, size, 0, out);
     fclose(fp);
+  }
   rp__free(ctx, data_path);
   return rc;
 }
@@ -1324,8 +1434,9 @@ static int load_nrrd(rp_context *ctx, const char *path, FILE *fp,
   if (rc != 0)
     return rc;
   if (hdr.data_file[0] != '\0')
-    return decode_data_file(ctx, path, &hdr, out);
-  return decode_file(ctx, path, &hdr, fp, size, header_len, out);
+    return decode_data_file(ctx, path, &nrrd_fields_named, &hdr, out);
+  return decode_file(ctx, path, &nrrd_fields_named, &hdr, fp, size,
+                     header_len, out);
 }
 
 int rp_volume_load(rp_context *ctx, const char *path, rp_volume **out) {
@@ -1342,30 +1453,25 @@ int rp_volume_load(rp_context *ctx, const char *path, rp_volume **out) {
     return rp__fail(ctx, RP_EINVAL,
                     "rp_volume_load: path and out must not be NULL");
   header_init(&hdr);
-  if ((rc = open_file(ctx, path, NULL, &fp, &size)) != 0)
+  if ((fp = open_file(ctx, path, NULL, &size, &rc)) == NULL)
     return rc;
-  /* The first bytes decide the format: NRRD by its magic, then a .raw by
-   * its name (its content is arbitrary), then a sidecar by its keys. */
+  /* A .raw file by its name first: its content is voxels only, and voxels
+   * may begin with any bytes, "NRRD" included. Then the first bytes
+   * decide: NRRD by its magic, a sidecar by its keys. */
+  rc = raw_name_parse(ctx, path, &hdr);
+  if (rc <= 0) {
+    if (rc == 0)
+      rc = decode_file(ctx, path, &raw_fields_named, &hdr, fp, size, 0,
+                       out);
+    goto done;
+  }
   head_len = size < HEAD_MAX ? (size_t)size : HEAD_MAX;
   head = rp__malloc(ctx, head_len > 0 ? head_len : 1);
   if (head == NULL) {
     rc = rp__fail(ctx, RP_ENOMEM, "%s: out of memory", path);
     goto done;
   }
-  got = fread(head, 1, head_len < 4 ? head_len : 4, fp);
-  if (ferror(fp)) {
-    rc = rp__fail(ctx, RP_EIO, "%s: read error: %s", path, strerror(errno));
-    goto done;
-  }
-  if (got < 4 || memcmp(head, "NRRD", 4) != 0) {
-    rc = raw_name_parse(ctx, path, &hdr);
-    if (rc <= 0) {
-      if (rc == 0)
-        rc = decode_file(ctx, path, &hdr, fp, size, 0, out);
-      goto done;
-    }
-  }
-  got += fread(head + got, 1, head_len - got, fp);
+  got = fread(head, 1, head_len, fp);
   if (got < head_len) {
     rc = rp__fail(ctx, RP_EIO, "%s: read error: %s", path,
                   ferror(fp) ? strerror(errno) : "file shrank");
@@ -1379,7 +1485,7 @@ int rp_volume_load(rp_context *ctx, const char *path, rp_volume **out) {
                     "%s: too large for a sidecar (%llu bytes)", path,
                     (unsigned long long)size);
     else if ((rc = rp__sidecar_parse(ctx, path, head, head_len, &hdr)) == 0)
-      rc = decode_data_file(ctx, path, &hdr, out);
+      rc = decode_data_file(ctx, path, &sidecar_fields_named, &hdr, out);
   } else {
     rc = rp__fail(ctx, RP_EFORMAT,
                   "%s: not a volume file; accepted: NRRD (starts with "

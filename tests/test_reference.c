@@ -8,11 +8,15 @@
  * computed by calling the code under test. */
 #include "test_util.h"
 
+#include <dirent.h>
 #include <math.h>
 #include <png.h>
+#include <signal.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/resource.h>
+#include <sys/stat.h>
 
 #include "raygen.h"
 
@@ -1002,6 +1006,118 @@ static void test_png_roundtrip(void **state) {
   rp_context_destroy(ctx);
 }
 
+/* Writes a small file with the given content. */
+static void put_file(const char *path, const char *text) {
+  FILE *f = fopen(path, "wb");
+  assert_non_null(f);
+  assert_int_equal(fputs(text, f) >= 0, 1);
+  assert_int_equal(fclose(f), 0);
+}
+
+/* The file holds exactly `text`. */
+static void assert_file_is(const char *path, const char *text) {
+  char buf[256];
+  size_t n;
+  FILE *f = fopen(path, "rb");
+  assert_non_null(f);
+  n = fread(buf, 1, sizeof buf - 1, f);
+  fclose(f);
+  buf[n] = '\0';
+  assert_string_equal(buf, text);
+}
+
+/* Names in `dir`, other than "." and "..". */
+static int count_entries(const char *dir) {
+  DIR *d = opendir(dir);
+  struct dirent *e;
+  int n = 0;
+  assert_non_null(d);
+  while ((e = readdir(d)) != NULL)
+    if (strcmp(e->d_name, ".") != 0 && strcmp(e->d_name, "..") != 0)
+      n++;
+  closedir(d);
+  return n;
+}
+
+/* The image goes to a fresh temporary beside `path`: a file the caller
+ * named "<path>.tmp" is never touched, and a failed write leaves `path`
+ * as it was and no temporary behind. */
+static void test_png_temp_file(void **state) {
+  enum { W = 64, H = 64 };
+  rp_context *ctx = rp_test_context();
+  char dir[1024], path[1100], tmp[1200], sub[1200];
+  uint8_t *rgba = malloc(W * H * 4);
+  uint32_t x = 1, rw, rh, i;
+  uint8_t *back;
+  (void)state;
+  assert_non_null(rgba);
+  for (i = 0; i < W * H * 4; i++) { /* noise: hardly compresses */
+    x = x * 1664525u + 1013904223u;
+    rgba[i] = (uint8_t)(i % 4 == 3 ? 255 : x >> 24);
+  }
+  snprintf(dir, sizeof dir, "%s/png_tmp", rp_test_tmp_dir());
+  mkdir(dir, 0777);
+  snprintf(path, sizeof path, "%s/out.png", dir);
+  snprintf(tmp, sizeof tmp, "%s/out.png.tmp", dir);
+  snprintf(sub, sizeof sub, "%s/out.png/keep", dir);
+  remove(sub);
+  remove(path); /* a directory left by an earlier run, or a file */
+  put_file(tmp, "the caller's own file");
+
+  /* Success: the image is in place, the caller's file is intact. */
+  assert_int_equal(rp_write_png(ctx, path, rgba, W, H, NULL), 0);
+  assert_file_is(tmp, "the caller's own file");
+  assert_int_equal(count_entries(dir), 2);
+  back = read_png_rgb(path, &rw, &rh);
+  assert_int_equal(rw, W);
+  assert_int_equal(rh, H);
+  for (i = 0; i < W * H; i++)
+    assert_memory_equal(back + 3 * i, rgba + 4 * i, 3);
+  free(back);
+
+  /* Failure before any file is made: `path` is untouched. */
+  put_file(path, "an older image");
+  assert_int_equal(rp_write_png(ctx, path, rgba, 0, H, NULL), RP_EINVAL);
+  assert_file_is(path, "an older image");
+  assert_file_is(tmp, "the caller's own file");
+  assert_int_equal(count_entries(dir), 2);
+
+  /* Failure while writing (the file size limit stands in for a full
+   * disk): `path` keeps its content, the temporary is gone. */
+  {
+    struct rlimit old, lim;
+    void (*prev)(int) = signal(SIGXFSZ, SIG_IGN);
+    int err;
+    assert_int_equal(getrlimit(RLIMIT_FSIZE, &old), 0);
+    lim = old;
+    lim.rlim_cur = 1024;
+    assert_int_equal(setrlimit(RLIMIT_FSIZE, &lim), 0);
+    err = rp_write_png(ctx, path, rgba, W, H, NULL);
+    assert_int_equal(setrlimit(RLIMIT_FSIZE, &old), 0);
+    signal(SIGXFSZ, prev);
+    assert_int_equal(err, RP_EIO);
+    assert_non_null(strstr(rp_last_error(ctx), "out.png"));
+  }
+  assert_file_is(path, "an older image");
+  assert_file_is(tmp, "the caller's own file");
+  assert_int_equal(count_entries(dir), 2);
+
+  /* Failure at the rename: `path` is a directory, which stays as it was
+   * with its content. */
+  remove(path);
+  assert_int_equal(mkdir(path, 0777), 0);
+  put_file(sub, "kept");
+  assert_int_equal(rp_write_png(ctx, path, rgba, W, H, NULL), RP_EIO);
+  assert_non_null(strstr(rp_last_error(ctx), "out.png"));
+  assert_file_is(sub, "kept");
+  assert_file_is(tmp, "the caller's own file");
+  assert_int_equal(count_entries(dir), 2);
+  remove(sub);
+  remove(path);
+  free(rgba);
+  rp_context_destroy(ctx);
+}
+
 /* ---- 10: bad arguments -------------------------------------------------- */
 
 typedef struct bad_case {
@@ -1230,6 +1346,7 @@ int main(void) {
       cmocka_unit_test(test_odd_sizes),
       cmocka_unit_test(test_camera_inside),
       cmocka_unit_test(test_png_roundtrip),
+      cmocka_unit_test(test_png_temp_file),
       cmocka_unit_test(test_bad_arguments),
       cmocka_unit_test(test_bonsai_skip),
   };

@@ -12,6 +12,7 @@
 #include <string.h>
 #include <sys/stat.h>
 #include <time.h>
+#include <unistd.h>
 #include <zlib.h>
 
 #include "internal.h"
@@ -505,6 +506,18 @@ static void test_named_raw(void **state) {
     load_and_check(ctx, rp_test_write_file(name, payload, n), all_types[t],
                    unit_spacing);
   }
+  /* The name decides before the content: voxels that happen to begin with
+   * the bytes "NRRD" are still voxels. */
+  {
+    static const uint8_t magic[8] = {'N', 'R', 'R', 'D', '0', '0', '0', '4'};
+    rp_volume *v;
+    encode(RP_U8, 0, payload);
+    memcpy(payload, magic, sizeof magic);
+    v = load_ok(ctx, rp_test_write_file("magic_3x2x4_uint8.raw", payload,
+                                        NV));
+    assert_memory_equal(rp_volume_data(v), payload, NV);
+    rp_volume_destroy(v);
+  }
   rp_context_destroy(ctx);
 }
 
@@ -630,6 +643,70 @@ static void test_decode_on_memory(void **state) {
     free(zbig);
     free(big);
   }
+
+  /* A header no parser made: the message names the bad spacing axis. */
+  h.spacing[1] = -2.0f;
+  v = NULL;
+  assert_int_equal(rp__volume_decode(ctx, "mem", &h, payload, 0, &v),
+                   RP_ERANGE);
+  assert_null(v);
+  assert_non_null(strstr(rp_last_error(ctx), "field 'spacing': axis 1"));
+  rp_context_destroy(ctx);
+}
+
+/* Calls to inflate() made by this thread, counted by volume_io.c. */
+extern _Thread_local unsigned long rp__inflate_calls;
+
+/* A large inflated byte skip before a tiny payload is discarded through a
+ * fixed 64 kB window, not through the payload's one byte: 8 MiB of skipped
+ * zeros take a few hundred inflate calls, not eight million. */
+static void test_gzip_big_skip(void **state) {
+  const size_t skip = (size_t)8 << 20, cap = (size_t)1 << 20;
+  rp_context *ctx = rp_test_context();
+  uint8_t *plain = calloc(1, skip + 1);
+  uint8_t *packed = malloc(cap);
+  rp_volume_info info;
+  rp_volume *v;
+  size_t z;
+  (void)state;
+  assert_non_null(plain);
+  assert_non_null(packed);
+  plain[skip] = 42;
+  z = deflate_bytes(plain, skip + 1, packed, cap, 0);
+  rp__inflate_calls = 0;
+  v = load_ok(ctx, write_with("bigskip.nrrd",
+                              "NRRD0004\ntype: uchar\ndimension: 3\n"
+                              "sizes: 1 1 1\nencoding: gzip\n"
+                              "byte skip: 8388608\n\n",
+                              packed, z));
+  rp_volume_get_info(v, &info);
+  assert_int_equal(info.dims[0] * info.dims[1] * info.dims[2], 1);
+  assert_int_equal(((const uint8_t *)rp_volume_data(v))[0], 42);
+  rp_volume_destroy(v);
+  if (rp__inflate_calls > 1024)
+    fail_msg("%lu inflate calls for an 8 MiB skip", rp__inflate_calls);
+  /* The same from memory. */
+  {
+    rp__volume_header h;
+    memset(&h, 0, sizeof h);
+    h.dims[0] = h.dims[1] = h.dims[2] = 1;
+    h.type = RP_U8;
+    h.spacing[0] = h.spacing[1] = h.spacing[2] = 1.0f;
+    h.gzip = 1;
+    h.byte_skip = skip;
+    rp__inflate_calls = 0;
+    v = NULL;
+    assert_int_equal(rp__volume_decode(ctx, "mem", &h, packed, z, &v), 0);
+    assert_int_equal(((const uint8_t *)rp_volume_data(v))[0], 42);
+    rp_volume_destroy(v);
+    assert_true(rp__inflate_calls <= 1024);
+    /* A skip past the end of the inflated data is still truncation. */
+    h.byte_skip = skip + 1;
+    assert_int_equal(rp__volume_decode(ctx, "mem", &h, packed, z, &v),
+                     RP_ETRUNC);
+  }
+  free(packed);
+  free(plain);
   rp_context_destroy(ctx);
 }
 
@@ -686,9 +763,9 @@ static const bad_case bad_cases[] = {
      RP_ERANGE, "sizes"},
     {"overflow.nrrd",
      HDR_START "sizes: 4294967295 4294967295 4294967295\nencoding: raw\n\n",
-     0, RP_ERANGE, "overflow.nrrd"},
+     0, RP_ERANGE, "overflow.nrrd: field 'sizes'"},
     {"axis32.nrrd", HDR_START "sizes: 4294967296 1 1\nencoding: raw\n\n", 0,
-     RP_ERANGE, "axis32.nrrd"},
+     RP_ERANGE, "axis32.nrrd: field 'sizes'"},
     {"dim2.nrrd", "NRRD0004\ntype: uchar\ndimension: 2\n\n", 0,
      RP_EUNSUPPORTED, "dimension 2"},
     {"dimx.nrrd", "NRRD0004\ntype: uchar\ndimension: three\n\n", 0,
@@ -709,11 +786,12 @@ static const bad_case bad_cases[] = {
      RP_EUNSUPPORTED, "'hex'"},
     {"endian.nrrd", HDR_U8 "endian: middle\n\n", 0, RP_EFORMAT, "'middle'"},
     {"spnan.nrrd", HDR_U8 "spacings: 1 nan 1\n\n", 0, RP_ENOTFINITE,
-     "spacings"},
+     "field 'spacings': axis 1"},
     {"spinf.nrrd", HDR_U8 "spacings: 1 1e999 1\n\n", 0, RP_ENOTFINITE,
      "spacings"},
     {"sp0.nrrd", HDR_U8 "spacings: 1 0 1\n\n", 0, RP_ERANGE, "spacings"},
-    {"spneg.nrrd", HDR_U8 "spacings: 1 -2 1\n\n", 0, RP_ERANGE, "spacings"},
+    {"spneg.nrrd", HDR_U8 "spacings: 1 -2 1\n\n", 0, RP_ERANGE,
+     "field 'spacings': axis 1 value '-2'"},
     {"sptiny.nrrd", HDR_U8 "spacings: 1 1e-300 1\n\n", 0, RP_ERANGE,
      "spacings"},
     {"sp2.nrrd", HDR_U8 "spacings: 1 2\n\n", 0, RP_EFORMAT, "spacings"},
@@ -725,7 +803,7 @@ static const bad_case bad_cases[] = {
      RP_EFORMAT, "space directions"},
     {"dirzero.nrrd",
      HDR_U8 "space directions: (1,0,0) (0,0,0) (0,0,1)\n\n", 0, RP_ERANGE,
-     "space directions"},
+     "field 'space directions': axis 1"},
     {"dirlen.nrrd", HDR_U8 "space directions: (1,0,0) (0,1) (0,0,1)\n\n",
      0, RP_EFORMAT, "space directions"},
     {"dirnan.nrrd",
@@ -789,7 +867,12 @@ static const bad_case bad_cases[] = {
      RP_EFORMAT, "'pdp'"},
     {"sc_spacing.txt",
      "file: sc_bad.raw\ndims: 3 2 4\ntype: uint8\nspacing: 1 -1 1\n",
-     NO_DATA, RP_ERANGE, "spacing"},
+     NO_DATA, RP_ERANGE, "field 'spacing': axis 1 value '-1'"},
+    {"sc_overflow.txt",
+     "file: sc_bad.raw\ndims: 4294967295 4294967295 4294967295\n"
+     "type: uint8\n", NO_DATA, RP_ERANGE, "sc_overflow.txt: field 'dims'"},
+    {"sc_axis32.txt", "file: sc_bad.raw\ndims: 4294967296 1 1\ntype: uint8\n",
+     NO_DATA, RP_ERANGE, "sc_axis32.txt: field 'dims'"},
     {"sc_line.txt", "file: sc_bad.raw\ndims: 3 2 4\nnot a key value\n",
      NO_DATA, RP_EFORMAT, "not a key value"},
     {"sc_missing.txt", "file: sc_none.raw\ndims: 3 2 4\ntype: uint8\n",
@@ -805,6 +888,8 @@ static const bad_case bad_cases[] = {
     {"pat2_3x2x4_uint8.raw", "", 1, RP_EFORMAT, "pat2_3x2x4_uint8.raw"},
     {"pat_3x2x4_int8.raw", "", 0, RP_EUNSUPPORTED, "'int8'"},
     {"pat_3x0x4_uint8.raw", "", 0, RP_ERANGE, "pat_3x0x4_uint8.raw"},
+    {"pat_4294967296x1x1_uint8.raw", "", 0, RP_ERANGE,
+     "dims in the file name"},
     {"weird.raw", "", 0, RP_EFORMAT, "NAME_XxYxZ_TYPE.raw"},
     {"pat_3x2_uint8.raw", "", 0, RP_EFORMAT, "NAME_XxYxZ_TYPE.raw"},
     {"garbage.bin", "hello: world\n", 0, RP_EFORMAT, "NRRD"},
@@ -846,6 +931,45 @@ static void test_missing_and_unreadable(void **state) {
   assert_int_equal(rp_volume_load(ctx, NULL, &v), RP_EINVAL);
   assert_int_equal(rp_volume_load(ctx, path, NULL), RP_EINVAL);
   assert_null(v);
+  rp_context_destroy(ctx);
+}
+
+/* A FIFO (or any file that is not regular) is refused by its type before
+ * it is opened: opening a FIFO for reading blocks until a writer comes.
+ * The alarm turns a hang into a failure. */
+static void test_not_regular(void **state) {
+  static const char *const names[] = {"fifo.nrrd", "fifo_3x2x4_uint8.raw",
+                                      "fifo_data.raw"};
+  rp_context *ctx = rp_test_context();
+  char path[1024];
+  size_t i;
+  (void)state;
+  alarm(20);
+  for (i = 0; i < sizeof names / sizeof names[0]; i++) {
+    snprintf(path, sizeof path, "%s/%s", rp_test_tmp_dir(), names[i]);
+    unlink(path);
+    assert_int_equal(mkfifo(path, 0600), 0);
+  }
+  snprintf(path, sizeof path, "%s/fifo.nrrd", rp_test_tmp_dir());
+  load_fails(ctx, path, RP_EIO, "not a regular file");
+  load_fails(ctx, path, RP_EIO, "fifo.nrrd");
+  snprintf(path, sizeof path, "%s/fifo_3x2x4_uint8.raw", rp_test_tmp_dir());
+  load_fails(ctx, path, RP_EIO, "fifo_3x2x4_uint8.raw: not a regular file");
+  /* Data files named by a detached header or a sidecar. */
+  load_fails(ctx,
+             write_text("fifo.nhdr",
+                        nrrd_header("uchar", NULL, "raw",
+                                    "data file: fifo_data.raw\n")),
+             RP_EIO, "fifo_data.raw: not a regular file");
+  load_fails(ctx,
+             write_text("fifo.txt", "file: fifo_data.raw\ndims: 3 2 4\n"
+                                    "type: uint8\n"),
+             RP_EIO, "fifo_data.raw: not a regular file");
+  alarm(0);
+  for (i = 0; i < sizeof names / sizeof names[0]; i++) {
+    snprintf(path, sizeof path, "%s/%s", rp_test_tmp_dir(), names[i]);
+    unlink(path);
+  }
   rp_context_destroy(ctx);
 }
 
@@ -1046,7 +1170,12 @@ static void test_huge_claims(void **state) {
   load_fails(ctx,
              write_with("limit.nrrd", nrrd_header("uchar", NULL, "raw", NULL),
                         payload, NV),
-             RP_ERANGE, "limit.nrrd");
+             RP_ERANGE, "limit.nrrd: field 'sizes'");
+  rp_test_write_file("limit.raw", payload, NV);
+  load_fails(ctx,
+             write_text("limit.txt",
+                        "file: limit.raw\ndims: 3 2 4\ntype: uint8\n"),
+             RP_ERANGE, "limit.txt: field 'dims'");
   rp_context_destroy(ctx);
 }
 
@@ -1089,6 +1218,22 @@ static void test_out_of_memory(void **state) {
   oom_loop(write_with("oom_raw.nrrd",
                       nrrd_header("ushort", "big", "raw", NULL), payload,
                       n));
+  /* A byte skip larger than the output: the skip window of its own. */
+  {
+    const size_t skip = 100000;
+    uint8_t *plain = calloc(1, skip + n);
+    uint8_t *zz = malloc(skip + n);
+    assert_non_null(plain);
+    assert_non_null(zz);
+    memcpy(plain + skip, payload, n);
+    z = deflate_bytes(plain, skip + n, zz, skip + n, 0);
+    oom_loop(write_with("oom_skip.nrrd",
+                        nrrd_header("ushort", "big", "gzip",
+                                    "byte skip: 100000\n"),
+                        zz, z));
+    free(zz);
+    free(plain);
+  }
   rp_test_write_file("oom_data.raw", payload, n);
   oom_loop(write_text("oom.txt", "file: oom_data.raw\ndims: 3 2 4\n"
                                  "type: uint16\nendian: big\n"));
@@ -1209,8 +1354,10 @@ int main(void) {
       cmocka_unit_test(test_named_raw),
       cmocka_unit_test(test_parsers_on_memory),
       cmocka_unit_test(test_decode_on_memory),
+      cmocka_unit_test(test_gzip_big_skip),
       cmocka_unit_test(test_malformed),
       cmocka_unit_test(test_missing_and_unreadable),
+      cmocka_unit_test(test_not_regular),
       cmocka_unit_test(test_bad_lines),
       cmocka_unit_test(test_not_finite_data),
       cmocka_unit_test(test_bad_gzip),

@@ -67,8 +67,19 @@ refuse "underflowing step" "bad value '1e-50'" "$rp" render gen:ml:8 \
   --step 1e-50 -o "$dir/c.png"
 refuse "overflowing fov" "bad value '1e39'" "$rp" render gen:ml:8 \
   --fov 1e39 -o "$dir/c.png"
-refuse "unknown backend" "not available" "$rp" render gen:ml:8 \
+refuse "unknown backend" "not compiled in" "$rp" render gen:ml:8 \
   --backend warp -o "$dir/c.png"
+refuse "no such device" "has one device" "$rp" render gen:ml:8 \
+  --backend reference --device 3 -o "$dir/c.png"
+refuse "scale above one" "bad value '1.5'" "$rp" render gen:ml:8 \
+  --scale 1.5 -o "$dir/c.png"
+
+check "reference backend" "$rp" render gen:phantom:32 --backend reference \
+  --size 40x30 --scale 0.5 -o "$dir/d.png" --json
+has "reference backend named" '"backend":	"reference"'
+has "scaled width" '"scaled_width":	20'
+has "scaled height" '"scaled_height":	15'
+has "output width" '"width":	40'
 refuse "unwritable png" "$dir/no/such/dir/x.png" "$rp" render gen:ml:8 \
   --size 4x4 -o "$dir/no/such/dir/x.png"
 refuse "unknown command" "unknown command" "$rp" frobnicate
