@@ -1,9 +1,12 @@
 /* The smallest embedding of raypace: make a context, load (or generate) a
- * volume, pick a transfer function and a camera, render one frame to PNG.
+ * volume, pick a transfer function, open the best device, set a camera and
+ * render one frame to PNG.
  *
  *   sample_render [VOLUME_FILE|-] [OUT.png]
  *
- * Without a file (or with "-") it renders a generated CT-like phantom. */
+ * Without a file (or with "-") it renders a generated CT-like phantom. The
+ * device is the first backend with one (RP_BACKEND=opencl|vulkan|reference
+ * picks); without any GPU or CPU driver it falls back to the reference. */
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -24,6 +27,9 @@ int main(int argc, char **argv) {
   rp_tf *tf = NULL;
   rp_histograms *hist = NULL;
   rp_occupancy *occ = NULL;
+  rp_device *dev = NULL;
+  rp_device_desc dd = {0};
+  rp_caps caps;
   rp_camera cam = {0};
   rp_render_desc rd = {0};
   uint8_t *rgba = NULL;
@@ -42,11 +48,25 @@ int main(int argc, char **argv) {
   if (err == 0)
     err = check(ctx, rp_tf_create_preset(ctx, "ct-bone", &tf), "tf");
   /* Histograms once per volume, occupancy once per transfer function: they
-   * let the renderer skip empty space. */
+   * let the renderer skip empty space. The occupancy reads the histograms,
+   * so they live as long as it does. */
   if (err == 0)
     err = check(ctx, rp_histograms_build(ctx, vol, &hist), "histograms");
   if (err == 0)
     err = check(ctx, rp_occupancy_build(ctx, hist, tf, &occ), "occupancy");
+  if (err == 0) {
+    err = rp_device_create(ctx, &dd, &dev);
+    if (err == RP_ENODEV) { /* no driver: the scalar reference still works */
+      dd.backend = "reference";
+      err = rp_device_create(ctx, &dd, &dev);
+    }
+    check(ctx, err, "device");
+  }
+  /* The device keeps its own copies: vol and tf could be freed now. */
+  if (err == 0)
+    err = check(ctx, rp_device_set_volume(dev, vol), "upload volume");
+  if (err == 0)
+    err = check(ctx, rp_device_set_tf(dev, tf, occ), "upload tf");
   if (err == 0) {
     rp_camera_orbit(&cam, vol, 30.0f, 20.0f, 2.5f);
     rd.width = rd.height = 256;
@@ -55,14 +75,18 @@ int main(int argc, char **argv) {
     err = rgba == NULL ? RP_ENOMEM : 0;
   }
   if (err == 0)
-    err = check(ctx, rp_render_reference(ctx, vol, tf, occ, &cam, &rd, rgba,
-                                         NULL), "render");
+    err = check(ctx, rp_device_render(dev, &cam, &rd, NULL, rgba, NULL),
+                "render");
   if (err == 0)
     err = check(ctx, rp_write_png(ctx, out, rgba, rd.width, rd.height,
                                   NULL), out);
-  if (err == 0)
-    printf("wrote %s\n", out);
+  if (err == 0) {
+    rp_device_get_caps(dev, &caps);
+    printf("wrote %s on %s (%s), %.2f ms device time\n", out, caps.backend,
+           caps.device, rp_device_last_time_ns(dev) * 1e-6);
+  }
   free(rgba);
+  rp_device_destroy(dev);
   rp_occupancy_destroy(occ);
   rp_histograms_destroy(hist);
   rp_tf_destroy(tf);
