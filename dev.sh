@@ -13,7 +13,8 @@ case "$mode" in demo|test) ;; *)
 
 PKGS="cmake make gcc clang libclang-rt-14-dev pkg-config zlib1g-dev
 libpng-dev libcjson-dev libuv1-dev libcmocka-dev ocl-icd-opencl-dev
-opencl-headers pocl-opencl-icd libvulkan-dev mesa-vulkan-drivers glslc"
+opencl-headers pocl-opencl-icd libvulkan-dev mesa-vulkan-drivers glslc
+g++ libdlib-dev libjpeg-dev libblas-dev liblapack-dev"
 missing=""
 for p in $PKGS; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "ok installed" ||
@@ -56,6 +57,7 @@ build build
 ctest --test-dir build -j "$jobs" --output-on-failure
 build build-asan -DRP_ASAN=ON -DRP_UBSAN=ON -DRP_BUILD_CLI=ON
 ASAN_OPTIONS=detect_leaks=1 UBSAN_OPTIONS=print_stacktrace=1 \
+  LSAN_OPTIONS="suppressions=$(pwd)/tests/lsan.supp:print_suppressions=0" \
   ctest --test-dir build-asan -j "$jobs" --output-on-failure \
   -E test_install_consumer
 # ThreadSanitizer over the tests that run worker threads.

@@ -284,10 +284,11 @@ static void matrix_float(void **state) {
   drop_scene(&s);
 }
 
-/* 1x1, 7x513 and a 0.5 image scale, every effect set. */
+/* 1x1, 7x513 and a 0.5 image scale, every effect set, three steps. */
 static void odd_viewports_and_scales(void **state) {
   static const uint32_t sizes[][2] = {{1, 1}, {7, 513}, {40, 30}, {9, 2}};
   static const float scales[] = {1.0f, 1.0f, 0.5f, 1.0f};
+  static const float steps[] = {0.0f, 0.37f, 2.6f};
   scene s = make_scene("phantom 40x33x21", RP_GEN_PHANTOM, 40, 33, 21, RP_U8);
   rp_tf *tf = NULL;
   rp_occupancy *occ = NULL;
@@ -308,9 +309,12 @@ static void odd_viewports_and_scales(void **state) {
         d.width = sizes[v][0], d.height = sizes[v][1];
         d.image_scale = scales[v];
         d.effects = effect_sets[e];
-        snprintf(what, sizeof what, "%ux%u scale %g effects 0x%x camera %s",
-                 d.width, d.height, (double)d.image_scale, d.effects,
-                 camera_name(c));
+        /* Steps other than the TF's reference step exercise opacity
+         * correction; 0 is the default (1). */
+        d.step = steps[(v + (uint32_t)e) % 3];
+        snprintf(what, sizeof what, "%ux%u scale %g step %g effects 0x%x "
+                 "camera %s", d.width, d.height, (double)d.image_scale,
+                 (double)d.step, d.effects, camera_name(c));
         check_render(&t, &s, tf, occ, &cam, &d, what, 1);
       }
   finish(&t, "odd viewports");

@@ -1,0 +1,595 @@
+/* The OpenCL backend: rp_backend_ops on an OpenCL device (PoCL's CPU
+ * device here, its one-core sub-devices, or any GPU with an ICD).
+ *
+ * Kernels are compiled per effect set: a disabled effect is compiled out
+ * with its -D option, never skipped by a branch on a uniform. Programs
+ * are built on first use and kept in a small table keyed by the option
+ * set; the same set is never built twice on one device (PoCL would find
+ * its own disk cache, but still spends tens of milliseconds per build).
+ *
+ * Buffers only, no images: PoCL's linear-filtered images are about half
+ * as fast as hand-written trilinear on a buffer, and image access from a
+ * sub-device's context aborts in PoCL 3.1.
+ *
+ * Every kernel runs one work-group per 8x8 tile of rays, its four
+ * work-items each taking a packet of 16 rays in vector lanes (common.cl):
+ * on PoCL that is what puts the CPU's SIMD units to work, one local size
+ * means one compile per kernel (PoCL compiles again for each new local
+ * size), and a tile per work-group lets the raycast reduce its tile
+ * statistics in local memory without atomics. */
+#include <math.h>
+#include <stdio.h>
+#include <string.h>
+
+#include "cl_internal.h"
+
+#include "common_cl.h"
+#include "depth_cl.h"
+#include "ert_cl.h"
+#include "raycast_cl.h"
+
+/* Rays per work-item (RP_CL_W in common.cl): two tile rows in the
+ * sixteen float lanes of an AVX-512 register; eight (one row) measured
+ * 40 % slower on PoCL. */
+#define RP_CL_PACKET 16
+#define RP_CL_PACKETS_PER_TILE (RP_TILE_SIZE * RP_TILE_SIZE / RP_CL_PACKET)
+#define RP_CL_EFFECT_BITS                                                     \
+  (RP_EFFECT_SHADING | RP_EFFECT_ERT | RP_EFFECT_SKIP)
+/* Zero bytes after the last voxel (and grid byte): kernels read voxel
+ * pairs and grid bytes as unaligned words, and trilinear reads two voxels
+ * along x even on a one-voxel-wide axis (the second with weight zero). */
+#define RP_CL_VOLUME_PAD 16
+
+/* The kernel's rp_cl_frame mirrors rp_frame_params field by field. */
+_Static_assert(sizeof(rp_frame_params) == 39 * 4,
+               "rp_frame_params must stay 39 packed 4-byte fields");
+_Static_assert(sizeof(rp_tile_stats) == 12,
+               "rp_tile_stats must match the kernel's rp_cl_tile");
+
+static const char *const kind_names[] = {"raycast", "depth", "ert"};
+static const char *const kind_kernels[] = {"rp_cl_raycast", "rp_cl_depth",
+                                           "rp_cl_ert"};
+
+/* ---- programs ------------------------------------------------------------ */
+
+/* The build options of an option set. -cl-fast-relaxed-math is left out
+ * on purpose: it assumes no infinities, and D_front = +inf is how a ray
+ * that meets nothing is marked (the one costly function it would have
+ * sped up, the opacity correction, is written out in raycast.cl). */
+static void key_options(rp_cl_kind kind, uint32_t key, char *buf,
+                        size_t n) {
+  static const char *const types[] = {"uchar", "uchar", "ushort", "float"};
+  static const int bytes[] = {1, 1, 2, 4};
+  uint32_t type = (key >> RP_CL_KEY_TYPE_SHIFT) & 3u;
+  if (kind != RP_CL_RAYCAST)
+    type = 0;
+  snprintf(buf, n,
+           "-cl-std=CL1.2 -cl-mad-enable%s%s%s%s -DRP_VOXEL_T=%s "
+           "-DRP_VOXEL_BYTES=%d -DRP_INDEX_T=%s -DRP_CL_W=%d",
+           (key & RP_EFFECT_SHADING) ? " -DRP_SHADING" : "",
+           (key & RP_EFFECT_ERT) ? " -DRP_ERT" : "",
+           (key & RP_EFFECT_SKIP) ? " -DRP_SKIP" : "",
+           (key & RP_CL_KEY_COUNT) ? " -DRP_COUNT_FETCHES" : "",
+           types[type], bytes[type], (key & RP_CL_KEY_BIG) ? "long" : "int",
+           RP_CL_PACKET);
+}
+
+static void release_program(rp_cl_program *p) {
+  if (p->kernel != NULL)
+    clReleaseKernel(p->kernel);
+  if (p->program != NULL)
+    clReleaseProgram(p->program);
+  p->kernel = NULL;
+  p->program = NULL;
+}
+
+int rp_cl__kernel(rp_cl_impl *impl, rp_cl_kind kind, uint32_t key,
+                  cl_kernel *out) {
+  const char *sources[2];
+  char options[192];
+  rp_cl_program *slot = &impl->cache[0];
+  cl_program prog;
+  cl_kernel kernel;
+  cl_int err;
+  int i, rc;
+  for (i = 0; i < RP_CL_CACHE_SIZE; i++) {
+    rp_cl_program *p = &impl->cache[i];
+    if (p->program != NULL && p->kind == kind && p->key == key) {
+      p->last_use = ++impl->use_clock;
+      impl->hits++;
+      *out = p->kernel;
+      return 0;
+    }
+  }
+  /* A free slot (last_use 0), else the least recently used program. */
+  for (i = 1; i < RP_CL_CACHE_SIZE; i++)
+    if (impl->cache[i].last_use < slot->last_use)
+      slot = &impl->cache[i];
+  sources[0] = rp_cl_src_common;
+  sources[1] = kind == RP_CL_RAYCAST ? rp_cl_src_raycast
+               : kind == RP_CL_DEPTH ? rp_cl_src_depth
+                                     : rp_cl_src_ert;
+  key_options(kind, key, options, sizeof options);
+  if ((rc = rp_cl__build(impl, kind_names[kind], sources, 2, options,
+                         &prog)) != 0)
+    return rc;
+  kernel = clCreateKernel(prog, kind_kernels[kind], &err);
+  if (kernel == NULL) {
+    char op[64];
+    clReleaseProgram(prog);
+    snprintf(op, sizeof op, "clCreateKernel(%s)", kind_kernels[kind]);
+    return rp_cl__fail(impl->ctx, err, op);
+  }
+  release_program(slot);
+  slot->kind = kind;
+  slot->key = key;
+  slot->program = prog;
+  slot->kernel = kernel;
+  slot->last_use = ++impl->use_clock;
+  impl->builds++;
+  *out = kernel;
+  return 0;
+}
+
+/* ---- buffers and launches ------------------------------------------------ */
+
+/* Makes `b` at least `size` bytes. Grows only; the old contents are not
+ * kept (every user rewrites what it reads). */
+static int ensure_buffer(rp_cl_impl *impl, rp_cl_buffer *b, size_t size,
+                         cl_mem_flags flags, const char *what) {
+  cl_mem mem;
+  cl_int err;
+  char op[96];
+  if (size == 0)
+    size = 1;
+  if (b->mem != NULL && b->size >= size)
+    return 0;
+  mem = clCreateBuffer(impl->context, flags, size, NULL, &err);
+  if (mem == NULL) {
+    snprintf(op, sizeof op, "clCreateBuffer for %s (%zu bytes)", what,
+             size);
+    return rp_cl__fail(impl->ctx, err, op);
+  }
+  if (b->mem != NULL)
+    clReleaseMemObject(b->mem);
+  b->mem = mem;
+  b->size = size;
+  return 0;
+}
+
+/* Replaces `b` with a new buffer holding `size` bytes of `data` (plus
+ * `pad` zero bytes); the old one stays if this fails. */
+static int upload(rp_cl_impl *impl, rp_cl_buffer *b, const void *data,
+                  size_t size, size_t pad, const char *what) {
+  rp_cl_buffer nb = {NULL, 0};
+  cl_event ev = NULL;
+  cl_ulong t0 = 0, t1 = 0;
+  cl_int err;
+  int rc;
+  char op[96];
+  if ((rc = ensure_buffer(impl, &nb, size + pad, CL_MEM_READ_ONLY, what)))
+    return rc;
+  err = clEnqueueWriteBuffer(impl->queue, nb.mem, CL_TRUE, 0, size, data, 0,
+                             NULL, &ev);
+  if (err == CL_SUCCESS && pad > 0) {
+    static const uint8_t zeros[RP_CL_VOLUME_PAD];
+    err = clEnqueueWriteBuffer(impl->queue, nb.mem, CL_TRUE, size, pad,
+                               zeros, 0, NULL, NULL);
+  }
+  if (err != CL_SUCCESS) {
+    if (ev != NULL)
+      clReleaseEvent(ev);
+    clReleaseMemObject(nb.mem);
+    snprintf(op, sizeof op, "clEnqueueWriteBuffer for %s (%zu bytes)", what,
+             size);
+    return rp_cl__fail(impl->ctx, err, op);
+  }
+  clGetEventProfilingInfo(ev, CL_PROFILING_COMMAND_START, sizeof t0, &t0,
+                          NULL);
+  clGetEventProfilingInfo(ev, CL_PROFILING_COMMAND_END, sizeof t1, &t1,
+                          NULL);
+  clReleaseEvent(ev);
+  impl->last_ns = t1 > t0 ? t1 - t0 : 0;
+  if (b->mem != NULL)
+    clReleaseMemObject(b->mem);
+  *b = nb;
+  return 0;
+}
+
+static int set_arg(rp_cl_impl *impl, cl_kernel k, cl_uint i, size_t size,
+                   const void *value, const char *kernel) {
+  cl_int err = clSetKernelArg(k, i, size, value);
+  char op[80];
+  if (err == CL_SUCCESS)
+    return 0;
+  snprintf(op, sizeof op, "clSetKernelArg(%s, %u)", kernel, (unsigned)i);
+  return rp_cl__fail(impl->ctx, err, op);
+}
+
+static int set_mem(rp_cl_impl *impl, cl_kernel k, cl_uint i,
+                   const rp_cl_buffer *b, const char *kernel) {
+  return set_arg(impl, k, i, sizeof(cl_mem), &b->mem, kernel);
+}
+
+static size_t round_up(size_t v, size_t m) { return (v + m - 1) / m * m; }
+
+/* Runs `k` over global[0] x global[1] work-items in groups of local[0] x
+ * local[1], waits, and keeps its device time in last_ns. */
+static int launch(rp_cl_impl *impl, cl_kernel k, const size_t global[2],
+                  const size_t local[2], const char *kernel) {
+  cl_event ev = NULL;
+  cl_ulong t0 = 0, t1 = 0;
+  cl_int err;
+  char op[80];
+  err = clEnqueueNDRangeKernel(impl->queue, k, 2, NULL, global, local, 0,
+                               NULL, &ev);
+  if (err == CL_SUCCESS)
+    err = clWaitForEvents(1, &ev);
+  if (err == CL_SUCCESS) {
+    clGetEventProfilingInfo(ev, CL_PROFILING_COMMAND_START, sizeof t0, &t0,
+                            NULL);
+    clGetEventProfilingInfo(ev, CL_PROFILING_COMMAND_END, sizeof t1, &t1,
+                            NULL);
+    impl->last_ns = t1 > t0 ? t1 - t0 : 0;
+  }
+  if (ev != NULL)
+    clReleaseEvent(ev);
+  if (err == CL_SUCCESS)
+    return 0;
+  snprintf(op, sizeof op, "running %s (%zux%zu)", kernel, global[0],
+           global[1]);
+  return rp_cl__fail(impl->ctx, err, op);
+}
+
+/* A kernel over a w x h grid of rays: one work-group per 8x8 tile, its
+ * work-items each taking a packet of rays. */
+static int launch_tiles(rp_cl_impl *impl, cl_kernel k, size_t w, size_t h,
+                        const char *kernel) {
+  size_t global[2] = {round_up(w, RP_TILE_SIZE) / RP_TILE_SIZE,
+                      round_up(h, RP_TILE_SIZE) / RP_TILE_SIZE *
+                          RP_CL_PACKETS_PER_TILE};
+  size_t local[2] = {1, RP_CL_PACKETS_PER_TILE};
+  return launch(impl, k, global, local, kernel);
+}
+
+static int read_back(rp_cl_impl *impl, const rp_cl_buffer *b, void *dst,
+                     size_t size, const char *what) {
+  cl_int err = clEnqueueReadBuffer(impl->queue, b->mem, CL_TRUE, 0, size,
+                                   dst, 0, NULL, NULL);
+  char op[80];
+  if (err == CL_SUCCESS)
+    return 0;
+  snprintf(op, sizeof op, "reading back %s (%zu bytes)", what, size);
+  return rp_cl__fail(impl->ctx, err, op);
+}
+
+/* Copies a compact rows x row_bytes block from the device into a host
+ * image with pitch host_pitch, at byte column `col` of row `row`. */
+static int read_rect(rp_cl_impl *impl, const rp_cl_buffer *b, void *host,
+                     size_t col, size_t row, size_t row_bytes, size_t rows,
+                     size_t host_pitch, const char *what) {
+  size_t origin[3] = {0, 0, 0}, host_origin[3] = {col, row, 0};
+  size_t region[3] = {row_bytes, rows, 1};
+  cl_int err = clEnqueueReadBufferRect(impl->queue, b->mem, CL_TRUE, origin,
+                                       host_origin, region, row_bytes, 0,
+                                       host_pitch, 0, host, 0, NULL, NULL);
+  char op[80];
+  if (err == CL_SUCCESS)
+    return 0;
+  snprintf(op, sizeof op, "reading back %s (%zux%zu)", what, row_bytes,
+           rows);
+  return rp_cl__fail(impl->ctx, err, op);
+}
+
+/* ---- ops ----------------------------------------------------------------- */
+
+static void release_buffer(rp_cl_buffer *b) {
+  if (b->mem != NULL)
+    clReleaseMemObject(b->mem);
+  b->mem = NULL;
+  b->size = 0;
+}
+
+static void cl_destroy(void *p) {
+  rp_cl_impl *impl = p;
+  size_t i;
+  if (impl == NULL)
+    return;
+  for (i = 0; i < RP_CL_CACHE_SIZE; i++)
+    release_program(&impl->cache[i]);
+  release_buffer(&impl->volume);
+  release_buffer(&impl->lut);
+  release_buffer(&impl->grid);
+  release_buffer(&impl->alpha_hist);
+  release_buffer(&impl->front_back);
+  release_buffer(&impl->d_ert);
+  release_buffer(&impl->rgba);
+  release_buffer(&impl->tiles);
+  release_buffer(&impl->fetches);
+  rp_cl__close(impl);
+  rp__free(impl->ctx, impl);
+}
+
+static int cl_upload_volume(void *p, const rp_volume *vol) {
+  rp_cl_impl *impl = p;
+  size_t bytes = vol->voxel_count * rp__voxel_size(vol->type);
+  int rc = upload(impl, &impl->volume, vol->data, bytes, RP_CL_VOLUME_PAD,
+                  "the volume");
+  if (rc == 0) {
+    impl->voxel_type = vol->type;
+    /* Kernels index voxels with signed 32-bit integers (that is what
+     * lets gathers use 32-bit offsets) unless the volume is too big. */
+    impl->big_volume = vol->voxel_count + RP_CL_VOLUME_PAD >= 0x7fffffffu;
+  }
+  return rc;
+}
+
+static int cl_upload_tf(void *p, const float *lut, uint32_t lut_size) {
+  rp_cl_impl *impl = p;
+  return upload(impl, &impl->lut, lut, (size_t)lut_size * 4 * sizeof(float),
+                0, "the transfer function");
+}
+
+static int cl_upload_occupancy(void *p, const uint8_t *grid,
+                               const uint8_t *alpha_hist,
+                               const uint32_t blocks[3]) {
+  rp_cl_impl *impl = p;
+  size_t n = (size_t)blocks[0] * blocks[1] * blocks[2];
+  uint64_t grid_ns;
+  /* Kernels read grid bytes as the low byte of 32-bit words. */
+  int rc = upload(impl, &impl->grid, grid, n, RP_CL_VOLUME_PAD,
+                  "the occupancy grid");
+  if (rc != 0)
+    return rc;
+  grid_ns = impl->last_ns;
+  rc = upload(impl, &impl->alpha_hist, alpha_hist, n * RP_OPACITY_BINS, 0,
+              "the opacity histograms");
+  impl->last_ns += grid_ns;
+  return rc;
+}
+
+static int cl_depth_pass(void *p, const rp_frame_params *fp,
+                         float *front_back) {
+  rp_cl_impl *impl = p;
+  size_t rays = (size_t)fp->width * fp->height;
+  cl_kernel k;
+  int rc;
+  if ((rc = rp_cl__kernel(impl, RP_CL_DEPTH, fp->effects & RP_EFFECT_SKIP,
+                          &k)) != 0 ||
+      (rc = ensure_buffer(impl, &impl->front_back, rays * 2 * sizeof(float),
+                          CL_MEM_READ_WRITE, "the depth pass")) != 0)
+    return rc;
+  if ((rc = set_arg(impl, k, 0, sizeof *fp, fp, "rp_cl_depth")) != 0 ||
+      (rc = set_mem(impl, k, 1, &impl->grid, "rp_cl_depth")) != 0 ||
+      (rc = set_mem(impl, k, 2, &impl->front_back, "rp_cl_depth")) != 0 ||
+      (rc = launch_tiles(impl, k, fp->width, fp->height, "rp_cl_depth")))
+    return rc;
+  if (front_back != NULL)
+    return read_back(impl, &impl->front_back, front_back,
+                     rays * 2 * sizeof(float), "the depth pass");
+  return 0;
+}
+
+static int cl_ert_prepass(void *p, const rp_frame_params *fp,
+                          float *d_ert) {
+  rp_cl_impl *impl = p;
+  size_t gw = fp->width / RP_ERT_RAY_STRIDE +
+              (fp->width % RP_ERT_RAY_STRIDE != 0);
+  size_t gh = fp->height / RP_ERT_RAY_STRIDE +
+              (fp->height % RP_ERT_RAY_STRIDE != 0);
+  cl_float16 alpha;
+  cl_kernel k;
+  int rc, b;
+  /* The 16 bins' opacities at the coarse step, once, in double: bin b
+   * stands for opacity (b - 0.5) / 15 over the reference step. */
+  alpha.s[0] = 0.0f;
+  for (b = 1; b < RP_OPACITY_BINS; b++) {
+    double a = (b - 0.5) / 15.0;
+    double r = (double)RP_ERT_COARSE_STEP / (double)fp->ref_step;
+    alpha.s[b] = (float)-expm1(r * log1p(-a));
+  }
+  if ((rc = rp_cl__kernel(impl, RP_CL_ERT, 0, &k)) != 0 ||
+      (rc = ensure_buffer(impl, &impl->d_ert, gw * gh * sizeof(float),
+                          CL_MEM_WRITE_ONLY, "the ERT pre-pass")) != 0)
+    return rc;
+  if ((rc = set_arg(impl, k, 0, sizeof *fp, fp, "rp_cl_ert")) != 0 ||
+      (rc = set_mem(impl, k, 1, &impl->grid, "rp_cl_ert")) != 0 ||
+      (rc = set_mem(impl, k, 2, &impl->alpha_hist, "rp_cl_ert")) != 0 ||
+      (rc = set_arg(impl, k, 3, sizeof alpha, &alpha, "rp_cl_ert")) != 0 ||
+      (rc = set_mem(impl, k, 4, &impl->d_ert, "rp_cl_ert")) != 0 ||
+      (rc = launch_tiles(impl, k, gw, gh, "rp_cl_ert")) != 0)
+    return rc;
+  if (d_ert == NULL)
+    return 0;
+  return read_back(impl, &impl->d_ert, d_ert, gw * gh * sizeof(float),
+                   "the ERT pre-pass");
+}
+
+static uint32_t raycast_key(const rp_cl_impl *impl, uint32_t effects,
+                            int count) {
+  return (effects & RP_CL_EFFECT_BITS) | (count ? RP_CL_KEY_COUNT : 0u) |
+         (impl->big_volume ? RP_CL_KEY_BIG : 0u) |
+         ((uint32_t)impl->voxel_type << RP_CL_KEY_TYPE_SHIFT);
+}
+
+static int cl_raycast(void *p, const rp_frame_params *fp, const rp_region *r,
+                      uint8_t *rgba, rp_tile_stats *tiles,
+                      uint64_t *fetches) {
+  rp_cl_impl *impl = p;
+  const char *name = "rp_cl_raycast";
+  size_t rw = r->x1 > r->x0 ? r->x1 - r->x0 : 0;
+  size_t rh = r->y1 > r->y0 ? r->y1 - r->y0 : 0;
+  size_t tw = (rw + RP_TILE_SIZE - 1) / RP_TILE_SIZE;
+  size_t th = (rh + RP_TILE_SIZE - 1) / RP_TILE_SIZE;
+  size_t tiles_x = fp->width / RP_TILE_SIZE + (fp->width % RP_TILE_SIZE != 0);
+  cl_uint region[4] = {r->x0, r->y0, r->x1, r->y1};
+  cl_kernel k;
+  int rc, i;
+  impl->last_ns = 0;
+  if (rw == 0 || rh == 0)
+    return 0;
+  /* The front end orders the calls; this only turns a slip into an error
+   * instead of a kernel reading a missing buffer. */
+  if (impl->volume.mem == NULL || impl->lut.mem == NULL ||
+      impl->front_back.mem == NULL)
+    return rp__fail(impl->ctx, RP_ESTATE, "opencl: raycast before the "
+                    "volume, transfer function or depth pass");
+  if ((rc = rp_cl__kernel(impl, RP_CL_RAYCAST,
+                          raycast_key(impl, fp->effects, fetches != NULL),
+                          &k)) != 0 ||
+      (rc = ensure_buffer(impl, &impl->rgba, rw * rh * 4, CL_MEM_WRITE_ONLY,
+                          "the image")) != 0 ||
+      (rc = ensure_buffer(impl, &impl->tiles, tw * th * sizeof *tiles,
+                          CL_MEM_WRITE_ONLY, "the tile stats")) != 0 ||
+      (fetches != NULL &&
+       (rc = ensure_buffer(impl, &impl->fetches, tw * th * sizeof *fetches,
+                           CL_MEM_WRITE_ONLY, "the fetch counts")) != 0))
+    return rc;
+  if ((rc = set_arg(impl, k, 0, sizeof *fp, fp, name)) != 0)
+    return rc;
+  for (i = 0; i < 4; i++)
+    if ((rc = set_arg(impl, k, 1 + i, sizeof(cl_uint), &region[i], name)))
+      return rc;
+  if ((rc = set_mem(impl, k, 5, &impl->volume, name)) != 0 ||
+      (rc = set_mem(impl, k, 6, &impl->lut, name)) != 0 ||
+      (rc = set_mem(impl, k, 7, &impl->grid, name)) != 0 ||
+      (rc = set_mem(impl, k, 8, &impl->front_back, name)) != 0 ||
+      (rc = set_mem(impl, k, 9, &impl->rgba, name)) != 0 ||
+      (rc = set_mem(impl, k, 10, &impl->tiles, name)) != 0 ||
+      (rc = set_mem(impl, k, 11, &impl->fetches, name)) != 0 ||
+      (rc = launch_tiles(impl, k, rw, rh, name)) != 0)
+    return rc;
+  if ((rc = read_rect(impl, &impl->rgba, rgba, (size_t)r->x0 * 4, r->y0,
+                      rw * 4, rh, (size_t)fp->width * 4, "the image")) != 0)
+    return rc;
+  if (tiles != NULL &&
+      (rc = read_rect(impl, &impl->tiles, tiles,
+                      (size_t)(r->x0 / RP_TILE_SIZE) * sizeof *tiles,
+                      r->y0 / RP_TILE_SIZE, tw * sizeof *tiles, th,
+                      tiles_x * sizeof *tiles, "the tile stats")) != 0)
+    return rc;
+  if (fetches != NULL &&
+      (rc = read_rect(impl, &impl->fetches, fetches,
+                      (size_t)(r->x0 / RP_TILE_SIZE) * sizeof *fetches,
+                      r->y0 / RP_TILE_SIZE, tw * sizeof *fetches, th,
+                      tiles_x * sizeof *fetches, "the fetch counts")) != 0)
+    return rc;
+  return 0;
+}
+
+static uint64_t cl_last_time_ns(void *p) {
+  return ((const rp_cl_impl *)p)->last_ns;
+}
+
+static const rp_backend_ops cl_ops = {
+    cl_destroy,     cl_upload_volume, cl_upload_tf, cl_upload_occupancy,
+    cl_depth_pass,  cl_ert_prepass,   cl_raycast,   cl_last_time_ns};
+
+/* ---- bootstrap ----------------------------------------------------------- */
+
+static int cl_probe(rp_context *ctx, uint32_t *device_count) {
+  (void)ctx;
+  return rp_cl__count_devices(device_count);
+}
+
+static int cl_create(rp_context *ctx, uint32_t index,
+                     const rp_backend_ops **ops, void **out, rp_caps *caps) {
+  rp_cl_impl *impl = rp__calloc(ctx, 1, sizeof *impl);
+  int rc;
+  if (impl == NULL)
+    return rp__fail(ctx, RP_ENOMEM, "opencl: out of memory for device %u",
+                    (unsigned)index);
+  impl->ctx = ctx;
+  if ((rc = rp_cl__open(impl, index, caps)) != 0) {
+    rp__free(ctx, impl);
+    return rc;
+  }
+  *ops = &cl_ops;
+  *out = impl;
+  return 0;
+}
+
+const rp_backend_bootstrap rp_cl_bootstrap = {"opencl", cl_probe, cl_create};
+
+/* ---- test hooks ---------------------------------------------------------- */
+
+int rp_cl__build_program_for_test(void *p, const char *source,
+                                  const char *options) {
+  rp_cl_impl *impl = p;
+  cl_program prog;
+  int rc = rp_cl__build(impl, "test", &source, 1, options, &prog);
+  if (rc == 0)
+    clReleaseProgram(prog);
+  return rc;
+}
+
+void rp_cl__cache_stats(void *p, uint32_t *builds, uint32_t *hits) {
+  const rp_cl_impl *impl = p;
+  *builds = impl->builds;
+  *hits = impl->hits;
+}
+
+int rp_cl__prepare_raycast(void *p, uint32_t effects, int count_fetches) {
+  rp_cl_impl *impl = p;
+  cl_kernel k;
+  return rp_cl__kernel(impl, RP_CL_RAYCAST,
+                       raycast_key(impl, effects, count_fetches), &k);
+}
+
+/* A kernel that applies the raycast's opacity correction to an array;
+ * built after common.cl and raycast.cl, so it calls the very function
+ * frames use. */
+static const char correct_test_src[] =
+    "__kernel void rp_cl_correct_test(__global const float *a, float r,\n"
+    "                                 __global float *out) {\n"
+    "  size_t i = get_global_id(0);\n"
+    "  RP_CL_CAT(vstore, RP_CL_W)(rp_cl_correct(\n"
+    "      RP_CL_CAT(vload, RP_CL_W)(i, a), r), i, out);\n"
+    "}\n";
+
+int rp_cl__correct_for_test(void *p, const float *alpha, size_t n,
+                            float ratio, float *out) {
+  rp_cl_impl *impl = p;
+  const char *sources[3] = {rp_cl_src_common, rp_cl_src_raycast,
+                            correct_test_src};
+  size_t groups = (n + RP_CL_PACKET - 1) / RP_CL_PACKET;
+  size_t bytes = groups * RP_CL_PACKET * sizeof(float);
+  size_t global[2] = {groups, 1}, local[2] = {1, 1};
+  rp_cl_buffer in = {NULL, 0}, res = {NULL, 0};
+  char options[192];
+  cl_program prog = NULL;
+  cl_kernel k = NULL;
+  cl_int err;
+  int rc;
+  key_options(RP_CL_RAYCAST, 0, options, sizeof options);
+  if ((rc = rp_cl__build(impl, "correction test", sources, 3, options,
+                         &prog)) != 0)
+    return rc;
+  k = clCreateKernel(prog, "rp_cl_correct_test", &err);
+  if (k == NULL)
+    rc = rp_cl__fail(impl->ctx, err, "clCreateKernel(rp_cl_correct_test)");
+  if (rc == 0)
+    rc = ensure_buffer(impl, &in, bytes, CL_MEM_READ_ONLY, "test input");
+  if (rc == 0)
+    rc = ensure_buffer(impl, &res, bytes, CL_MEM_WRITE_ONLY, "test output");
+  if (rc == 0 && (err = clEnqueueWriteBuffer(impl->queue, in.mem, CL_TRUE,
+                                             0, n * sizeof(float), alpha, 0,
+                                             NULL, NULL)) != CL_SUCCESS)
+    rc = rp_cl__fail(impl->ctx, err, "writing the test input");
+  if (rc == 0)
+    rc = set_mem(impl, k, 0, &in, "rp_cl_correct_test");
+  if (rc == 0)
+    rc = set_arg(impl, k, 1, sizeof ratio, &ratio, "rp_cl_correct_test");
+  if (rc == 0)
+    rc = set_mem(impl, k, 2, &res, "rp_cl_correct_test");
+  if (rc == 0)
+    rc = launch(impl, k, global, local, "rp_cl_correct_test");
+  if (rc == 0)
+    rc = read_back(impl, &res, out, n * sizeof(float), "the test output");
+  if (k != NULL)
+    clReleaseKernel(k);
+  clReleaseProgram(prog);
+  release_buffer(&in);
+  release_buffer(&res);
+  return rc;
+}

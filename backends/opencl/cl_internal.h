@@ -1,0 +1,104 @@
+/* The OpenCL backend's internals, shared by its .c files and its test.
+ * Nothing here is part of the public API. */
+#ifndef RP_CL_INTERNAL_H
+#define RP_CL_INTERNAL_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#include <CL/cl.h>
+
+#include "internal.h"
+#include "raypace_backend.h"
+
+extern const rp_backend_bootstrap rp_cl_bootstrap;
+
+/* The three programs; each is built per option set (below). */
+typedef enum rp_cl_kind {
+  RP_CL_RAYCAST = 0,
+  RP_CL_DEPTH = 1,
+  RP_CL_ERT = 2
+} rp_cl_kind;
+
+/* Option set of a program, the key of the program cache: the effect bits
+ * it was specialised for (RP_EFFECT_SHADING | ERT | SKIP), the fetch
+ * counting variant, and the voxel type and index width (raycast only). */
+#define RP_CL_KEY_COUNT (1u << 8)
+#define RP_CL_KEY_BIG (1u << 9) /* 2^31 voxels or more: 64-bit indices */
+#define RP_CL_KEY_TYPE_SHIFT 10
+#define RP_CL_CACHE_SIZE 32
+
+typedef struct rp_cl_program {
+  rp_cl_kind kind;
+  uint32_t key;
+  cl_program program; /* NULL: free slot */
+  cl_kernel kernel;
+  uint64_t last_use;  /* for evicting the least recently used */
+} rp_cl_program;
+
+/* A device buffer that grows on demand and is reused otherwise, so that
+ * a steady frame loop allocates nothing. */
+typedef struct rp_cl_buffer {
+  cl_mem mem;
+  size_t size;
+} rp_cl_buffer;
+
+typedef struct rp_cl_impl {
+  rp_context *ctx;
+  cl_device_id device; /* the one kernels run on */
+  cl_device_id root;   /* its parent when a sub-device, else NULL */
+  cl_context context;
+  cl_command_queue queue;
+  rp_cl_program cache[RP_CL_CACHE_SIZE];
+  uint64_t use_clock;
+  uint32_t builds, hits; /* program cache counters (tests read them) */
+  rp_voxel_type voxel_type; /* 0 until a volume is uploaded */
+  int big_volume;           /* see RP_CL_KEY_BIG */
+  rp_cl_buffer volume, lut, grid, alpha_hist;
+  rp_cl_buffer front_back, d_ert, rgba, tiles, fetches;
+  uint64_t last_ns;
+} rp_cl_impl;
+
+/* ---- cl_device.c --------------------------------------------------------- */
+
+/* "CL_OUT_OF_RESOURCES" etc., "CL_UNKNOWN_ERROR" for a code not listed. */
+const char *rp_cl__error_name(cl_int err);
+/* Records "opencl: <op>: <name> (<code>)" and returns RP_ENOMEM for the
+ * out-of-memory codes, RP_EDEVICE for the others. */
+int rp_cl__fail(rp_context *ctx, cl_int err, const char *op);
+/* Devices: for each root device of each platform, the device itself, then
+ * its one-compute-unit sub-devices when it can be partitioned. */
+int rp_cl__count_devices(uint32_t *count);
+/* Opens device `index` of that list into impl (context, queue) and fills
+ * caps. On failure nothing is left allocated. */
+int rp_cl__open(rp_cl_impl *impl, uint32_t index, rp_caps *caps);
+void rp_cl__close(rp_cl_impl *impl);
+/* Builds `sources` for impl's device. On failure the RP_EBUILD message
+ * names `what` and quotes the start of the build log. */
+int rp_cl__build(rp_cl_impl *impl, const char *what, const char **sources,
+                 cl_uint count, const char *options, cl_program *out);
+
+/* ---- cl_backend.c -------------------------------------------------------- */
+
+/* The kernel of `kind` for option set `key`, built on first use and
+ * cached in impl (cache hits and builds are counted). */
+int rp_cl__kernel(rp_cl_impl *impl, rp_cl_kind kind, uint32_t key,
+                  cl_kernel *out);
+
+/* ---- test hooks ---------------------------------------------------------- */
+
+/* Builds an arbitrary program on impl's device and releases it: how the
+ * test reaches the build-failure path. */
+int rp_cl__build_program_for_test(void *impl, const char *source,
+                                  const char *options);
+/* Program cache counters: programs built and cache hits so far. */
+void rp_cl__cache_stats(void *impl, uint32_t *builds, uint32_t *hits);
+/* Looks up (building if needed) the raycast program for `effects` as a
+ * frame would; returns 0 or an RP_E* code. */
+int rp_cl__prepare_raycast(void *impl, uint32_t effects, int count_fetches);
+/* Runs the raycast kernel's own opacity correction on n alphas for
+ * step / ref_step = ratio, into out (n floats). */
+int rp_cl__correct_for_test(void *impl, const float *alpha, size_t n,
+                            float ratio, float *out);
+
+#endif /* RP_CL_INTERNAL_H */

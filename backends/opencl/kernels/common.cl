@@ -1,0 +1,201 @@
+/* Shared by every raypace OpenCL program: frame parameters, packets of
+ * rays and the block grid. The geometry is the contract of
+ * backends/README.md, in float; the scalar reference (runtime/) does it
+ * in double.
+ *
+ * Every kernel works on packets: a work-item takes RP_CL_W rays (16: two
+ * rows of an 8x8 tile) in the lanes of OpenCL vector types, so that on a
+ * CPU device (PoCL) each step of each ray runs in SIMD. A work-group of
+ * 64 / RP_CL_W work-items covers one 8x8 tile of rays. Lanes that have
+ * nothing to do still compute, on finite dummy values, and are masked.
+ *
+ * Programs are built from this file followed by one kernel file, with -D
+ * options that select the effect set (see cl_backend.c). */
+
+#define RP_CL_TILE 8
+#define RP_CL_BLOCK 16.0f
+
+#ifndef RP_CL_W
+#define RP_CL_W 16
+#endif
+
+/* Two levels, so that macro arguments (RP_CL_W, RP_VOXEL_T) expand
+ * before they are pasted. */
+#define RP_CL_CAT_(a, b) a##b
+#define RP_CL_CAT(a, b) RP_CL_CAT_(a, b)
+#define RP_CL_VEC(t) RP_CL_CAT(t, RP_CL_W)
+#define RP_CL_CONVERT(t) RP_CL_CAT(convert_, RP_CL_VEC(t))
+
+typedef RP_CL_VEC(float) vfloat;
+typedef RP_CL_VEC(int) vint; /* comparison results: -1 true, 0 false */
+typedef RP_CL_VEC(uint) vuint;
+typedef RP_CL_VEC(uchar) vbyte;
+
+#define to_vfloat RP_CL_CONVERT(float)
+#define to_vint RP_CL_CONVERT(int)
+#define to_vuint RP_CL_CONVERT(uint)
+#define to_vuint_sat RP_CL_CAT(RP_CL_CONVERT(uint), _sat)
+#define as_vint RP_CL_CAT(as_int, RP_CL_W)
+#define as_vfloat RP_CL_CAT(as_float, RP_CL_W)
+#define vload_w RP_CL_CAT(vload, RP_CL_W)
+#define vstore_w RP_CL_CAT(vstore, RP_CL_W)
+
+/* M(lane) for every lane, lanes named by their swizzle digit. */
+#if RP_CL_W == 8
+#define RP_CL_LANES(M) M(0) M(1) M(2) M(3) M(4) M(5) M(6) M(7)
+#define RP_CL_LANE_IDS (vfloat)(0.f, 1.f, 2.f, 3.f, 4.f, 5.f, 6.f, 7.f)
+#elif RP_CL_W == 16
+#define RP_CL_LANES(M)                                                        \
+  M(0) M(1) M(2) M(3) M(4) M(5) M(6) M(7)                                     \
+  M(8) M(9) M(a) M(b) M(c) M(d) M(e) M(f)
+#define RP_CL_LANE_IDS                                                        \
+  (vfloat)(0.f, 1.f, 2.f, 3.f, 4.f, 5.f, 6.f, 7.f, 8.f, 9.f, 10.f, 11.f,     \
+           12.f, 13.f, 14.f, 15.f)
+#else
+#error "RP_CL_W must be 8 or 16"
+#endif
+
+/* The layout of rp_frame_params (include/raypace_backend.h): 39 four-byte
+ * fields, no padding, passed by value as the first kernel argument. */
+typedef struct rp_cl_frame {
+  float eye[3], f[3], r[3], u[3];
+  float half_w, half_h;
+  int ortho;
+  uint width, height;
+  float dims[3];
+  float inv_spacing[3];
+  float min_spacing;
+  uint idims[3];
+  uint blocks[3];
+  float step;
+  float ref_step;
+  float ert_threshold;
+  uint effects;
+  float value_min, value_max;
+  uint lut_size;
+  uint ert_seed, frame;
+} rp_cl_frame;
+
+/* A packet of rays in voxel space, structure of arrays: p(t) = p0 +
+ * t * dp, inside the box on [s, t1] where hit. Lanes that miss (or are
+ * not rays at all) have s = t1 = 0 and finite geometry. */
+typedef struct rp_cl_packet {
+  vfloat p0x, p0y, p0z, dpx, dpy, dpz;
+  vfloat dirx, diry, dirz; /* unit world direction: the headlight */
+  vfloat s, t1;
+  vint hit;
+} rp_cl_packet;
+
+/* This work-item's lanes as positions in a grid of rays tiled 8x8 (one
+ * tile per work-group, shifted by (x0, y0)): lane j is (tx + j % 8,
+ * ty + j / 8). Returns the index of the first lane within its tile. */
+uint rp_cl_lane_coords(uint x0, uint y0, vfloat *x, vfloat *y) {
+  uint slot = get_local_id(1) * RP_CL_W;
+  uint tx = x0 + get_group_id(0) * RP_CL_TILE;
+  uint ty = y0 + get_group_id(1) * RP_CL_TILE + slot / RP_CL_TILE;
+  vfloat lane = RP_CL_LANE_IDS;
+  vfloat ly = floor(lane * (1.0f / RP_CL_TILE));
+  *x = (float)tx + (lane - RP_CL_TILE * ly);
+  *y = (float)ty + ly;
+  return slot;
+}
+
+/* The packet through continuous image positions (px, py), (x + 0.5,
+ * y + 0.5) for pixel (x, y), clipped to the box [-0.5, dims - 0.5];
+ * lanes where `valid` is false are misses. */
+rp_cl_packet rp_cl_make_packet(const rp_cl_frame *fp, vfloat px, vfloat py,
+                               vint valid) {
+  rp_cl_packet k;
+  vfloat nu = 2.0f * px / (float)fp->width - 1.0f;
+  vfloat nv = 1.0f - 2.0f * py / (float)fp->height;
+  vfloat su = nu * fp->half_w, sv = nv * fp->half_h;
+  vfloat ox, oy, oz, t0 = -INFINITY, t1 = INFINITY;
+  vint ok = valid;
+  float ix = fp->min_spacing * fp->inv_spacing[0];
+  float iy = fp->min_spacing * fp->inv_spacing[1];
+  float iz = fp->min_spacing * fp->inv_spacing[2];
+  if (fp->ortho) {
+    ox = fp->eye[0] + su * fp->r[0] + sv * fp->u[0];
+    oy = fp->eye[1] + su * fp->r[1] + sv * fp->u[1];
+    oz = fp->eye[2] + su * fp->r[2] + sv * fp->u[2];
+    k.dirx = fp->f[0];
+    k.diry = fp->f[1];
+    k.dirz = fp->f[2];
+  } else {
+    vfloat dx = fp->f[0] + su * fp->r[0] + sv * fp->u[0];
+    vfloat dy = fp->f[1] + su * fp->r[1] + sv * fp->u[1];
+    vfloat dz = fp->f[2] + su * fp->r[2] + sv * fp->u[2];
+    vfloat inv = 1.0f / sqrt(dx * dx + dy * dy + dz * dz);
+    ox = fp->eye[0];
+    oy = fp->eye[1];
+    oz = fp->eye[2];
+    k.dirx = dx * inv;
+    k.diry = dy * inv;
+    k.dirz = dz * inv;
+  }
+  k.p0x = ox * fp->inv_spacing[0] + 0.5f * fp->dims[0] - 0.5f;
+  k.p0y = oy * fp->inv_spacing[1] + 0.5f * fp->dims[1] - 0.5f;
+  k.p0z = oz * fp->inv_spacing[2] + 0.5f * fp->dims[2] - 0.5f;
+  k.dpx = k.dirx * ix;
+  k.dpy = k.diry * iy;
+  k.dpz = k.dirz * iz;
+  /* Slabs. An axis the ray does not move along constrains nothing from
+   * inside its slab and rules the ray out from outside it; its divisions
+   * (by zero) are computed but not used. */
+#define RP_CL_SLAB(p, d, hi)                                                  \
+  {                                                                           \
+    vfloat ta = (-0.5f - (p)) / (d), tb = ((hi) - (p)) / (d);                 \
+    vint still = (d) == 0.0f;                                                 \
+    ok &= ~still | (((p) >= -0.5f) & ((p) <= (hi)));                          \
+    t0 = select(fmax(t0, fmin(ta, tb)), t0, still);                           \
+    t1 = select(fmin(t1, fmax(ta, tb)), t1, still);                           \
+  }
+  RP_CL_SLAB(k.p0x, k.dpx, fp->dims[0] - 0.5f)
+  RP_CL_SLAB(k.p0y, k.dpy, fp->dims[1] - 0.5f)
+  RP_CL_SLAB(k.p0z, k.dpz, fp->dims[2] - 0.5f)
+#undef RP_CL_SLAB
+  /* A box wholly behind the origin is a miss too. */
+  ok &= (t0 <= t1) & (t1 >= 0.0f);
+  k.hit = ok;
+  k.s = select((vfloat)(0.0f), fmax(t0, 0.0f), ok);
+  k.t1 = select((vfloat)(0.0f), t1, ok);
+  return k;
+}
+
+/* Block coordinates of points: floor((p + 0.5) / 16), clamped to the
+ * grid (so any finite point reads a real block). */
+vint rp_cl_block_axis(vfloat p, uint blocks) {
+  return to_vint(clamp(floor((p + 0.5f) * (1.0f / RP_CL_BLOCK)), 0.0f,
+                       (float)(blocks - 1u)));
+}
+
+vint rp_cl_block_index(const rp_cl_frame *fp, vint bx, vint by, vint bz) {
+  return (bz * (int)fp->blocks[1] + by) * (int)fp->blocks[0] + bx;
+}
+
+/* One byte per lane from a byte table, read as the low byte of an
+ * unaligned 32-bit word (tables are padded past their end for this): a
+ * CPU gathers words, not bytes. The loop over private arrays is the form
+ * LLVM turns into hardware gathers. */
+typedef struct __attribute__((packed)) rp_cl_word {
+  uint v;
+} rp_cl_word;
+
+vint rp_cl_gather_byte(__global const uchar *table, vint at) {
+  int idx[RP_CL_W], j;
+  uint out[RP_CL_W];
+  vstore_w(at, 0, idx);
+#pragma clang loop vectorize(enable) vectorize_width(RP_CL_W)
+  for (j = 0; j < RP_CL_W; j++)
+    out[j] = ((__global const rp_cl_word *)(table + idx[j]))->v;
+  return as_vint(vload_w(0, out) & 0xffu);
+}
+
+/* Whether the block of each lane's point is occupied. */
+vint rp_cl_occupied_at(const rp_cl_frame *fp, __global const uchar *grid,
+                       vfloat px, vfloat py, vfloat pz) {
+  vint b = rp_cl_block_index(fp, rp_cl_block_axis(px, fp->blocks[0]),
+                             rp_cl_block_axis(py, fp->blocks[1]),
+                             rp_cl_block_axis(pz, fp->blocks[2]));
+  return rp_cl_gather_byte(grid, b) != 0;
+}

@@ -1,0 +1,154 @@
+/* Depth pass: per ray of the scaled image, (D_front, D_back).
+ *
+ * Options: RP_SKIP clips against the occupied blocks; without it the
+ * result is the box clip (s, t1). A miss, or a ray that meets no occupied
+ * block, gets (+inf, -inf), which the raycast reads as "no samples".
+ *
+ * With RP_SKIP each lane walks the 16^3 block grid (a 3D DDA), all lanes
+ * of a packet in lockstep: the first crossing along each axis from its
+ * plane, later ones 16 / |dp| apart (as the C pass does; a grid is at
+ * most a few hundred blocks across, so the sum stays within a few ulps).
+ * D_front is where the first occupied block is entered, D_back where the
+ * last one is left. Interior empty runs are not reported: the raycast
+ * starts one lattice sample before D_front and refines from there, which
+ * also absorbs any rounding difference between the passes.
+ *
+ * Global size (tiles across, tiles down * 64 / RP_CL_W), local size
+ * (1, 64 / RP_CL_W): one work-group per 8x8 tile of rays. */
+
+#ifdef RP_SKIP
+/* Depth of the plane 16 b' - 0.5 that bounds block b on its `up` side
+ * (b' = b + 1) or the other (b' = b), in each lane; inv_d is 1 / d, and
+ * an axis the ray does not move along never crosses one. */
+vfloat rp_cl_plane(vfloat p0, vfloat d, vfloat inv_d, vint b, vint up) {
+  vfloat plane = RP_CL_BLOCK * to_vfloat(b + (up & 1)) - 0.5f;
+  return select((plane - p0) * inv_d, (vfloat)(INFINITY), d == 0.0f);
+}
+
+/* The entry plane of block b (its side facing the eye), negated, so that
+ * the nearest one behind a point is a minimum like the exits ahead; an
+ * axis the ray does not move along never crosses one. */
+vfloat rp_cl_entry_neg(vfloat p0, vfloat d, vfloat inv_d, vint b, vint up) {
+  vfloat plane = RP_CL_BLOCK * to_vfloat(b + ((~up) & 1)) - 0.5f;
+  return select((p0 - plane) * inv_d, (vfloat)(INFINITY), d == 0.0f);
+}
+
+/* Two walks per ray: forward from s until the first occupied block
+ * (D_front: where it is entered), then backward from t1 until the last
+ * one (D_back: where it is left). A ray through a solid object stops
+ * early at both ends; only rays that meet nothing cross the whole grid.
+ * Both walks compute crossings from the forward parametrisation, so the
+ * two ends agree with a single forward walk. */
+void rp_cl_occupied_span(const rp_cl_frame *fp, const rp_cl_packet *k,
+                         __global const uchar *grid, vfloat *front_out,
+                         vfloat *back_out) {
+  vint ux = k->dpx > 0.0f, uy = k->dpy > 0.0f, uz = k->dpz > 0.0f;
+  vint sx = to_vint(sign(k->dpx)), sy = to_vint(sign(k->dpy));
+  vint sz = to_vint(sign(k->dpz));
+  vfloat ix = 1.0f / k->dpx, iy = 1.0f / k->dpy, iz = 1.0f / k->dpz;
+  /* Depth between planes along each axis (infinite when still). */
+  vfloat gx = RP_CL_BLOCK * fabs(ix), gy = RP_CL_BLOCK * fabs(iy);
+  vfloat gz = RP_CL_BLOCK * fabs(iz);
+  vint bx = rp_cl_block_axis(k->p0x + k->s * k->dpx, fp->blocks[0]);
+  vint by = rp_cl_block_axis(k->p0y + k->s * k->dpy, fp->blocks[1]);
+  vint bz = rp_cl_block_axis(k->p0z + k->s * k->dpz, fp->blocks[2]);
+  vfloat nx = rp_cl_plane(k->p0x, k->dpx, ix, bx, ux);
+  vfloat ny = rp_cl_plane(k->p0y, k->dpy, iy, by, uy);
+  vfloat nz = rp_cl_plane(k->p0z, k->dpz, iz, bz, uz);
+  vfloat edge = k->s, front = INFINITY, back = -INFINITY;
+  vint go = k->hit, want = k->hit; /* before t1; still looking */
+  /* Forward: each pass looks at one block per lane and steps every lane
+   * short of t1 across its nearest exit plane. The stepping ignores what
+   * the lookups found (lanes that are done step on, unused), so the next
+   * lookup never waits for the last: the walk is bound by throughput,
+   * not by the latency of a gather. */
+  while (any(want)) {
+    vfloat leave = fmin(fmin(nx, ny), nz);
+    vint occ = rp_cl_gather_byte(grid, rp_cl_block_index(fp, bx, by, bz));
+    vint ax = leave == nx, ay = ~ax & (leave == ny), az = ~ax & ~ay;
+    front = select(front, edge, want & (occ != 0));
+    go &= leave < k->t1;
+    want &= go & (occ == 0);
+    bx += select((vint)(0), sx, go & ax);
+    by += select((vint)(0), sy, go & ay);
+    bz += select((vint)(0), sz, go & az);
+    /* Stepping off the grid before t1 happens only by rounding at the
+     * far face; clamping keeps the lane in the block it was in, whose
+     * exit plane then reaches t1 on the next pass. */
+    bx = clamp(bx, 0, (int)fp->blocks[0] - 1);
+    by = clamp(by, 0, (int)fp->blocks[1] - 1);
+    bz = clamp(bz, 0, (int)fp->blocks[2] - 1);
+    nx = select(nx, nx + gx, ax);
+    ny = select(ny, ny + gy, ay);
+    nz = select(nz, nz + gz, az);
+    /* Rounding can put a plane a hair before the last one crossed; the
+     * block in between is then entered and left at the same depth. */
+    edge = fmax(edge, leave);
+  }
+  /* Backward, from the block at t1, across entry planes (the side of a
+   * block facing the eye), in the lanes that found a block. */
+  want = go = front != INFINITY;
+  bx = rp_cl_block_axis(k->p0x + k->t1 * k->dpx, fp->blocks[0]);
+  by = rp_cl_block_axis(k->p0y + k->t1 * k->dpy, fp->blocks[1]);
+  bz = rp_cl_block_axis(k->p0z + k->t1 * k->dpz, fp->blocks[2]);
+  nx = rp_cl_entry_neg(k->p0x, k->dpx, ix, bx, ux);
+  ny = rp_cl_entry_neg(k->p0y, k->dpy, iy, by, uy);
+  nz = rp_cl_entry_neg(k->p0z, k->dpz, iz, bz, uz);
+  edge = k->t1;
+  while (any(want)) {
+    vfloat enter = -fmin(fmin(nx, ny), nz);
+    vint occ = rp_cl_gather_byte(grid, rp_cl_block_index(fp, bx, by, bz));
+    vint ax = enter == -nx, ay = ~ax & (enter == -ny), az = ~ax & ~ay;
+    back = select(back, edge, want & (occ != 0));
+    /* The forward walk found an occupied block at D_front, so the walk
+     * back meets one by then; the bound only guards rounding. */
+    go &= enter > front;
+    want &= go & (occ == 0);
+    bx -= select((vint)(0), sx, go & ax);
+    by -= select((vint)(0), sy, go & ay);
+    bz -= select((vint)(0), sz, go & az);
+    bx = clamp(bx, 0, (int)fp->blocks[0] - 1);
+    by = clamp(by, 0, (int)fp->blocks[1] - 1);
+    bz = clamp(bz, 0, (int)fp->blocks[2] - 1);
+    nx = select(nx, nx + gx, ax);
+    ny = select(ny, ny + gy, ay);
+    nz = select(nz, nz + gz, az);
+    edge = fmin(edge, enter);
+  }
+  /* Rounding can leave the backward walk a hair short of the block the
+   * forward walk found, or D_back a hair before D_front. */
+  back = select(back, fmax(back, front), front != INFINITY);
+  /* Written once: outputs through pointers inside the loops would live
+   * in memory. */
+  *front_out = front;
+  *back_out = back;
+}
+#endif
+
+__kernel __attribute__((reqd_work_group_size(
+    1, RP_CL_TILE * RP_CL_TILE / RP_CL_W, 1)))
+void rp_cl_depth(rp_cl_frame fp, __global const uchar *grid,
+                 __global float2 *out) {
+  vfloat px, py, front, back;
+  vint inside;
+  rp_cl_packet k;
+  rp_cl_lane_coords(0, 0, &px, &py);
+  inside = (px < (float)fp.width) & (py < (float)fp.height);
+  if (!any(inside))
+    return;
+  k = rp_cl_make_packet(&fp, px + 0.5f, py + 0.5f, inside);
+#ifdef RP_SKIP
+  rp_cl_occupied_span(&fp, &k, grid, &front, &back);
+#else
+  front = select((vfloat)(INFINITY), k.s, k.hit);
+  back = select((vfloat)(-INFINITY), k.t1, k.hit);
+#endif
+  {
+    vuint at = to_vuint(py) * fp.width + to_vuint(px);
+#define RP_CL_PUT(j)                                                          \
+  if (inside.s##j)                                                            \
+    out[at.s##j] = (float2)(front.s##j, back.s##j);
+    RP_CL_LANES(RP_CL_PUT)
+#undef RP_CL_PUT
+  }
+}

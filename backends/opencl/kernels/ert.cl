@@ -1,0 +1,143 @@
+/* ERT pre-pass: per pre-pass ray, the depth where a coarse march through
+ * the blocks' opacity histograms is expected to terminate (+inf: never).
+ *
+ * One pre-pass ray per 4x4 scaled pixels, through the centre of its 4x4
+ * cell, in packets like every kernel here (global size (tiles across,
+ * tiles down * 64 / RP_CL_W) over the pre-pass grid, local size (1,
+ * 64 / RP_CL_W)). At every coarse step in an occupied block a random draw
+ * picks an opacity bin with probability proportional to its count. The
+ * random stream (hybrid Tausworthe, seeding below) is exactly the
+ * contract's, in 32-bit integer lanes, so every backend draws the same
+ * numbers for the same (seed, frame, ray); a lane's stream advances only
+ * when that lane draws. */
+
+#define RP_CL_ERT_STRIDE 4
+#define RP_CL_ERT_STEP 8.0f
+
+/* Integer finaliser that spreads seeds over all 32 bits. */
+vuint rp_cl_mix(vuint x) {
+  x ^= x >> 16;
+  x *= 0x7feb352du;
+  x ^= x >> 15;
+  x *= 0x846ca68bu;
+  x ^= x >> 16;
+  return x;
+}
+
+vuint rp_cl_taus(vuint z, uint s1, uint s2, uint s3, uint m) {
+  vuint b = ((z << s1) ^ z) >> s2;
+  return ((z & m) << s3) ^ b;
+}
+
+typedef struct rp_cl_rng {
+  vuint z1, z2, z3, z4;
+} rp_cl_rng;
+
+/* One draw in the lanes where `take` is set; the others keep their
+ * state. */
+vuint rp_cl_draw(rp_cl_rng *g, vint take) {
+  vuint z1 = rp_cl_taus(g->z1, 13u, 19u, 12u, 4294967294u);
+  vuint z2 = rp_cl_taus(g->z2, 2u, 25u, 4u, 4294967288u);
+  vuint z3 = rp_cl_taus(g->z3, 3u, 11u, 17u, 4294967280u);
+  vuint z4 = 1664525u * g->z4 + 1013904223u;
+  vuint m = RP_CL_CAT(as_uint, RP_CL_W)(take);
+  g->z1 = (z1 & m) | (g->z1 & ~m);
+  g->z2 = (z2 & m) | (g->z2 & ~m);
+  g->z3 = (z3 & m) | (g->z3 & ~m);
+  g->z4 = (z4 & m) | (g->z4 & ~m);
+  return z1 ^ z2 ^ z3 ^ z4;
+}
+
+/* `alpha` holds the 16 bins' opacities already corrected to the coarse
+ * step (computed once on the host, in double). */
+__kernel __attribute__((reqd_work_group_size(
+    1, RP_CL_TILE * RP_CL_TILE / RP_CL_W, 1)))
+void rp_cl_ert(rp_cl_frame fp, __global const uchar *grid,
+               __global const uint *alpha_hist, float16 alpha,
+               __global float *out) {
+  uint gw = (fp.width + RP_CL_ERT_STRIDE - 1) / RP_CL_ERT_STRIDE;
+  uint gh = (fp.height + RP_CL_ERT_STRIDE - 1) / RP_CL_ERT_STRIDE;
+  float corr[16];
+  vfloat cx, cy, acc = 0.0f, result = INFINITY, j = 0.0f;
+  vint inside, live;
+  vuint base, id;
+  rp_cl_packet k;
+  rp_cl_rng g;
+  rp_cl_lane_coords(0, 0, &cx, &cy);
+  inside = (cx < (float)gw) & (cy < (float)gh);
+  if (!any(inside))
+    return;
+  k = rp_cl_make_packet(&fp, RP_CL_ERT_STRIDE * cx + 2.0f,
+                        RP_CL_ERT_STRIDE * cy + 2.0f, inside);
+  vstore16(alpha, 0, corr);
+  id = to_vuint(cy) * gw + to_vuint(cx);
+  base = rp_cl_mix((vuint)(fp.ert_seed) ^
+                   rp_cl_mix((vuint)(fp.frame + 0x9e3779b9u)));
+  g.z1 = rp_cl_mix(base ^ id) | 128u;
+  g.z2 = rp_cl_mix(g.z1 + 0x632be5abu) | 128u;
+  g.z3 = rp_cl_mix(g.z2 + 0x85157af5u) | 128u;
+  g.z4 = rp_cl_mix(g.z3 + 0x2545f491u);
+  live = k.hit;
+  while (any(live)) {
+    vfloat t = k.s + j * RP_CL_ERT_STEP;
+    vint b, draw;
+    live &= t <= k.t1;
+    b = rp_cl_block_index(
+        &fp, rp_cl_block_axis(k.p0x + t * k.dpx, fp.blocks[0]),
+        rp_cl_block_axis(k.p0y + t * k.dpy, fp.blocks[1]),
+        rp_cl_block_axis(k.p0z + t * k.dpz, fp.blocks[2]));
+    draw = live & (rp_cl_gather_byte(grid, b) != 0);
+    if (any(draw)) {
+      vuint tau = rp_cl_draw(&g, draw), w[4], total = 0, target, sum = 0;
+      vint bin = 15, found = 0;
+      int q;
+      vfloat a;
+      int idx[RP_CL_W], bins[RP_CL_W];
+      uint h[4][RP_CL_W];
+      float av[RP_CL_W];
+      /* The lanes' 16-byte histograms, as four words each. */
+      vstore_w(b * 4, 0, idx);
+#pragma clang loop vectorize(enable) vectorize_width(RP_CL_W)
+      for (q = 0; q < RP_CL_W; q++) {
+        __global const uint *v = alpha_hist + idx[q];
+        h[0][q] = v[0];
+        h[1][q] = v[1];
+        h[2][q] = v[2];
+        h[3][q] = v[3];
+      }
+      for (q = 0; q < 4; q++) {
+        w[q] = vload_w(0, h[q]);
+        total += (w[q] & 0xffu) + ((w[q] >> 8) & 0xffu) +
+                 ((w[q] >> 16) & 0xffu) + (w[q] >> 24);
+      }
+      /* ((uint64)tau * total) >> 32, then the first bin whose running
+       * sum passes it. */
+      target = mul_hi(tau, total);
+      for (q = 0; q < 15; q++) {
+        vint now;
+        sum += (w[q / 4] >> (8 * (q % 4))) & 0xffu;
+        now = ~found & (sum > target);
+        bin = select(bin, (vint)(q), now);
+        found |= now;
+      }
+      vstore_w(bin, 0, bins);
+#pragma clang loop vectorize(enable) vectorize_width(RP_CL_W)
+      for (q = 0; q < RP_CL_W; q++)
+        av[q] = corr[bins[q]];
+      a = vload_w(0, av);
+      acc = select(acc, acc + (1.0f - acc) * a, draw);
+      draw &= acc >= fp.ert_threshold;
+      result = select(result, t, draw);
+      live &= ~draw;
+    }
+    j += 1.0f;
+  }
+  {
+    vuint at = id;
+#define RP_CL_PUT(n)                                                          \
+  if (inside.s##n)                                                            \
+    out[at.s##n] = result.s##n;
+    RP_CL_LANES(RP_CL_PUT)
+#undef RP_CL_PUT
+  }
+}
