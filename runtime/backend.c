@@ -429,9 +429,9 @@ static void reference_depth(const rp_device *dev, const rp__raygen *rg,
 
 int rp_device_depth_pass(rp_device *dev, const rp_camera *cam,
                          const rp_render_desc *desc, float *front_back) {
-  rp_render_desc d;
-  rp__raygen rg;
-  rp_frame_params p;
+  rp_render_desc d = {0};
+  rp__raygen rg = {0};
+  rp_frame_params p = {0};
   uint64_t t0 = now_ns();
   int err;
   if (dev == NULL)
@@ -459,9 +459,9 @@ int rp_device_depth_pass(rp_device *dev, const rp_camera *cam,
 int rp_device_ert_prepass(rp_device *dev, const rp_camera *cam,
                           const rp_render_desc *desc, uint32_t seed,
                           uint32_t frame, float *d_ert) {
-  rp_render_desc d;
-  rp__raygen rg;
-  rp_frame_params p;
+  rp_render_desc d = {0};
+  rp__raygen rg = {0};
+  rp_frame_params p = {0};
   uint64_t t0 = now_ns();
   int err;
   if (dev == NULL)
@@ -504,9 +504,9 @@ int rp__device_render(rp_device *dev, const rp_camera *cam,
                       const rp_render_desc *desc, const rp_region *region,
                       uint8_t *rgba, rp_tile_stats *tiles,
                       uint64_t *fetches) {
-  rp_render_desc d;
-  rp__raygen rg;
-  rp_frame_params p;
+  rp_render_desc d = {0};
+  rp__raygen rg = {0};
+  rp_frame_params p = {0};
   rp_region all = {0, 0, 0, 0};
   uint64_t t0;
   int err;

@@ -216,10 +216,11 @@ rp_render_desc rp__render_desc_defaults(const rp_render_desc *in) {
 
 void rp_scaled_size(const rp_render_desc *desc, uint32_t *width,
                     uint32_t *height) {
-  double s = desc->image_scale == 0.0f ? 1.0 : desc->image_scale;
-  double w = floor(desc->width * s + 0.5), h = floor(desc->height * s + 0.5);
+  double s = desc->image_scale == 0.0f ? 1.0 : desc->image_scale, w, h;
   if (!(s > 0.0 && s <= 1.0)) /* invalid scales are refused elsewhere */
-    s = 1.0, w = desc->width, h = desc->height;
+    s = 1.0;
+  w = floor(desc->width * s + 0.5);
+  h = floor(desc->height * s + 0.5);
   *width = w < 1.0 ? 1u : (uint32_t)w;
   *height = h < 1.0 ? 1u : (uint32_t)h;
 }
