@@ -1,0 +1,144 @@
+/* Shared by the raypace Vulkan kernels (depth.comp, raycast.comp,
+ * ert.comp): frame parameters, bindings, rays, box clipping and the block
+ * grid. The formulas are those of backends/README.md, evaluated in float.
+ *
+ * One descriptor set serves all three kernels; each kernel touches only
+ * the bindings it declares, and the host keeps every binding valid. */
+#ifndef RP_VK_COMMON_GLSL
+#define RP_VK_COMMON_GLSL
+
+/* One workgroup per 8x8 tile of the scaled image (or of the ERT grid):
+ * the tile statistics are then a reduction inside one workgroup. */
+layout(local_size_x = 8, local_size_y = 8, local_size_z = 1) in;
+
+/* The effect set a pipeline is specialised for. Off means the code is
+ * folded away when the driver specialises, so an effect that is off costs
+ * nothing. The ids match rp_vk_spec in vk_internal.h. */
+layout(constant_id = 0) const bool RP_SHADING = false;
+layout(constant_id = 1) const bool RP_ERT = false;
+layout(constant_id = 2) const bool RP_SKIP = false;
+layout(constant_id = 3) const bool RP_COUNT = false;
+/* Reserved for ambient occlusion (M7); no kernel reads it yet. */
+layout(constant_id = 4) const bool RP_AO = false;
+/* Voxel type as rp_voxel_type: 1 uint8, 2 uint16, 3 float32. */
+layout(constant_id = 5) const uint RP_VOXEL = 1u;
+/* Volume layout: true when each texel holds a 2x2 footprint (below). */
+layout(constant_id = 6) const bool RP_QUAD = true;
+/* Opacity correction: false when step == ref_step, where it is the
+ * identity. Not an effect but worth a variant: the logarithm and the
+ * exponential are a sixth of a sample's cost on lavapipe, where a branch
+ * on a uniform value does not skip the code it guards. */
+layout(constant_id = 7) const bool RP_CORRECT = true;
+
+/* The host's rp_vk_params (vec4-packed, so std430 and the C struct agree
+ * without vec3 alignment rules).
+ *
+ * It is a storage buffer, and there are no push constants, on purpose:
+ * lavapipe inlines UBO and push-constant values that steer control flow
+ * into the shader and recompiles it whenever they change (measured: about
+ * 200 ms per dispatch for a moving camera). Storage buffers are never
+ * inlined. */
+struct Params {
+  vec4 eye;      /* xyz eye, w: 1 for orthographic */
+  vec4 fwd;      /* xyz forward, w: half_w */
+  vec4 right;    /* xyz right, w: half_h */
+  vec4 up;       /* xyz up, w: step */
+  vec4 dims;     /* xyz dims as floats, w: min_spacing */
+  vec4 inv_sp;   /* xyz 1 / spacing, w: ert_threshold */
+  vec4 vrange;   /* x value_min, y 1 / (max - min) or 0, z max - min,
+                    w step / ref_step */
+  vec4 ert_a[4]; /* opacity of each H-alpha bin at the coarse step */
+  uvec4 idims;   /* xyz dims, w lut_size */
+  uvec4 blocks;  /* xyz block grid, w scaled image width */
+  uvec4 misc;    /* x height, y ERT grid width, z ERT grid height */
+  uvec4 seed;    /* x ert_seed, y frame */
+  uvec4 rect;    /* the region: x0, y0, width, height (scaled pixels) */
+};
+
+layout(set = 0, binding = 0, std430) readonly buffer Frame {
+  Params frame;
+};
+
+/* A private copy, read once at the top of main while every invocation is
+ * active: a storage-buffer load there is one scalar load, while inside
+ * divergent control flow lavapipe loads lane by lane. */
+Params P;
+
+void load_params() {
+  P = frame;
+}
+
+/* The occupancy grid, one R8 texel per block (texel fetches are gathers
+ * on lavapipe, storage-buffer loads in divergent code are not). */
+layout(set = 0, binding = 3) uniform usamplerBuffer grid;
+
+#define RP_INF uintBitsToFloat(0x7f800000u)
+/* Stands in for infinity inside the arithmetic, where a compiler allowed
+ * to assume finite values could fold a comparison with a real one. */
+const float RP_BIG = 3.0e38;
+
+/* A ray in voxel space: p(t) = p0 + t * dp; sampling starts at s and
+ * ends at t1, both in voxel units of depth. */
+struct Ray {
+  vec3 p0;
+  vec3 dp;
+  vec3 dir; /* world space, unit length */
+  float s;
+  float t1;
+  bool hit;
+};
+
+/* The ray through continuous image position (px, py) of the scaled
+ * image: pixel (x, y) is (x + 0.5, y + 0.5). */
+Ray make_ray(float px, float py) {
+  Ray ray;
+  float nu = 2.0 * px / float(P.blocks.w) - 1.0;
+  float nv = 1.0 - 2.0 * py / float(P.misc.x);
+  vec3 side = (nu * P.fwd.w) * P.right.xyz + (nv * P.right.w) * P.up.xyz;
+  vec3 org;
+  if (P.eye.w != 0.0) {
+    org = P.eye.xyz + side;
+    ray.dir = P.fwd.xyz;
+  } else {
+    org = P.eye.xyz;
+    ray.dir = normalize(P.fwd.xyz + side);
+  }
+  ray.p0 = org * P.inv_sp.xyz + 0.5 * P.dims.xyz - 0.5;
+  ray.dp = ray.dir * (P.dims.w * P.inv_sp.xyz);
+
+  /* Slab test against [-0.5, dims - 0.5]. An axis the ray does not move
+   * along only decides hit or miss, so no 0 * inf reaches the min/max. */
+  float t0 = -RP_BIG, t1 = RP_BIG;
+  bool inside = true;
+  for (int a = 0; a < 3; a++) {
+    float lo = -0.5, hi = P.dims[a] - 0.5;
+    if (ray.dp[a] == 0.0) {
+      inside = inside && ray.p0[a] >= lo && ray.p0[a] <= hi;
+    } else {
+      float ta = (lo - ray.p0[a]) / ray.dp[a];
+      float tb = (hi - ray.p0[a]) / ray.dp[a];
+      t0 = max(t0, min(ta, tb));
+      t1 = min(t1, max(ta, tb));
+    }
+  }
+  ray.hit = inside && t0 <= t1 && t1 >= 0.0;
+  ray.s = max(t0, 0.0);
+  ray.t1 = t1;
+  return ray;
+}
+
+/* Block coordinates of voxel-space point p, clamped to the grid. */
+ivec3 block_cell(vec3 p) {
+  vec3 q = floor((p + 0.5) * (1.0 / 16.0));
+  return clamp(ivec3(q), ivec3(0), ivec3(P.blocks.xyz) - 1);
+}
+
+uint block_index(ivec3 c) {
+  return (uint(c.z) * P.blocks.y + uint(c.y)) * P.blocks.x + uint(c.x);
+}
+
+bool block_occupied(uint b) {
+  return texelFetch(grid, int(b)).x != 0u;
+}
+
+#endif /* RP_VK_COMMON_GLSL */

@@ -1,0 +1,67 @@
+/* Depth pass: per ray of the scaled image, (D_front, D_back) in voxel
+ * units. With RP_SKIP the ray walks the 16^3 block grid (3D DDA): D_front
+ * is where it enters the first occupied block, D_back where it leaves the
+ * last one, clipped to [s, t1]. Without, the box clip [s, t1]. No
+ * occupied block, or a miss: (+inf, -inf). The result stays on the device
+ * for the raycast. */
+#version 450
+#include "common.glsl"
+
+layout(set = 0, binding = 5, std430) writeonly buffer Depth {
+  vec2 depth[];
+};
+
+/* The walk keeps, per axis, the depth of the next block boundary. Each is
+ * computed from the boundary's position rather than accumulated, so that
+ * long rays do not drift. */
+float boundary(int cell, float p0, float dp) {
+  float plane = dp > 0.0 ? float(16 * (cell + 1)) - 0.5
+                         : float(16 * cell) - 0.5;
+  return (plane - p0) / dp;
+}
+
+vec2 walk(Ray ray) {
+  ivec3 cell = block_cell(ray.p0 + ray.s * ray.dp);
+  ivec3 dir = ivec3(sign(ray.dp));
+  vec3 next;
+  for (int a = 0; a < 3; a++)
+    next[a] = dir[a] == 0 ? RP_BIG
+                          : boundary(cell[a], ray.p0[a], ray.dp[a]);
+  float front = RP_BIG, back = -RP_BIG, t = ray.s;
+  /* A ray crosses at most one boundary per block along each axis; the
+   * bound only guards against a pathological float loop. */
+  int guard = int(P.blocks.x + P.blocks.y + P.blocks.z) + 3;
+  for (int n = 0; n < guard; n++) {
+    float exit_t = min(min(next.x, next.y), next.z);
+    exit_t = min(exit_t, ray.t1);
+    if (block_occupied(block_index(cell))) {
+      if (front == RP_BIG)
+        front = t;
+      back = exit_t;
+    }
+    if (exit_t >= ray.t1)
+      break;
+    int a = next.x <= next.y ? (next.x <= next.z ? 0 : 2)
+                             : (next.y <= next.z ? 1 : 2);
+    cell[a] += dir[a];
+    /* Leaving the grid before t1 happens only by rounding at the far
+     * face: the rest of the ray is outside every block. */
+    if (cell[a] < 0 || cell[a] >= int(P.blocks[a]))
+      break;
+    t = next[a];
+    next[a] = boundary(cell[a], ray.p0[a], ray.dp[a]);
+  }
+  return front == RP_BIG ? vec2(RP_INF, -RP_INF) : vec2(front, back);
+}
+
+void main() {
+  load_params();
+  uvec2 pix = gl_GlobalInvocationID.xy;
+  if (pix.x >= P.blocks.w || pix.y >= P.misc.x)
+    return;
+  Ray ray = make_ray(float(pix.x) + 0.5, float(pix.y) + 0.5);
+  vec2 fb = vec2(RP_INF, -RP_INF);
+  if (ray.hit)
+    fb = RP_SKIP ? walk(ray) : vec2(ray.s, ray.t1);
+  depth[pix.y * P.blocks.w + pix.x] = fb;
+}

@@ -1,0 +1,1053 @@
+/* The Vulkan compute backend: rp_backend_ops for any Vulkan 1.1 device
+ * with a compute queue (developed on Mesa's lavapipe).
+ *
+ * Design, in short:
+ * - Three kernels (kernels/NAME.comp), compiled to SPIR-V by glslc at build
+ *   time and embedded. The effects, the counting variant, the voxel type,
+ *   the volume layout and whether opacity needs correcting are
+ *   specialization constants: a pipeline is made the first time a
+ *   combination is used and kept for the device's life, and a
+ *   VkPipelineCache file carries what the driver is willing to store
+ *   between runs (lavapipe stores only a header; its compiled code goes
+ *   to Mesa's own shader cache).
+ * - Everything a kernel reads per sample or per block is a uniform texel
+ *   buffer read with texelFetch: exact values, no filtering, hand-written
+ *   trilinear (why: kernels/raycast.comp). When memory allows, each volume
+ *   texel holds a 2x2 voxel footprint ("quad" layout, 4x the volume's
+ *   bytes) so that a trilinear sample is two fetches, not eight.
+ * - The frame parameters are a storage buffer, not a uniform buffer or
+ *   push constants, which lavapipe would bake into a recompiled shader
+ *   whenever they change (kernels/common.glsl).
+ * - Every operation records one command buffer, submits it and waits on a
+ *   fence: the ops are synchronous by contract. Timestamps around the
+ *   work give the device time. A barrier follows every dispatch, so the
+ *   depth buffer a depth pass writes is visible to the raycast that reads
+ *   it, in the same submission or a later one.
+ * - Outputs live in host-visible memory sized to the largest request so
+ *   far and reused, so a steady frame loop allocates nothing. */
+#include <math.h>
+#include <stdio.h>
+#include <string.h>
+#include <time.h>
+
+#include "passes.h"
+#include "vk_internal.h"
+
+#include "depth.spv.h"
+#include "ert.spv.h"
+#include "raycast.spv.h"
+
+rp_vk_test_hooks rp_vk_hooks;
+
+static const struct {
+  const char *name;
+  const uint32_t *words;
+  size_t bytes;
+} kernels[RP_VK_KERNEL_COUNT] = {
+    {"raycast", rp_vk_spv_raycast, sizeof rp_vk_spv_raycast},
+    {"depth", rp_vk_spv_depth, sizeof rp_vk_spv_depth},
+    {"ert", rp_vk_spv_ert, sizeof rp_vk_spv_ert},
+};
+
+_Static_assert(sizeof(rp_vk_params) == 256,
+               "rp_vk_params must match the Params block in common.glsl");
+
+static const rp_backend_ops vk_ops;
+
+static uint64_t now_ns(void) {
+  struct timespec ts;
+  clock_gettime(CLOCK_MONOTONIC, &ts);
+  return (uint64_t)ts.tv_sec * 1000000000u + (uint64_t)ts.tv_nsec;
+}
+
+static uint32_t div_up(uint32_t a, uint32_t b) {
+  return a / b + (a % b != 0);
+}
+
+/* ---- set-up -------------------------------------------------------------- */
+
+static int make_modules(rp_vk_impl *impl) {
+  /* What the corrupt_kernel hook substitutes: a module whose magic is
+   * byte-swapped, as a file written with the wrong endianness would be. */
+  static const uint32_t broken[5] = {0x03022307u, 0x00000301u, 0, 1, 0};
+  int k, err;
+  for (k = 0; k < RP_VK_KERNEL_COUNT; k++) {
+    VkShaderModuleCreateInfo info = {0};
+    const uint32_t *words = kernels[k].words;
+    size_t bytes = kernels[k].bytes;
+    VkResult r;
+    if (rp_vk_hooks.corrupt_kernel == k + 1) {
+      words = broken;
+      bytes = sizeof broken;
+    }
+    if ((err = rp_vk__check_spirv(impl->ctx, kernels[k].name, words,
+                                  bytes)) != 0)
+      return err;
+    info.sType = VK_STRUCTURE_TYPE_SHADER_MODULE_CREATE_INFO;
+    info.codeSize = bytes;
+    info.pCode = words;
+    r = vkCreateShaderModule(impl->dev, &info, NULL, &impl->modules[k]);
+    if (r != VK_SUCCESS) {
+      impl->modules[k] = VK_NULL_HANDLE;
+      if (r == VK_ERROR_OUT_OF_HOST_MEMORY ||
+          r == VK_ERROR_OUT_OF_DEVICE_MEMORY)
+        return rp_vk__fail(impl->ctx, r, "vkCreateShaderModule");
+      return rp__fail(impl->ctx, RP_EBUILD, "vulkan: kernel '%s': "
+                      "vkCreateShaderModule: %s", kernels[k].name,
+                      rp_vk__result_name(r));
+    }
+  }
+  return 0;
+}
+
+static int make_layout(rp_vk_impl *impl) {
+  VkDescriptorSetLayoutBinding b[RP_VK_BIND_COUNT];
+  VkDescriptorSetLayoutCreateInfo sinfo = {0};
+  VkPipelineLayoutCreateInfo linfo = {0};
+  VkDescriptorPoolSize sizes[2] = {
+      {VK_DESCRIPTOR_TYPE_UNIFORM_TEXEL_BUFFER, 4},
+      {VK_DESCRIPTOR_TYPE_STORAGE_BUFFER, RP_VK_BIND_COUNT - 4}};
+  VkDescriptorPoolCreateInfo pinfo = {0};
+  VkDescriptorSetAllocateInfo ainfo = {0};
+  VkResult r;
+  int i;
+  memset(b, 0, sizeof b);
+  for (i = 0; i < RP_VK_BIND_COUNT; i++) {
+    b[i].binding = (uint32_t)i;
+    b[i].descriptorCount = 1;
+    b[i].stageFlags = VK_SHADER_STAGE_COMPUTE_BIT;
+    b[i].descriptorType = VK_DESCRIPTOR_TYPE_STORAGE_BUFFER;
+  }
+  /* Everything the kernels read per sample or per block is a texel
+   * buffer: on lavapipe a texel fetch is a vector gather, a storage
+   * buffer load in divergent code a loop over the lanes. */
+  for (i = RP_VK_BIND_VOLUME; i <= RP_VK_BIND_ALPHA; i++)
+    b[i].descriptorType = VK_DESCRIPTOR_TYPE_UNIFORM_TEXEL_BUFFER;
+  sinfo.sType = VK_STRUCTURE_TYPE_DESCRIPTOR_SET_LAYOUT_CREATE_INFO;
+  sinfo.bindingCount = RP_VK_BIND_COUNT;
+  sinfo.pBindings = b;
+  if ((r = vkCreateDescriptorSetLayout(impl->dev, &sinfo, NULL,
+                                       &impl->set_layout)) != VK_SUCCESS)
+    return rp_vk__fail(impl->ctx, r, "vkCreateDescriptorSetLayout");
+  linfo.sType = VK_STRUCTURE_TYPE_PIPELINE_LAYOUT_CREATE_INFO;
+  linfo.setLayoutCount = 1;
+  linfo.pSetLayouts = &impl->set_layout;
+  if ((r = vkCreatePipelineLayout(impl->dev, &linfo, NULL, &impl->layout)) !=
+      VK_SUCCESS)
+    return rp_vk__fail(impl->ctx, r, "vkCreatePipelineLayout");
+  pinfo.sType = VK_STRUCTURE_TYPE_DESCRIPTOR_POOL_CREATE_INFO;
+  pinfo.maxSets = 1;
+  pinfo.poolSizeCount = 2;
+  pinfo.pPoolSizes = sizes;
+  if ((r = vkCreateDescriptorPool(impl->dev, &pinfo, NULL,
+                                  &impl->desc_pool)) != VK_SUCCESS)
+    return rp_vk__fail(impl->ctx, r, "vkCreateDescriptorPool");
+  ainfo.sType = VK_STRUCTURE_TYPE_DESCRIPTOR_SET_ALLOCATE_INFO;
+  ainfo.descriptorPool = impl->desc_pool;
+  ainfo.descriptorSetCount = 1;
+  ainfo.pSetLayouts = &impl->set_layout;
+  if ((r = vkAllocateDescriptorSets(impl->dev, &ainfo, &impl->set)) !=
+      VK_SUCCESS)
+    return rp_vk__fail(impl->ctx, r, "vkAllocateDescriptorSets");
+  return 0;
+}
+
+static int make_view(rp_vk_impl *impl, VkBuffer buf, VkFormat format,
+                     VkBufferView *out) {
+  VkBufferViewCreateInfo info = {0};
+  VkResult r;
+  info.sType = VK_STRUCTURE_TYPE_BUFFER_VIEW_CREATE_INFO;
+  info.buffer = buf;
+  info.format = format;
+  info.range = VK_WHOLE_SIZE;
+  r = vkCreateBufferView(impl->dev, &info, NULL, out);
+  if (r != VK_SUCCESS) {
+    *out = VK_NULL_HANDLE;
+    return rp_vk__fail(impl->ctx, r, "vkCreateBufferView");
+  }
+  return 0;
+}
+
+static void free_view(rp_vk_impl *impl, VkBufferView *v) {
+  if (*v != VK_NULL_HANDLE)
+    vkDestroyBufferView(impl->dev, *v, NULL);
+  *v = VK_NULL_HANDLE;
+}
+
+/* Points every binding at its buffer, or at the stand-in while the real
+ * one does not exist yet. Called after any buffer is (re)made; the set is
+ * never in use then, since every operation waits for its work. */
+static void bind_all(rp_vk_impl *impl) {
+  const rp_vk_buffer *bufs[RP_VK_BIND_COUNT] = {
+      &impl->params, &impl->volume, &impl->lut,   &impl->grid, &impl->alpha,
+      &impl->depth,  &impl->image,  &impl->tiles, &impl->ert};
+  VkDescriptorBufferInfo info[RP_VK_BIND_COUNT];
+  VkWriteDescriptorSet w[RP_VK_BIND_COUNT];
+  VkBufferView views[RP_VK_BIND_COUNT];
+  int i;
+  memset(w, 0, sizeof w);
+  views[RP_VK_BIND_VOLUME] = impl->volume_view != VK_NULL_HANDLE
+                                 ? impl->volume_view
+                                 : impl->dummy_u_view;
+  views[RP_VK_BIND_LUT] =
+      impl->lut_view != VK_NULL_HANDLE ? impl->lut_view : impl->dummy_f_view;
+  views[RP_VK_BIND_GRID] = impl->grid_view != VK_NULL_HANDLE
+                               ? impl->grid_view
+                               : impl->dummy_u_view;
+  views[RP_VK_BIND_ALPHA] = impl->alpha_view != VK_NULL_HANDLE
+                                ? impl->alpha_view
+                                : impl->dummy_u_view;
+  for (i = 0; i < RP_VK_BIND_COUNT; i++) {
+    const rp_vk_buffer *b = bufs[i];
+    w[i].sType = VK_STRUCTURE_TYPE_WRITE_DESCRIPTOR_SET;
+    w[i].dstSet = impl->set;
+    w[i].dstBinding = (uint32_t)i;
+    w[i].descriptorCount = 1;
+    if (i >= RP_VK_BIND_VOLUME && i <= RP_VK_BIND_ALPHA) {
+      w[i].descriptorType = VK_DESCRIPTOR_TYPE_UNIFORM_TEXEL_BUFFER;
+      w[i].pTexelBufferView = &views[i];
+      continue;
+    }
+    info[i].buffer = b->buf != VK_NULL_HANDLE ? b->buf : impl->dummy.buf;
+    info[i].offset = 0;
+    info[i].range = VK_WHOLE_SIZE;
+    w[i].descriptorType = VK_DESCRIPTOR_TYPE_STORAGE_BUFFER;
+    w[i].pBufferInfo = &info[i];
+  }
+  vkUpdateDescriptorSets(impl->dev, RP_VK_BIND_COUNT, w, 0, NULL);
+}
+
+static int make_buffers(rp_vk_impl *impl) {
+  int err;
+  if ((err = rp_vk__buffer(impl, "frame parameters", sizeof(rp_vk_params),
+                           VK_BUFFER_USAGE_STORAGE_BUFFER_BIT, 1,
+                           &impl->params)) != 0 ||
+      (err = rp_vk__buffer(impl, "placeholder", 256,
+                           VK_BUFFER_USAGE_UNIFORM_TEXEL_BUFFER_BIT |
+                               VK_BUFFER_USAGE_STORAGE_BUFFER_BIT,
+                           1, &impl->dummy)) != 0)
+    return err;
+  memset(impl->dummy.map, 0, 256);
+  memset(impl->params.map, 0, sizeof(rp_vk_params));
+  if ((err = make_view(impl, impl->dummy.buf, VK_FORMAT_R32_UINT,
+                       &impl->dummy_u_view)) != 0 ||
+      (err = make_view(impl, impl->dummy.buf, VK_FORMAT_R32G32B32A32_SFLOAT,
+                       &impl->dummy_f_view)) != 0)
+    return err;
+  bind_all(impl);
+  return 0;
+}
+
+static void vk_destroy(void *p) {
+  rp_vk_impl *impl = p;
+  uint32_t i;
+  if (impl == NULL)
+    return;
+  if (impl->dev != VK_NULL_HANDLE) {
+    vkDeviceWaitIdle(impl->dev);
+    if (impl->lost == NULL)
+      rp_vk__cache_save(impl);
+    for (i = 0; i < impl->pipeline_count; i++)
+      vkDestroyPipeline(impl->dev, impl->pipelines[i].pipe, NULL);
+    if (impl->cache != VK_NULL_HANDLE)
+      vkDestroyPipelineCache(impl->dev, impl->cache, NULL);
+    for (i = 0; i < RP_VK_KERNEL_COUNT; i++)
+      if (impl->modules[i] != VK_NULL_HANDLE)
+        vkDestroyShaderModule(impl->dev, impl->modules[i], NULL);
+    free_view(impl, &impl->volume_view);
+    free_view(impl, &impl->lut_view);
+    free_view(impl, &impl->grid_view);
+    free_view(impl, &impl->alpha_view);
+    free_view(impl, &impl->dummy_u_view);
+    free_view(impl, &impl->dummy_f_view);
+    rp_vk__buffer_free(impl, &impl->params);
+    rp_vk__buffer_free(impl, &impl->volume);
+    rp_vk__buffer_free(impl, &impl->lut);
+    rp_vk__buffer_free(impl, &impl->grid);
+    rp_vk__buffer_free(impl, &impl->alpha);
+    rp_vk__buffer_free(impl, &impl->depth);
+    rp_vk__buffer_free(impl, &impl->image);
+    rp_vk__buffer_free(impl, &impl->tiles);
+    rp_vk__buffer_free(impl, &impl->ert);
+    rp_vk__buffer_free(impl, &impl->dummy);
+    if (impl->desc_pool != VK_NULL_HANDLE)
+      vkDestroyDescriptorPool(impl->dev, impl->desc_pool, NULL);
+    if (impl->layout != VK_NULL_HANDLE)
+      vkDestroyPipelineLayout(impl->dev, impl->layout, NULL);
+    if (impl->set_layout != VK_NULL_HANDLE)
+      vkDestroyDescriptorSetLayout(impl->dev, impl->set_layout, NULL);
+  }
+  rp_vk__close(impl);
+  rp__free(impl->ctx, impl->pipelines);
+  rp__free(impl->ctx, impl);
+}
+
+static int vk_probe(rp_context *ctx, uint32_t *count) {
+  VkInstance inst;
+  (void)ctx;
+  *count = 0;
+  /* Probing is how selection skips absent drivers: no message, no
+   * error, just zero devices. */
+  if (rp_vk__instance(NULL, &inst) != 0)
+    return 0;
+  if (rp_vk__compute_devices(inst, NULL, 0, count) != 0)
+    *count = 0;
+  vkDestroyInstance(inst, NULL);
+  return 0;
+}
+
+static int vk_create(rp_context *ctx, uint32_t index,
+                     const rp_backend_ops **ops, void **out, rp_caps *caps) {
+  rp_vk_impl *impl = rp__calloc(ctx, 1, sizeof *impl);
+  int err;
+  if (impl == NULL)
+    return rp__fail(ctx, RP_ENOMEM, "vulkan: out of memory for the device "
+                    "(%zu bytes)", sizeof *impl);
+  impl->ctx = ctx;
+  if ((err = rp_vk__open(impl, index, caps)) != 0 ||
+      (err = make_modules(impl)) != 0 || (err = make_layout(impl)) != 0 ||
+      (err = make_buffers(impl)) != 0) {
+    vk_destroy(impl);
+    return err;
+  }
+  rp_vk__cache_load(impl);
+  *ops = &vk_ops;
+  *out = impl;
+  return 0;
+}
+
+/* ---- pipelines ----------------------------------------------------------- */
+
+static uint32_t pipeline_key(rp_vk_kernel k, const rp_frame_params *p,
+                             int counting, rp_voxel_type type, int quad) {
+  uint32_t key = (uint32_t)k << RP_VK_KEY_KERNEL_SHIFT;
+  uint32_t effects = p->effects;
+  if (k == RP_VK_RAYCAST) {
+    key |= effects & (RP_EFFECT_SHADING | RP_EFFECT_ERT | RP_EFFECT_SKIP);
+    key |= p->step != p->ref_step ? RP_VK_KEY_CORRECT : 0;
+    key |= counting ? RP_VK_KEY_COUNT : 0;
+    key |= quad ? RP_VK_KEY_QUAD : 0;
+    key |= (uint32_t)type << RP_VK_KEY_TYPE_SHIFT;
+  } else if (k == RP_VK_DEPTH) {
+    key |= effects & RP_EFFECT_SKIP;
+  }
+  return key;
+}
+
+static int get_pipeline(rp_vk_impl *impl, uint32_t key, VkPipeline *out) {
+  rp_vk_kernel k = (rp_vk_kernel)(key >> RP_VK_KEY_KERNEL_SHIFT);
+  uint32_t values[RP_VK_SPEC_TOTAL], i;
+  VkSpecializationMapEntry map[RP_VK_SPEC_TOTAL];
+  VkSpecializationInfo spec;
+  VkComputePipelineCreateInfo info = {0};
+  VkPipelineCreationFeedback fb = {0};
+  VkPipelineCreationFeedbackCreateInfo fbinfo = {0};
+  VkPipeline pipe;
+  VkResult r;
+  uint64_t t0;
+
+  for (i = 0; i < impl->pipeline_count; i++)
+    if (impl->pipelines[i].key == key) {
+      *out = impl->pipelines[i].pipe;
+      return 0;
+    }
+  if (impl->pipeline_count == impl->pipeline_cap) {
+    uint32_t cap = impl->pipeline_cap ? 2 * impl->pipeline_cap : 8;
+    rp_vk_pipeline *grown = rp__malloc(impl->ctx, cap * sizeof *grown);
+    if (grown == NULL)
+      return rp__fail(impl->ctx, RP_ENOMEM, "vulkan: out of memory for "
+                      "the pipeline table");
+    if (impl->pipeline_count > 0)
+      memcpy(grown, impl->pipelines,
+             impl->pipeline_count * sizeof *grown);
+    rp__free(impl->ctx, impl->pipelines);
+    impl->pipelines = grown;
+    impl->pipeline_cap = cap;
+  }
+  /* Booleans are VkBool32, the voxel type a uint: all four bytes. */
+  values[RP_VK_SPEC_SHADING] = (key & RP_EFFECT_SHADING) != 0;
+  values[RP_VK_SPEC_ERT] = (key & RP_EFFECT_ERT) != 0;
+  values[RP_VK_SPEC_SKIP] = (key & RP_EFFECT_SKIP) != 0;
+  values[RP_VK_SPEC_COUNT] = (key & RP_VK_KEY_COUNT) != 0;
+  values[RP_VK_SPEC_AO] = 0;
+  values[RP_VK_SPEC_VOXEL] = (key >> RP_VK_KEY_TYPE_SHIFT) & 3u;
+  if (values[RP_VK_SPEC_VOXEL] == 0)
+    values[RP_VK_SPEC_VOXEL] = RP_U8;
+  values[RP_VK_SPEC_QUAD] = (key & RP_VK_KEY_QUAD) != 0;
+  values[RP_VK_SPEC_CORRECT] = (key & RP_VK_KEY_CORRECT) != 0;
+  for (i = 0; i < RP_VK_SPEC_TOTAL; i++) {
+    map[i].constantID = i;
+    map[i].offset = i * (uint32_t)sizeof(uint32_t);
+    map[i].size = sizeof(uint32_t);
+  }
+  spec.mapEntryCount = RP_VK_SPEC_TOTAL;
+  spec.pMapEntries = map;
+  spec.dataSize = sizeof values;
+  spec.pData = values;
+  info.sType = VK_STRUCTURE_TYPE_COMPUTE_PIPELINE_CREATE_INFO;
+  info.stage.sType = VK_STRUCTURE_TYPE_PIPELINE_SHADER_STAGE_CREATE_INFO;
+  info.stage.stage = VK_SHADER_STAGE_COMPUTE_BIT;
+  info.stage.module = impl->modules[k];
+  info.stage.pName = "main";
+  info.stage.pSpecializationInfo = &spec;
+  info.layout = impl->layout;
+  if (impl->feedback) {
+    fbinfo.sType = VK_STRUCTURE_TYPE_PIPELINE_CREATION_FEEDBACK_CREATE_INFO;
+    fbinfo.pPipelineCreationFeedback = &fb;
+    info.pNext = &fbinfo;
+  }
+  t0 = now_ns();
+  r = vkCreateComputePipelines(impl->dev, impl->cache, 1, &info, NULL,
+                               &pipe);
+  impl->stats.pipeline_create_ns += now_ns() - t0;
+  if (r != VK_SUCCESS) {
+    if (r == VK_ERROR_OUT_OF_HOST_MEMORY ||
+        r == VK_ERROR_OUT_OF_DEVICE_MEMORY)
+      return rp_vk__fail(impl->ctx, r, "vkCreateComputePipelines");
+    return rp__fail(impl->ctx, RP_EBUILD, "vulkan: kernel '%s' (variant "
+                    "0x%x): vkCreateComputePipelines: %s", kernels[k].name,
+                    (unsigned)key, rp_vk__result_name(r));
+  }
+  impl->stats.pipelines_created++;
+  if ((fb.flags & VK_PIPELINE_CREATION_FEEDBACK_VALID_BIT) &&
+      (fb.flags &
+       VK_PIPELINE_CREATION_FEEDBACK_APPLICATION_PIPELINE_CACHE_HIT_BIT))
+    impl->stats.pipeline_cache_hits++;
+  impl->pipelines[impl->pipeline_count].key = key;
+  impl->pipelines[impl->pipeline_count].pipe = pipe;
+  impl->pipeline_count++;
+  *out = pipe;
+  return 0;
+}
+
+/* ---- buffers and uploads ------------------------------------------------- */
+
+/* Makes storage buffer `b` at least `size` bytes, keeping it when it
+ * already is. Grows to a whole 64 KiB, within the range one descriptor may
+ * cover, so that slowly growing requests reallocate rarely. */
+static int ensure(rp_vk_impl *impl, rp_vk_buffer *b, const char *what,
+                  VkDeviceSize size, VkBufferUsageFlags usage, int host) {
+  VkDeviceSize range = impl->props.limits.maxStorageBufferRange;
+  int err;
+  if (b->buf != VK_NULL_HANDLE && b->size >= size)
+    return 0;
+  if (size > range)
+    return rp__fail(impl->ctx, RP_EUNSUPPORTED, "vulkan: the %s needs "
+                    "%llu bytes; a kernel can address at most %llu "
+                    "(maxStorageBufferRange): render a smaller image or "
+                    "region", what, (unsigned long long)size,
+                    (unsigned long long)range);
+  rp_vk__buffer_free(impl, b);
+  size = (size + 65535u) & ~(VkDeviceSize)65535u;
+  if (size > range)
+    size = range;
+  if ((err = rp_vk__buffer(impl, what, size, usage, host, b)) != 0) {
+    bind_all(impl); /* the binding must not keep the freed buffer */
+    return err;
+  }
+  bind_all(impl);
+  return 0;
+}
+
+static int alive(rp_vk_impl *impl) {
+  if (impl->lost != NULL)
+    return rp__fail(impl->ctx, RP_EDEVICE, "vulkan: the device was lost "
+                    "during %s; destroy it and create a new one",
+                    impl->lost);
+  return 0;
+}
+
+static int begin(rp_vk_impl *impl) {
+  VkCommandBufferBeginInfo info = {0};
+  VkResult r;
+  info.sType = VK_STRUCTURE_TYPE_COMMAND_BUFFER_BEGIN_INFO;
+  info.flags = VK_COMMAND_BUFFER_USAGE_ONE_TIME_SUBMIT_BIT;
+  if ((r = vkResetCommandBuffer(impl->cmd, 0)) != VK_SUCCESS)
+    return rp_vk__fail(impl->ctx, r, "vkResetCommandBuffer");
+  if ((r = vkBeginCommandBuffer(impl->cmd, &info)) != VK_SUCCESS)
+    return rp_vk__fail(impl->ctx, r, "vkBeginCommandBuffer");
+  if (impl->queries != VK_NULL_HANDLE) {
+    vkCmdResetQueryPool(impl->cmd, impl->queries, 0, 2);
+    vkCmdWriteTimestamp(impl->cmd, VK_PIPELINE_STAGE_TOP_OF_PIPE_BIT,
+                        impl->queries, 0);
+  }
+  return 0;
+}
+
+static void barrier(rp_vk_impl *impl, VkPipelineStageFlags src,
+                    VkAccessFlags src_access, VkPipelineStageFlags dst,
+                    VkAccessFlags dst_access) {
+  VkMemoryBarrier mb = {0};
+  mb.sType = VK_STRUCTURE_TYPE_MEMORY_BARRIER;
+  mb.srcAccessMask = src_access;
+  mb.dstAccessMask = dst_access;
+  vkCmdPipelineBarrier(impl->cmd, src, dst, 0, 1, &mb, 0, NULL, 0, NULL);
+}
+
+/* After a dispatch: its writes reach later kernels (this submission or a
+ * later one) and the host once the fence has signalled. */
+static void after_dispatch(rp_vk_impl *impl) {
+  barrier(impl, VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT,
+          VK_ACCESS_SHADER_WRITE_BIT,
+          VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT | VK_PIPELINE_STAGE_HOST_BIT,
+          VK_ACCESS_SHADER_READ_BIT | VK_ACCESS_SHADER_WRITE_BIT |
+              VK_ACCESS_HOST_READ_BIT);
+}
+
+/* Ends, submits and waits for the command buffer; `op` names the
+ * operation in errors and in a later "device was lost" report. */
+static int finish(rp_vk_impl *impl, const char *op) {
+  VkSubmitInfo submit = {0};
+  uint64_t t0, ts[2];
+  VkResult r;
+  char what[96];
+  if (impl->queries != VK_NULL_HANDLE)
+    vkCmdWriteTimestamp(impl->cmd, VK_PIPELINE_STAGE_BOTTOM_OF_PIPE_BIT,
+                        impl->queries, 1);
+  if ((r = vkEndCommandBuffer(impl->cmd)) != VK_SUCCESS) {
+    snprintf(what, sizeof what, "%s (vkEndCommandBuffer)", op);
+    return rp_vk__fail(impl->ctx, r, what);
+  }
+  submit.sType = VK_STRUCTURE_TYPE_SUBMIT_INFO;
+  submit.commandBufferCount = 1;
+  submit.pCommandBuffers = &impl->cmd;
+  vkResetFences(impl->dev, 1, &impl->fence);
+  t0 = now_ns();
+  r = vkQueueSubmit(impl->queue, 1, &submit, impl->fence);
+  if (r == VK_SUCCESS) {
+    snprintf(what, sizeof what, "%s (vkWaitForFences)", op);
+    r = vkWaitForFences(impl->dev, 1, &impl->fence, VK_TRUE, UINT64_MAX);
+  } else {
+    snprintf(what, sizeof what, "%s (vkQueueSubmit)", op);
+  }
+  if (r != VK_SUCCESS) {
+    if (r == VK_ERROR_DEVICE_LOST)
+      impl->lost = op;
+    return rp_vk__fail(impl->ctx, r, what);
+  }
+  impl->last_ns = now_ns() - t0;
+  if (impl->queries != VK_NULL_HANDLE &&
+      vkGetQueryPoolResults(impl->dev, impl->queries, 0, 2, sizeof ts, ts,
+                            sizeof ts[0],
+                            VK_QUERY_RESULT_64_BIT |
+                                VK_QUERY_RESULT_WAIT_BIT) == VK_SUCCESS)
+    impl->last_ns = (uint64_t)((double)((ts[1] - ts[0]) & impl->ts_mask) *
+                               impl->props.limits.timestampPeriod);
+  return 0;
+}
+
+/* Fills `dst` through fill(dst, user): in place when the buffer is mapped,
+ * else through a staging buffer and a copy. */
+static int write_buffer(rp_vk_impl *impl, rp_vk_buffer *dst,
+                        const char *what,
+                        void (*fill)(void *dst, void *user), void *user) {
+  rp_vk_buffer staging;
+  VkBufferCopy region = {0, 0, 0};
+  int err;
+  if (dst->map != NULL && !rp_vk_hooks.force_staging) {
+    fill(dst->map, user);
+    return 0;
+  }
+  if ((err = rp_vk__buffer(impl, what, dst->size,
+                           VK_BUFFER_USAGE_TRANSFER_SRC_BIT, 1, &staging)) !=
+      0)
+    return err;
+  fill(staging.map, user);
+  region.size = dst->size;
+  if ((err = begin(impl)) == 0) {
+    vkCmdCopyBuffer(impl->cmd, staging.buf, dst->buf, 1, &region);
+    barrier(impl, VK_PIPELINE_STAGE_TRANSFER_BIT,
+            VK_ACCESS_TRANSFER_WRITE_BIT,
+            VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT, VK_ACCESS_SHADER_READ_BIT);
+    err = finish(impl, "upload");
+  }
+  rp_vk__buffer_free(impl, &staging);
+  return err;
+}
+
+typedef struct volume_fill {
+  const rp_volume *vol;
+  void *dst;
+  int quad;
+} volume_fill;
+
+/* Quad layout rows: texel (x, y, z) = voxels (x, y), (x+1, y), (x, y+1),
+ * (x+1, y+1) of slice z, with x+1 and y+1 clamped at the far faces (the
+ * weight of a clamped neighbour is 0 there anyway). `row` is z * ny + y.
+ * Float voxels are copied as their 32-bit patterns. */
+#define RP_VK_QUAD_ROWS(name, T)                                              \
+  static void name(const volume_fill *j, uint32_t begin, uint32_t end) {      \
+    const T *src = (const T *)j->vol->data;                                   \
+    T *dst = (T *)j->dst;                                                     \
+    uint32_t nx = j->vol->dims[0], ny = j->vol->dims[1], row, x;              \
+    for (row = begin; row < end; row++) {                                     \
+      const T *r0 = src + (size_t)row * nx;                                   \
+      const T *r1 = row % ny + 1 < ny ? r0 + nx : r0;                         \
+      T *o = dst + (size_t)row * nx * 4;                                      \
+      for (x = 0; x < nx; x++) {                                              \
+        uint32_t x1 = x + 1 < nx ? x + 1 : x;                                 \
+        o[4 * x] = r0[x];                                                     \
+        o[4 * x + 1] = r0[x1];                                                \
+        o[4 * x + 2] = r1[x];                                                 \
+        o[4 * x + 3] = r1[x1];                                                \
+      }                                                                       \
+    }                                                                         \
+  }
+
+RP_VK_QUAD_ROWS(quad_rows_8, uint8_t)
+RP_VK_QUAD_ROWS(quad_rows_16, uint16_t)
+RP_VK_QUAD_ROWS(quad_rows_32, uint32_t)
+
+static void quad_rows(uint32_t begin, uint32_t end, void *user) {
+  const volume_fill *j = user;
+  switch (j->vol->type) {
+  case RP_U8: quad_rows_8(j, begin, end); break;
+  case RP_U16: quad_rows_16(j, begin, end); break;
+  default: quad_rows_32(j, begin, end); break;
+  }
+}
+
+static void fill_volume(void *dst, void *user) {
+  volume_fill *j = user;
+  const rp_volume *vol = j->vol;
+  uint32_t rows = vol->dims[1] * vol->dims[2];
+  j->dst = dst;
+  if (!j->quad) {
+    memcpy(dst, vol->data, vol->voxel_count * rp__voxel_size(vol->type));
+    return;
+  }
+  /* Parallel over rows; without threads (no memory for them) the same
+   * work runs here. */
+  if (rp__parallel_for(vol->ctx, rows, quad_rows, j) != 0)
+    quad_rows(0, rows, j);
+}
+
+static int format_ok(rp_vk_impl *impl, VkFormat f) {
+  VkFormatProperties fp;
+  vkGetPhysicalDeviceFormatProperties(impl->phys, f, &fp);
+  return (fp.bufferFeatures & VK_FORMAT_FEATURE_UNIFORM_TEXEL_BUFFER_BIT) !=
+         0;
+}
+
+/* Half the largest device-local heap: what the quad layout may take
+ * before the plain one is preferred, leaving room for everything else. */
+static uint64_t quad_budget(const rp_vk_impl *impl) {
+  uint64_t best = 0;
+  uint32_t i;
+  for (i = 0; i < impl->mem_props.memoryHeapCount; i++) {
+    const VkMemoryHeap *h = &impl->mem_props.memoryHeaps[i];
+    if ((h->flags & VK_MEMORY_HEAP_DEVICE_LOCAL_BIT) && h->size > best)
+      best = h->size;
+  }
+  return best / 2;
+}
+
+static int vk_upload_volume(void *p, const rp_volume *vol) {
+  static const VkFormat quad_fmt[4] = {
+      VK_FORMAT_UNDEFINED, VK_FORMAT_R8G8B8A8_UINT,
+      VK_FORMAT_R16G16B16A16_UINT, VK_FORMAT_R32G32B32A32_UINT};
+  static const VkFormat plain_fmt[4] = {VK_FORMAT_UNDEFINED,
+                                        VK_FORMAT_R8_UINT, VK_FORMAT_R16_UINT,
+                                        VK_FORMAT_R32_UINT};
+  rp_vk_impl *impl = p;
+  rp_context *ctx = impl->ctx;
+  uint64_t n = vol->voxel_count, es = rp__voxel_size(vol->type);
+  uint32_t limit = impl->props.limits.maxTexelBufferElements;
+  volume_fill job;
+  int quad, err;
+  if ((err = alive(impl)) != 0)
+    return err;
+  /* texelFetch takes an int, and a view holds at most the limit. */
+  if (n > limit || n > INT32_MAX)
+    return rp__fail(ctx, RP_EUNSUPPORTED, "vulkan: volume %ux%ux%u has "
+                    "%llu voxels; this device reads at most %u per buffer "
+                    "(maxTexelBufferElements)", vol->dims[0], vol->dims[1],
+                    vol->dims[2], (unsigned long long)n, (unsigned)limit);
+  if (!format_ok(impl, plain_fmt[vol->type]))
+    return rp__fail(ctx, RP_EUNSUPPORTED, "vulkan: device cannot read %s "
+                    "voxels from a texel buffer",
+                    rp_voxel_type_name(vol->type));
+  quad = !rp_vk_hooks.force_plain && format_ok(impl, quad_fmt[vol->type]) &&
+         4 * es * n <= impl->max_alloc && 4 * es * n <= quad_budget(impl);
+
+  free_view(impl, &impl->volume_view);
+  rp_vk__buffer_free(impl, &impl->volume);
+  impl->voxel_type = 0;
+  impl->depth_ok = 0;
+  err = rp_vk__buffer(impl, "volume", (quad ? 4 : 1) * es * n,
+                      VK_BUFFER_USAGE_UNIFORM_TEXEL_BUFFER_BIT |
+                          VK_BUFFER_USAGE_TRANSFER_DST_BIT,
+                      0, &impl->volume);
+  if (err == 0) {
+    job.vol = vol;
+    job.quad = quad;
+    err = write_buffer(impl, &impl->volume, "volume staging", fill_volume,
+                       &job);
+  }
+  if (err == 0)
+    err = make_view(impl, impl->volume.buf,
+                    quad ? quad_fmt[vol->type] : plain_fmt[vol->type],
+                    &impl->volume_view);
+  if (err != 0) {
+    free_view(impl, &impl->volume_view);
+    rp_vk__buffer_free(impl, &impl->volume);
+    bind_all(impl);
+    return err;
+  }
+  bind_all(impl);
+  impl->voxel_type = vol->type;
+  impl->quad = quad;
+  impl->stats.quad_layout = quad;
+  return 0;
+}
+
+typedef struct copy_fill {
+  const void *src;
+  size_t bytes;
+} copy_fill;
+
+static void fill_copy(void *dst, void *user) {
+  const copy_fill *c = user;
+  memcpy(dst, c->src, c->bytes);
+}
+
+static int vk_upload_tf(void *p, const float *lut, uint32_t lut_size) {
+  rp_vk_impl *impl = p;
+  copy_fill c;
+  int err;
+  if ((err = alive(impl)) != 0)
+    return err;
+  c.src = lut;
+  c.bytes = (size_t)lut_size * 4 * sizeof(float);
+  if (impl->lut.size != c.bytes) {
+    free_view(impl, &impl->lut_view);
+    rp_vk__buffer_free(impl, &impl->lut);
+    if ((err = rp_vk__buffer(impl, "transfer function", c.bytes,
+                             VK_BUFFER_USAGE_UNIFORM_TEXEL_BUFFER_BIT |
+                                 VK_BUFFER_USAGE_TRANSFER_DST_BIT,
+                             0, &impl->lut)) != 0 ||
+        (err = make_view(impl, impl->lut.buf, VK_FORMAT_R32G32B32A32_SFLOAT,
+                         &impl->lut_view)) != 0) {
+      free_view(impl, &impl->lut_view);
+      rp_vk__buffer_free(impl, &impl->lut);
+      bind_all(impl);
+      return err;
+    }
+    bind_all(impl);
+  }
+  return write_buffer(impl, &impl->lut, "transfer function staging",
+                      fill_copy, &c);
+}
+
+static int vk_upload_occupancy(void *p, const uint8_t *grid,
+                               const uint8_t *alpha_hist,
+                               const uint32_t blocks[3]) {
+  rp_vk_impl *impl = p;
+  size_t nb = (size_t)blocks[0] * blocks[1] * blocks[2];
+  const VkBufferUsageFlags usage = VK_BUFFER_USAGE_UNIFORM_TEXEL_BUFFER_BIT |
+                                   VK_BUFFER_USAGE_TRANSFER_DST_BIT;
+  copy_fill c;
+  int err;
+  if ((err = alive(impl)) != 0)
+    return err;
+  if (nb > impl->props.limits.maxTexelBufferElements)
+    return rp__fail(impl->ctx, RP_EUNSUPPORTED, "vulkan: %zu blocks exceed "
+                    "the device's %u texels per buffer", nb,
+                    (unsigned)impl->props.limits.maxTexelBufferElements);
+  impl->occupancy_gen++;
+  impl->depth_ok = 0;
+  if (impl->grid.size != nb) {
+    free_view(impl, &impl->grid_view);
+    free_view(impl, &impl->alpha_view);
+    rp_vk__buffer_free(impl, &impl->grid);
+    rp_vk__buffer_free(impl, &impl->alpha);
+    /* One byte per block; H-alpha's 16 bytes per block as one RGBA32
+     * texel. */
+    if ((err = rp_vk__buffer(impl, "occupancy grid", nb, usage, 0,
+                             &impl->grid)) != 0 ||
+        (err = rp_vk__buffer(impl, "opacity histograms",
+                             nb * RP_OPACITY_BINS, usage, 0,
+                             &impl->alpha)) != 0 ||
+        (err = make_view(impl, impl->grid.buf, VK_FORMAT_R8_UINT,
+                         &impl->grid_view)) != 0 ||
+        (err = make_view(impl, impl->alpha.buf, VK_FORMAT_R32G32B32A32_UINT,
+                         &impl->alpha_view)) != 0) {
+      free_view(impl, &impl->grid_view);
+      free_view(impl, &impl->alpha_view);
+      rp_vk__buffer_free(impl, &impl->grid);
+      rp_vk__buffer_free(impl, &impl->alpha);
+      bind_all(impl);
+      return err;
+    }
+    bind_all(impl);
+  }
+  c.src = grid;
+  c.bytes = nb;
+  if ((err = write_buffer(impl, &impl->grid, "occupancy staging", fill_copy,
+                          &c)) != 0)
+    return err;
+  c.src = alpha_hist;
+  c.bytes = nb * RP_OPACITY_BINS;
+  return write_buffer(impl, &impl->alpha, "histogram staging", fill_copy,
+                      &c);
+}
+
+/* ---- frames -------------------------------------------------------------- */
+
+static void set_params(rp_vk_impl *impl, const rp_frame_params *p) {
+  rp_vk_params *u = impl->params.map;
+  double range = (double)p->value_max - (double)p->value_min;
+  double coarse = RP_ERT_COARSE_STEP / (double)p->ref_step;
+  uint32_t gw, gh;
+  int a, k;
+  memset(u, 0, sizeof *u);
+  for (a = 0; a < 3; a++) {
+    u->eye[a] = p->eye[a];
+    u->fwd[a] = p->f[a];
+    u->right[a] = p->r[a];
+    u->up[a] = p->u[a];
+    u->dims[a] = p->dims[a];
+    u->inv_sp[a] = p->inv_spacing[a];
+    u->idims[a] = p->idims[a];
+    u->blocks[a] = p->blocks[a];
+  }
+  u->eye[3] = p->ortho ? 1.0f : 0.0f;
+  u->fwd[3] = p->half_w;
+  u->right[3] = p->half_h;
+  u->up[3] = p->step;
+  u->dims[3] = p->min_spacing;
+  u->inv_sp[3] = p->ert_threshold;
+  u->vrange[0] = p->value_min;
+  u->vrange[1] = range > 0.0 ? (float)(1.0 / range) : 0.0f;
+  u->vrange[2] = range > 0.0 ? (float)range : 0.0f;
+  u->vrange[3] = (float)((double)p->step / (double)p->ref_step);
+  /* The pre-pass's 16 bin opacities depend on the frame only, so they are
+   * corrected here once, in double as the reference does. */
+  for (k = 0; k < RP_OPACITY_BINS; k++)
+    u->ert_a[k] = (float)-expm1(coarse * log1p(-rp__ert_bin_alpha(k)));
+  rp__ert_grid(p->width, p->height, &gw, &gh);
+  u->idims[3] = p->lut_size;
+  u->blocks[3] = p->width;
+  u->misc[0] = p->height;
+  u->misc[1] = gw;
+  u->misc[2] = gh;
+  u->seed[0] = p->ert_seed;
+  u->seed[1] = p->frame;
+}
+
+/* The region a dispatch covers. Each operation records its dispatches
+ * with one parameter block, so a command buffer holding a depth pass and
+ * a raycast of a region sets the rect once, for the raycast, and the depth
+ * pass reads the whole image's size from blocks.w / misc.x instead. */
+static void set_rect(rp_vk_impl *impl, uint32_t x0, uint32_t y0, uint32_t w,
+                     uint32_t h) {
+  rp_vk_params *u = impl->params.map;
+  u->rect[0] = x0;
+  u->rect[1] = y0;
+  u->rect[2] = w;
+  u->rect[3] = h;
+}
+
+static void bind(rp_vk_impl *impl, VkPipeline pipe) {
+  vkCmdBindPipeline(impl->cmd, VK_PIPELINE_BIND_POINT_COMPUTE, pipe);
+  vkCmdBindDescriptorSets(impl->cmd, VK_PIPELINE_BIND_POINT_COMPUTE,
+                          impl->layout, 0, 1, &impl->set, 0, NULL);
+}
+
+/* Records the depth pass over the whole scaled image. */
+static void record_depth(rp_vk_impl *impl, VkPipeline pipe,
+                         const rp_frame_params *p) {
+  bind(impl, pipe);
+  vkCmdDispatch(impl->cmd, div_up(p->width, RP_TILE_SIZE),
+                div_up(p->height, RP_TILE_SIZE), 1);
+  after_dispatch(impl);
+}
+
+/* Whether the depth buffer holds the result `p` needs: every field but
+ * the ERT stream, the threshold, the step and the non-skip effects. */
+static int depth_current(const rp_vk_impl *impl, const rp_frame_params *p) {
+  rp_frame_params a = impl->depth_frame, b = *p;
+  if (!impl->depth_ok || impl->depth_gen != impl->occupancy_gen)
+    return 0;
+  a.ert_seed = b.ert_seed = 0;
+  a.frame = b.frame = 0;
+  a.ert_threshold = b.ert_threshold = 0.0f;
+  a.step = b.step = 0.0f;
+  a.ref_step = b.ref_step = 0.0f;
+  a.lut_size = b.lut_size = 0;
+  a.value_min = b.value_min = 0.0f;
+  a.value_max = b.value_max = 0.0f;
+  a.effects &= RP_EFFECT_SKIP;
+  b.effects &= RP_EFFECT_SKIP;
+  return memcmp(&a, &b, sizeof a) == 0;
+}
+
+static int ensure_depth(rp_vk_impl *impl, const rp_frame_params *p) {
+  VkDeviceSize bytes = (VkDeviceSize)p->width * p->height * 2 * sizeof(float);
+  if (impl->depth.buf == VK_NULL_HANDLE || impl->depth.size < bytes)
+    impl->depth_ok = 0;
+  return ensure(impl, &impl->depth, "depth buffer", bytes,
+                VK_BUFFER_USAGE_STORAGE_BUFFER_BIT, 1);
+}
+
+/* Whether a grid of gx x gy workgroups can be dispatched at once. */
+static int check_groups(rp_vk_impl *impl, const char *what, uint32_t gx,
+                        uint32_t gy) {
+  const uint32_t *max = impl->props.limits.maxComputeWorkGroupCount;
+  if (gx > max[0] || gy > max[1])
+    return rp__fail(impl->ctx, RP_EUNSUPPORTED, "vulkan: the %s needs "
+                    "%ux%u workgroups; the device dispatches at most %ux%u",
+                    what, gx, gy, max[0], max[1]);
+  return 0;
+}
+
+static int vk_depth_pass(void *ip, const rp_frame_params *p,
+                         float *front_back) {
+  rp_vk_impl *impl = ip;
+  VkPipeline pipe;
+  int err;
+  if ((err = alive(impl)) != 0 ||
+      (err = check_groups(impl, "depth pass",
+                          div_up(p->width, RP_TILE_SIZE),
+                          div_up(p->height, RP_TILE_SIZE))) != 0 ||
+      (err = ensure_depth(impl, p)) != 0 ||
+      (err = get_pipeline(impl,
+                          pipeline_key(RP_VK_DEPTH, p, 0, 0, 0),
+                          &pipe)) != 0)
+    return err;
+  set_params(impl, p);
+  impl->depth_ok = 0;
+  if ((err = begin(impl)) != 0)
+    return err;
+  record_depth(impl, pipe, p);
+  if ((err = finish(impl, "depth pass")) != 0)
+    return err;
+  impl->depth_frame = *p;
+  impl->depth_gen = impl->occupancy_gen;
+  impl->depth_ok = 1;
+  if (front_back != NULL)
+    memcpy(front_back, impl->depth.map,
+           (size_t)p->width * p->height * 2 * sizeof(float));
+  return 0;
+}
+
+static int vk_ert_prepass(void *ip, const rp_frame_params *p, float *d_ert) {
+  rp_vk_impl *impl = ip;
+  VkPipeline pipe;
+  uint32_t gw, gh;
+  int err;
+  rp__ert_grid(p->width, p->height, &gw, &gh);
+  if ((err = alive(impl)) != 0 ||
+      (err = check_groups(impl, "ERT pre-pass", div_up(gw, 8),
+                          div_up(gh, 8))) != 0 ||
+      (err = ensure(impl, &impl->ert, "ERT result",
+                    (VkDeviceSize)gw * gh * sizeof(float),
+                    VK_BUFFER_USAGE_STORAGE_BUFFER_BIT, 1)) != 0 ||
+      (err = get_pipeline(impl, pipeline_key(RP_VK_ERT, p, 0, 0, 0),
+                          &pipe)) != 0)
+    return err;
+  set_params(impl, p);
+  if ((err = begin(impl)) != 0)
+    return err;
+  set_rect(impl, 0, 0, gw, gh);
+  bind(impl, pipe);
+  vkCmdDispatch(impl->cmd, div_up(gw, 8), div_up(gh, 8), 1);
+  after_dispatch(impl);
+  if ((err = finish(impl, "ERT pre-pass")) != 0)
+    return err;
+  memcpy(d_ert, impl->ert.map, (size_t)gw * gh * sizeof(float));
+  return 0;
+}
+
+static int vk_raycast(void *ip, const rp_frame_params *p, const rp_region *r,
+                      uint8_t *rgba, rp_tile_stats *tiles,
+                      uint64_t *fetches) {
+  rp_vk_impl *impl = ip;
+  uint32_t rw = r->x1 - r->x0, rh = r->y1 - r->y0;
+  uint32_t ntx = div_up(rw, RP_TILE_SIZE), nty = div_up(rh, RP_TILE_SIZE);
+  uint32_t tiles_x, tx, ty, y;
+  int skip = (p->effects & RP_EFFECT_SKIP) != 0, redo_depth, err;
+  VkPipeline cast = VK_NULL_HANDLE, depth = VK_NULL_HANDLE;
+  const uint32_t *tile_words;
+  const uint8_t *px;
+  if ((err = alive(impl)) != 0 ||
+      (err = check_groups(impl, "raycast", ntx, nty)) != 0 ||
+      (skip && (err = check_groups(impl, "depth pass",
+                                   div_up(p->width, RP_TILE_SIZE),
+                                   div_up(p->height, RP_TILE_SIZE))) != 0))
+    return err;
+  /* The front end runs the depth pass first; a caller that did not (a
+   * test driving the ops) gets one recorded ahead of the raycast. */
+  redo_depth = skip && !depth_current(impl, p);
+  if ((redo_depth && (err = ensure_depth(impl, p)) != 0) ||
+      (err = ensure(impl, &impl->image, "image",
+                    (VkDeviceSize)rw * rh * 4,
+                    VK_BUFFER_USAGE_STORAGE_BUFFER_BIT, 1)) != 0 ||
+      (err = ensure(impl, &impl->tiles, "tile statistics",
+                    (VkDeviceSize)ntx * nty * 4 * sizeof(uint32_t),
+                    VK_BUFFER_USAGE_STORAGE_BUFFER_BIT, 1)) != 0 ||
+      (err = get_pipeline(impl,
+                          pipeline_key(RP_VK_RAYCAST, p, fetches != NULL,
+                                       impl->voxel_type, impl->quad),
+                          &cast)) != 0 ||
+      (redo_depth &&
+       (err = get_pipeline(impl,
+                           pipeline_key(RP_VK_DEPTH, p, 0, 0, 0),
+                           &depth)) != 0))
+    return err;
+  set_params(impl, p);
+  if ((err = begin(impl)) != 0)
+    return err;
+  if (redo_depth) {
+    impl->depth_ok = 0;
+    record_depth(impl, depth, p);
+  }
+  set_rect(impl, r->x0, r->y0, rw, rh);
+  bind(impl, cast);
+  vkCmdDispatch(impl->cmd, ntx, nty, 1);
+  after_dispatch(impl);
+  if ((err = finish(impl, "raycast")) != 0)
+    return err;
+  if (redo_depth) {
+    impl->depth_frame = *p;
+    impl->depth_gen = impl->occupancy_gen;
+    impl->depth_ok = 1;
+  }
+
+  px = impl->image.map;
+  for (y = 0; y < rh; y++)
+    memcpy(rgba + (((size_t)r->y0 + y) * p->width + r->x0) * 4,
+           px + (size_t)y * rw * 4, (size_t)rw * 4);
+  /* Region corners lie on the tile grid (or the image edge), so region
+   * tile (tx, ty) is image tile (x0 / 8 + tx, y0 / 8 + ty). */
+  rp_tile_grid(p->width, p->height, &tiles_x, NULL);
+  tile_words = impl->tiles.map;
+  for (ty = 0; ty < nty; ty++)
+    for (tx = 0; tx < ntx; tx++) {
+      const uint32_t *t = tile_words + ((size_t)ty * ntx + tx) * 4;
+      size_t i = ((size_t)(r->y0 / RP_TILE_SIZE) + ty) * tiles_x +
+                 r->x0 / RP_TILE_SIZE + tx;
+      if (tiles != NULL) {
+        tiles[i].samples = t[0];
+        tiles[i].rays_hit = t[1];
+        memcpy(&tiles[i].mean_depth, &t[2], sizeof(float));
+      }
+      if (fetches != NULL)
+        fetches[i] = t[3];
+    }
+  return 0;
+}
+
+static uint64_t vk_last_time_ns(void *ip) {
+  return ((rp_vk_impl *)ip)->last_ns;
+}
+
+void rp_vk_get_stats(void *ip, rp_vk_stats *out) {
+  *out = ((rp_vk_impl *)ip)->stats;
+}
+
+static const rp_backend_ops vk_ops = {
+    vk_destroy,     vk_upload_volume, vk_upload_tf,   vk_upload_occupancy,
+    vk_depth_pass,  vk_ert_prepass,   vk_raycast,     vk_last_time_ns};
+
+const rp_backend_bootstrap rp_vk_bootstrap = {"vulkan", vk_probe, vk_create};

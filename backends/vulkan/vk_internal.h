@@ -1,0 +1,209 @@
+/* The Vulkan backend's internals, shared by its .c files and its test.
+ * Nothing here is part of the public API. */
+#ifndef RP_VK_INTERNAL_H
+#define RP_VK_INTERNAL_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#include <vulkan/vulkan.h>
+
+#include "internal.h"
+#include "raypace_backend.h"
+
+extern const rp_backend_bootstrap rp_vk_bootstrap;
+
+/* The three kernels, one SPIR-V module each. */
+typedef enum rp_vk_kernel {
+  RP_VK_RAYCAST = 0,
+  RP_VK_DEPTH = 1,
+  RP_VK_ERT = 2,
+  RP_VK_KERNEL_COUNT = 3
+} rp_vk_kernel;
+
+/* Specialization constant ids, as declared in kernels/common.glsl. */
+enum {
+  RP_VK_SPEC_SHADING = 0,
+  RP_VK_SPEC_ERT = 1,
+  RP_VK_SPEC_SKIP = 2,
+  RP_VK_SPEC_COUNT = 3,
+  RP_VK_SPEC_AO = 4,
+  RP_VK_SPEC_VOXEL = 5,
+  RP_VK_SPEC_QUAD = 6,
+  RP_VK_SPEC_CORRECT = 7,
+  RP_VK_SPEC_TOTAL = 8
+};
+
+/* Descriptor bindings of the one set all kernels share. */
+enum {
+  RP_VK_BIND_PARAMS = 0,
+  RP_VK_BIND_VOLUME = 1,
+  RP_VK_BIND_LUT = 2,
+  RP_VK_BIND_GRID = 3,
+  RP_VK_BIND_ALPHA = 4,
+  RP_VK_BIND_DEPTH = 5,
+  RP_VK_BIND_IMAGE = 6,
+  RP_VK_BIND_TILES = 7,
+  RP_VK_BIND_ERT = 8,
+  RP_VK_BIND_COUNT = 9
+};
+
+/* Pipeline key: the kernel, the effect bits it was specialised for, the
+ * counting variant, the voxel type, the layout and whether opacity needs
+ * correcting (raycast only). Bits that do not change a kernel are cleared
+ * so that variants are shared. */
+#define RP_VK_KEY_CORRECT (1u << 7)
+#define RP_VK_KEY_COUNT (1u << 8)
+#define RP_VK_KEY_QUAD (1u << 9)
+#define RP_VK_KEY_TYPE_SHIFT 10
+#define RP_VK_KEY_KERNEL_SHIFT 12
+
+/* The Params block of kernels/common.glsl (a storage buffer, vec4-packed:
+ * see there for why it is not a uniform buffer). */
+typedef struct rp_vk_params {
+  float eye[4];    /* w: 1 for orthographic */
+  float fwd[4];    /* w: half_w */
+  float right[4];  /* w: half_h */
+  float up[4];     /* w: step */
+  float dims[4];   /* w: min_spacing */
+  float inv_sp[4]; /* w: ert_threshold */
+  float vrange[4]; /* value_min, 1/(max-min) or 0, max-min, step/ref_step */
+  float ert_a[16]; /* coarse-step opacity of each H-alpha bin */
+  uint32_t idims[4];  /* w: lut_size */
+  uint32_t blocks[4]; /* w: width */
+  uint32_t misc[4];   /* height, ERT grid w, ERT grid h, unused */
+  uint32_t seed[4];   /* ert_seed, frame */
+  uint32_t rect[4];   /* region x0, y0, width, height */
+} rp_vk_params;
+
+/* A buffer with its own memory. `map` is the persistent mapping when the
+ * memory is host-visible (always coherent), else NULL. */
+typedef struct rp_vk_buffer {
+  VkBuffer buf;
+  VkDeviceMemory mem;
+  VkDeviceSize size; /* bytes asked for */
+  void *map;
+} rp_vk_buffer;
+
+typedef struct rp_vk_pipeline {
+  uint32_t key;
+  VkPipeline pipe;
+} rp_vk_pipeline;
+
+/* What tests read back: pipeline cache and pipeline creation figures. */
+typedef struct rp_vk_stats {
+  int cache_loaded;          /* 1: a valid cache file was given to the
+                                driver at create */
+  char cache_reject[96];     /* why a cache file present was ignored */
+  size_t cache_bytes;        /* driver data read from the file */
+  char cache_path[512];      /* "" when persistence is off */
+  uint32_t pipelines_created;
+  uint32_t pipeline_cache_hits; /* driver-reported, when it reports */
+  uint64_t pipeline_create_ns;  /* host time in vkCreateComputePipelines */
+  int quad_layout;           /* the volume's layout (1: quad) */
+  int timestamps;            /* 1: last_time_ns is device time */
+} rp_vk_stats;
+
+typedef struct rp_vk_impl {
+  rp_context *ctx;
+  VkInstance instance;
+  VkPhysicalDevice phys;
+  VkDevice dev;
+  VkQueue queue;
+  uint32_t queue_family;
+  VkPhysicalDeviceProperties props;
+  VkPhysicalDeviceMemoryProperties mem_props;
+  VkDeviceSize max_alloc;    /* maxMemoryAllocationSize */
+  int feedback;              /* pipeline creation feedback available */
+  uint64_t ts_mask;          /* timestampValidBits as a mask; 0: none */
+  VkCommandPool pool;
+  VkCommandBuffer cmd;
+  VkFence fence;
+  VkQueryPool queries;
+  VkDescriptorSetLayout set_layout;
+  VkPipelineLayout layout;
+  VkDescriptorPool desc_pool;
+  VkDescriptorSet set;
+  VkShaderModule modules[RP_VK_KERNEL_COUNT];
+  VkPipelineCache cache;
+  rp_vk_pipeline *pipelines;
+  uint32_t pipeline_count, pipeline_cap;
+  /* Inputs: the parameters in host-visible memory (written by every
+   * operation), the rest device-local where the device has such memory. */
+  rp_vk_buffer params, volume, lut, grid, alpha;
+  VkBufferView volume_view, lut_view, grid_view, alpha_view;
+  /* Outputs, host-visible: read back after the fence. */
+  rp_vk_buffer depth, image, tiles, ert;
+  /* Stand-ins bound before the real data exists, so that every binding
+   * of the set is always valid. */
+  rp_vk_buffer dummy;
+  VkBufferView dummy_u_view, dummy_f_view;
+  rp_voxel_type voxel_type;  /* 0 until a volume is uploaded */
+  int quad;                  /* the uploaded volume's layout */
+  /* The frame the device's depth buffer holds (valid when depth_ok). */
+  rp_frame_params depth_frame;
+  int depth_ok;
+  uint64_t occupancy_gen, depth_gen;
+  const char *lost;          /* the operation the device was lost in */
+  uint64_t last_ns;
+  rp_vk_stats stats;
+} rp_vk_impl;
+
+/* Test hooks (tests/test_vk_backend.c). All zero: normal operation. */
+typedef struct rp_vk_test_hooks {
+  int corrupt_kernel;  /* 1 + rp_vk_kernel whose SPIR-V is replaced by a
+                          broken module at create; 0: none */
+  int force_plain;     /* 1: one voxel per texel even when quad fits */
+  int force_staging;   /* 1: upload through a staging copy even into
+                          host-visible memory */
+} rp_vk_test_hooks;
+
+extern rp_vk_test_hooks rp_vk_hooks;
+
+/* ---- vk_device.c -------------------------------------------------------- */
+
+/* "VK_ERROR_DEVICE_LOST" etc. */
+const char *rp_vk__result_name(VkResult r);
+/* Records "vulkan: <op>: <name>" and returns the matching code: RP_ENOMEM
+ * for the out-of-memory results, RP_ENODEV for a missing driver,
+ * RP_EDEVICE otherwise (device lost included). */
+int rp_vk__fail(rp_context *ctx, VkResult r, const char *op);
+/* Creates the instance; RP_ENODEV when the loader finds no driver. */
+int rp_vk__instance(rp_context *ctx, VkInstance *out);
+/* The physical devices with a compute queue, in enumeration order. At most
+ * `cap` are stored; *count receives how many there are. */
+int rp_vk__compute_devices(VkInstance inst, VkPhysicalDevice *list,
+                           uint32_t cap, uint32_t *count);
+/* Opens device `index` into impl (device, queue, command pool, fence,
+ * query pool) and fills caps. */
+int rp_vk__open(rp_vk_impl *impl, uint32_t index, rp_caps *caps);
+void rp_vk__close(rp_vk_impl *impl);
+/* A buffer of `size` bytes. `host` asks for host-visible memory (outputs
+ * and staging); otherwise device-local is preferred. RP_ENOMEM names the
+ * size and `what`. */
+int rp_vk__buffer(rp_vk_impl *impl, const char *what, VkDeviceSize size,
+                  VkBufferUsageFlags usage, int host, rp_vk_buffer *out);
+void rp_vk__buffer_free(rp_vk_impl *impl, rp_vk_buffer *b);
+/* Pipeline cache file: this header, then the driver's data (which starts
+ * with its own VkPipelineCacheHeaderVersionOne). */
+#define RP_VK_CACHE_MAGIC "RPVKPC01"
+typedef struct rp_vk_cache_header {
+  char magic[8];
+  uint64_t size;     /* bytes of driver data that follow */
+  uint64_t checksum; /* rp_vk__fnv1a of them */
+} rp_vk_cache_header;
+uint64_t rp_vk__fnv1a(const uint8_t *p, size_t n);
+/* Pipeline cache: loaded (and validated) at open, saved at close. */
+void rp_vk__cache_load(rp_vk_impl *impl);
+void rp_vk__cache_save(rp_vk_impl *impl);
+/* Checks that `words` looks like a SPIR-V module before a driver sees
+ * it; RP_EBUILD naming `what` otherwise. */
+int rp_vk__check_spirv(rp_context *ctx, const char *what,
+                       const uint32_t *words, size_t bytes);
+
+/* ---- vk_backend.c -------------------------------------------------------- */
+
+/* Figures for tests (impl is the pointer create returned). */
+void rp_vk_get_stats(void *impl, rp_vk_stats *out);
+
+#endif /* RP_VK_INTERNAL_H */
