@@ -20,33 +20,18 @@
 #include <string.h>
 #include <time.h>
 
+#include "bench_util.h"
 #include "raypace.h"
 
 #define MAX_RUNS 64
 
-static double now(void) {
-  struct timespec ts;
-  clock_gettime(CLOCK_MONOTONIC, &ts);
-  return (double)ts.tv_sec + ts.tv_nsec * 1e-9;
-}
+static double now(void) { return bench_seconds(CLOCK_MONOTONIC); }
 
 /* CPU time of the whole process (PoCL's worker threads included): on a
  * shared machine it measures the work where wall time measures the
  * neighbours too. */
 static double cpu_now(void) {
-  struct timespec ts;
-  clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &ts);
-  return (double)ts.tv_sec + ts.tv_nsec * 1e-9;
-}
-
-static int cmp_double(const void *a, const void *b) {
-  double x = *(const double *)a, y = *(const double *)b;
-  return x < y ? -1 : x > y;
-}
-
-static double median(double *v, int n) {
-  qsort(v, (size_t)n, sizeof *v, cmp_double);
-  return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
+  return bench_seconds(CLOCK_PROCESS_CPUTIME_ID);
 }
 
 static void die(rp_context *ctx, const char *what, int err) {
@@ -144,10 +129,10 @@ static void bench_frame(rp_context *ctx, rp_device *dev, const scene *s,
     cpu[r] = cpu_now() - cpu[r];
     ray[r] = rp_device_last_time_ns(dev) * 1e-9;
   }
-  ray_s = median(ray, o->runs);
-  dep_s = median(dep, o->runs);
-  ert_s = median(ert, o->runs);
-  cpu_s = median(cpu, o->runs);
+  ray_s = bench_median(ray, o->runs);
+  dep_s = bench_median(dep, o->runs);
+  ert_s = bench_median(ert, o->runs);
+  cpu_s = bench_median(cpu, o->runs);
   printf("%-8s %4u^2 %-15s raycast %8.2f ms %7.1f M samples/s  "
          "%6.1f M/cpu-s  depth %5.2f %%  ert %5.2f %%  (%.1f M samples)\n",
          s->name, (unsigned)size, ename, ray_s * 1e3,

@@ -12,23 +12,10 @@
 #include <time.h>
 #include <unistd.h>
 
+#include "bench_util.h"
 #include "raypace.h"
 
-static double now(void) {
-  struct timespec ts;
-  clock_gettime(CLOCK_MONOTONIC, &ts);
-  return (double)ts.tv_sec + ts.tv_nsec * 1e-9;
-}
-
-static int cmp_double(const void *a, const void *b) {
-  double x = *(const double *)a, y = *(const double *)b;
-  return x < y ? -1 : x > y;
-}
-
-static double median(double *v, int n) {
-  qsort(v, (size_t)n, sizeof *v, cmp_double);
-  return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
-}
+static double now(void) { return bench_seconds(CLOCK_MONOTONIC); }
 
 static void die(rp_context *ctx, const char *what, int err) {
   fprintf(stderr, "bench: %s: %s: %s\n", what, rp_strerror(err),
@@ -54,7 +41,7 @@ static double time_h(const rp_volume *vol, int threads, int runs) {
     rp_histograms_destroy(h);
   }
   rp_context_destroy(ctx);
-  return median(t, runs);
+  return bench_median(t, runs);
 }
 
 static void bench_volume(rp_context *ctx, const char *name, rp_volume *vol,
@@ -90,7 +77,7 @@ static void bench_volume(rp_context *ctx, const char *name, rp_volume *vol,
     t[r] = (now() - t0) / 6;
   }
   printf("%-22s H-alpha + occupancy per TF change: %.3f ms (%u blocks)\n",
-         name, median(t, runs) * 1e3, rp_histograms_block_count(h));
+         name, bench_median(t, runs) * 1e3, rp_histograms_block_count(h));
 
   if (image > 0) {
     rp_camera cam = {0};
@@ -119,8 +106,8 @@ static void bench_volume(rp_context *ctx, const char *name, rp_volume *vol,
       samples += tiles[k].samples;
     printf("%-22s reference raycast %ux%u ct-bone ERT+skip: %.0f ms, "
            "%.2f M samples/s (1 thread)\n",
-           name, image, image, median(t, 3) * 1e3,
-           samples / median(t, 3) / 1e6);
+           name, image, image, bench_median(t, 3) * 1e3,
+           samples / bench_median(t, 3) / 1e6);
     free(rgba);
     free(tiles);
   }

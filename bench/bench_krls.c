@@ -17,6 +17,7 @@
 #include <string.h>
 #include <time.h>
 
+#include "bench_util.h"
 #include "krls.h"
 
 #define DIM 7
@@ -25,21 +26,7 @@
 
 /* This thread's CPU time: the machines this runs on are shared, and time
  * spent descheduled is not the model's. */
-static double now(void) {
-  struct timespec ts;
-  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
-  return (double)ts.tv_sec + ts.tv_nsec * 1e-9;
-}
-
-static int cmp_double(const void *a, const void *b) {
-  double x = *(const double *)a, y = *(const double *)b;
-  return x < y ? -1 : x > y;
-}
-
-static double median(double *v, int n) {
-  qsort(v, (size_t)n, sizeof *v, cmp_double);
-  return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
-}
+static double now(void) { return bench_seconds(CLOCK_THREAD_CPUTIME_ID); }
 
 static unsigned long long rng = 88172645463325252ULL;
 
@@ -130,7 +117,7 @@ static double time_ops(rp_context *ctx, int size, int kind, int runs,
   *best = t[0];
   for (r = 1; r < runs; r++)
     *best = t[r] < *best ? t[r] : *best;
-  return median(t, runs);
+  return bench_median(t, runs);
 }
 
 int main(int argc, char **argv) {
