@@ -344,6 +344,41 @@ int rp_device_set_tf(rp_device *dev, const rp_tf *tf,
   return 0;
 }
 
+int rp__frame_params(rp_context *ctx, const rp_volume *shape,
+                     const rp_camera *cam, const rp_render_desc *d,
+                     float ref_step, uint32_t lut_size, rp__raygen *rg,
+                     rp_frame_params *p) {
+  int err, a;
+  if ((err = rp__raygen_init(ctx, cam, shape, d->width, d->height, rg)) != 0)
+    return err;
+  rp_scaled_size(d, &rg->width, &rg->height);
+  memset(p, 0, sizeof *p);
+  for (a = 0; a < 3; a++) {
+    p->eye[a] = (float)rg->eye[a];
+    p->f[a] = (float)rg->f[a];
+    p->r[a] = (float)rg->r[a];
+    p->u[a] = (float)rg->u[a];
+    p->dims[a] = (float)rg->dims[a];
+    p->inv_spacing[a] = (float)(1.0 / rg->spacing[a]);
+    p->idims[a] = shape->dims[a];
+    p->blocks[a] = rp__blocks_along(shape->dims[a]);
+  }
+  p->half_w = (float)rg->half_w;
+  p->half_h = (float)rg->half_h;
+  p->ortho = rg->ortho;
+  p->width = rg->width;
+  p->height = rg->height;
+  p->min_spacing = (float)rg->min_spacing;
+  p->step = d->step;
+  p->ref_step = ref_step;
+  p->ert_threshold = d->ert_threshold;
+  p->effects = d->effects;
+  p->value_min = (float)shape->min;
+  p->value_max = (float)shape->max;
+  p->lut_size = lut_size;
+  return 0;
+}
+
 /* The checks every frame operation shares, then the camera resolved for
  * the scaled image and its float form for the kernels. */
 static int prepare_frame(rp_device *dev, const char *fn,
@@ -351,7 +386,7 @@ static int prepare_frame(rp_device *dev, const char *fn,
                          rp_render_desc *d, rp__raygen *rg,
                          rp_frame_params *p) {
   rp_context *ctx = dev->ctx;
-  int err, a;
+  int err;
   uint32_t unsupported;
   if (cam == NULL || desc == NULL)
     return rp__fail(ctx, RP_EINVAL, "%s: cam and desc are required", fn);
@@ -367,35 +402,8 @@ static int prepare_frame(rp_device *dev, const char *fn,
     return rp__fail(ctx, RP_EUNSUPPORTED, "%s: device '%s' (%s) cannot "
                     "render effects 0x%x", fn, dev->caps.device,
                     dev->caps.backend, (unsigned)unsupported);
-  if ((err = rp__raygen_init(ctx, cam, &dev->shape, d->width, d->height,
-                             rg)) != 0)
-    return err;
-  rp_scaled_size(d, &rg->width, &rg->height);
-  memset(p, 0, sizeof *p);
-  for (a = 0; a < 3; a++) {
-    p->eye[a] = (float)rg->eye[a];
-    p->f[a] = (float)rg->f[a];
-    p->r[a] = (float)rg->r[a];
-    p->u[a] = (float)rg->u[a];
-    p->dims[a] = (float)rg->dims[a];
-    p->inv_spacing[a] = (float)(1.0 / rg->spacing[a]);
-    p->idims[a] = dev->shape.dims[a];
-    p->blocks[a] = dev->blocks[a];
-  }
-  p->half_w = (float)rg->half_w;
-  p->half_h = (float)rg->half_h;
-  p->ortho = rg->ortho;
-  p->width = rg->width;
-  p->height = rg->height;
-  p->min_spacing = (float)rg->min_spacing;
-  p->step = d->step;
-  p->ref_step = dev->ref_step;
-  p->ert_threshold = d->ert_threshold;
-  p->effects = d->effects;
-  p->value_min = (float)dev->shape.min;
-  p->value_max = (float)dev->shape.max;
-  p->lut_size = dev->lut_size;
-  return 0;
+  return rp__frame_params(ctx, &dev->shape, cam, d, dev->ref_step,
+                          dev->lut_size, rg, p);
 }
 
 /* Whether the device's depth result is the one `p` needs: everything

@@ -8,6 +8,7 @@
 #include <stdint.h>
 
 #include "raygen.h"
+#include "raypace_backend.h"
 
 /* Index of the 16^3 block holding voxel-space point p: floor((p + 0.5) /
  * 16) per axis, clamped to the grid; x fastest. */
@@ -61,6 +62,16 @@ void rp__reference_render(const rp_volume *vol, const rp_tf *tf,
                           const rp__raygen *rg, const rp_render_desc *d,
                           const rp_region *region, uint8_t *rgba,
                           rp_tile_stats *tiles);
+
+/* A frame's camera resolved for the scaled image (rg) and its float form
+ * for kernels (p), as the front end hands it to a backend; `d` resolved
+ * and checked. `shape` supplies dims, spacing and data range. Backend
+ * tests build their frames with it, so they drive a backend exactly as
+ * the front end does. */
+int rp__frame_params(rp_context *ctx, const rp_volume *shape,
+                     const rp_camera *cam, const rp_render_desc *d,
+                     float ref_step, uint32_t lut_size, rp__raygen *rg,
+                     rp_frame_params *p);
 
 /* rp_device_render that can also return per-tile fetch counts (backends
  * with a counting variant; tests check the cost model's k with it). */

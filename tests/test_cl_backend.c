@@ -125,35 +125,11 @@ static rp_camera camera(const rp_volume *vol, int kind) {
 static void frame_params(const scene *s, const rp_camera *cam,
                          rp_render_desc *d, rp__raygen *rg,
                          rp_frame_params *p) {
-  int a;
   *d = rp__render_desc_defaults(d);
-  assert_int_equal(rp__raygen_init(ctx, cam, s->vol, d->width, d->height,
-                                   rg), 0);
-  rp_scaled_size(d, &rg->width, &rg->height);
-  memset(p, 0, sizeof *p);
-  for (a = 0; a < 3; a++) {
-    p->eye[a] = (float)rg->eye[a];
-    p->f[a] = (float)rg->f[a];
-    p->r[a] = (float)rg->r[a];
-    p->u[a] = (float)rg->u[a];
-    p->dims[a] = (float)rg->dims[a];
-    p->inv_spacing[a] = (float)(1.0 / rg->spacing[a]);
-    p->idims[a] = s->vol->dims[a];
-    p->blocks[a] = s->h->blocks[a];
-  }
-  p->half_w = (float)rg->half_w;
-  p->half_h = (float)rg->half_h;
-  p->ortho = rg->ortho;
-  p->width = rg->width;
-  p->height = rg->height;
-  p->min_spacing = (float)rg->min_spacing;
-  p->step = d->step;
-  p->ref_step = rp_tf_reference_step(s->tf);
-  p->ert_threshold = d->ert_threshold;
-  p->effects = d->effects;
-  p->value_min = (float)s->vol->min;
-  p->value_max = (float)s->vol->max;
-  p->lut_size = (uint32_t)s->tf->lut_size;
+  assert_int_equal(rp__frame_params(ctx, s->vol, cam, d,
+                                    rp_tf_reference_step(s->tf),
+                                    (uint32_t)s->tf->lut_size, rg, p),
+                   0);
 }
 
 /* Output of one raycast (or of the reference) at the scaled size. */

@@ -172,43 +172,18 @@ typedef struct frame_desc {
 static void frame_init(const scene *s, const rp_camera *cam,
                        const frame_desc *fd, frame *f) {
   rp_render_desc d = {0};
-  rp_frame_params *p = &f->p;
-  int a, lut_size = 0;
+  int lut_size = 0;
   d.width = fd->width;
   d.height = fd->height;
   d.step = fd->step;
   d.effects = fd->effects;
   d.image_scale = fd->scale;
   f->d = rp__render_desc_defaults(&d);
-  assert_int_equal(rp__raygen_init(g_ctx, cam, s->vol, fd->width,
-                                   fd->height, &f->rg),
-                   0);
-  rp_scaled_size(&f->d, &f->rg.width, &f->rg.height);
   rp_tf_lut(s->tf, &lut_size);
-  memset(p, 0, sizeof *p);
-  for (a = 0; a < 3; a++) {
-    p->eye[a] = (float)f->rg.eye[a];
-    p->f[a] = (float)f->rg.f[a];
-    p->r[a] = (float)f->rg.r[a];
-    p->u[a] = (float)f->rg.u[a];
-    p->dims[a] = (float)f->rg.dims[a];
-    p->inv_spacing[a] = (float)(1.0 / f->rg.spacing[a]);
-    p->idims[a] = s->vol->dims[a];
-    p->blocks[a] = s->h->blocks[a];
-  }
-  p->half_w = (float)f->rg.half_w;
-  p->half_h = (float)f->rg.half_h;
-  p->ortho = f->rg.ortho;
-  p->width = f->rg.width;
-  p->height = f->rg.height;
-  p->min_spacing = (float)f->rg.min_spacing;
-  p->step = f->d.step;
-  p->ref_step = rp_tf_reference_step(s->tf);
-  p->ert_threshold = f->d.ert_threshold;
-  p->effects = f->d.effects;
-  p->value_min = (float)s->vol->min;
-  p->value_max = (float)s->vol->max;
-  p->lut_size = (uint32_t)lut_size;
+  assert_int_equal(rp__frame_params(g_ctx, s->vol, cam, &f->d,
+                                    rp_tf_reference_step(s->tf),
+                                    (uint32_t)lut_size, &f->rg, &f->p),
+                   0);
 }
 
 static size_t tile_count(const frame *f) {
