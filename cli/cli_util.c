@@ -119,3 +119,29 @@ int cli_open_volume(rp_context *ctx, const char *spec, rp_volume **out) {
   err = rp_volume_load(ctx, spec, out);
   return err != 0 ? cli_error(ctx, spec, err) : 0;
 }
+
+int cli_open_device(rp_context *ctx, const char *option, const char *backend,
+                    uint32_t index, rp_device **dev) {
+  rp_device_desc dd = {0};
+  int err;
+  dd.backend = backend;
+  dd.index = index;
+  err = rp_device_create(ctx, &dd, dev);
+  if (err == RP_ENODEV && backend == NULL && index == 0) {
+    fprintf(stderr, "raypace: %s; using the reference\n",
+            rp_last_error(ctx));
+    dd.backend = "reference";
+    err = rp_device_create(ctx, &dd, dev);
+  }
+  return err != 0 ? cli_error(ctx, option, err) : 0;
+}
+
+static int cmp_double(const void *a, const void *b) {
+  double x = *(const double *)a, y = *(const double *)b;
+  return x < y ? -1 : x > y;
+}
+
+double cli_median(double *v, int n) {
+  qsort(v, (size_t)n, sizeof *v, cmp_double);
+  return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
+}

@@ -18,6 +18,14 @@ int cli_parse_floats(const char *s, float *out, int n);
 /* Parses one float > 0: the library reads 0 as "default", so a 0 typed on
  * the command line must not silently become one. */
 int cli_parse_positive(const char *s, float *out);
+/* Opens `backend`'s device `index`, or the first backend with a device;
+ * with none at all (and nothing named), the reference, saying so on
+ * stderr: an app would rather get a slow image than none. `option` names
+ * the command-line option in the error. Returns 0 or 1 (error printed). */
+int cli_open_device(rp_context *ctx, const char *option, const char *backend,
+                    uint32_t index, rp_device **dev);
+/* Median of n > 0 values; sorts them in place. */
+double cli_median(double *v, int n);
 /* Seconds from a monotonic clock. */
 double cli_now(void);
 /* Prints "raypace: <what>: <rp_strerror>: <last error>" to stderr. */

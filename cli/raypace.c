@@ -9,6 +9,7 @@
 #include <string.h>
 
 #include "cli_util.h"
+#include "commands.h"
 #include "raypace.h"
 
 static void usage_main(FILE *f) {
@@ -17,6 +18,11 @@ static void usage_main(FILE *f) {
           "commands:\n"
           "  info VOLUME     dimensions, type, range, blocks, empty space\n"
           "  render VOLUME   render one image to PNG\n"
+          "  replay VOLUME   play an interaction sequence under frame-time\n"
+          "                  controllers; per-frame CSV, plot, summary\n"
+          "  bench quality VOLUME\n"
+          "                  image quality (PSNR, SSIM) against time over\n"
+          "                  step and image scale\n"
           "  version         print the library version\n\n"
           "VOLUME is a file (.nrrd, .nhdr, sidecar .txt, NAME_XxYxZ_TYPE.raw)"
           "\nor a generated volume gen:KIND[:N|:XxYxZ][:u8|u16][:SEED]: KIND"
@@ -142,7 +148,8 @@ static int cmd_info(int argc, char **argv) {
     cJSON_AddStringToObject(root, "volume", argv[optind]);
     cJSON_AddItemToObject(root, "dims", json_u32s(dims, 3));
     cJSON_AddStringToObject(root, "type", rp_voxel_type_name(in.type));
-    cJSON_AddItemToObject(root, "spacing", cJSON_CreateFloatArray(in.spacing, 3));
+    cJSON_AddItemToObject(root, "spacing",
+                          cJSON_CreateFloatArray(in.spacing, 3));
     cJSON_AddNumberToObject(root, "min", in.min);
     cJSON_AddNumberToObject(root, "max", in.max);
     cJSON_AddItemToObject(root, "blocks", json_u32s(in.blocks, 3));
@@ -288,24 +295,6 @@ static int parse_render(int argc, char **argv, render_opts *o) {
   return 0;
 }
 
-/* Opens the named backend, or the first with a device; without any, the
- * reference, saying so (an app would rather get a slow image than none). */
-static int open_device(rp_context *ctx, const render_opts *o,
-                       rp_device **dev) {
-  rp_device_desc dd = {0};
-  int err;
-  dd.backend = o->backend;
-  dd.index = o->device;
-  err = rp_device_create(ctx, &dd, dev);
-  if (err == RP_ENODEV && o->backend == NULL && o->device == 0) {
-    fprintf(stderr, "raypace render: %s; using the reference\n",
-            rp_last_error(ctx));
-    dd.backend = "reference";
-    err = rp_device_create(ctx, &dd, dev);
-  }
-  return err != 0 ? cli_error(ctx, "--backend", err) : 0;
-}
-
 static int cmd_render(int argc, char **argv) {
   render_opts o;
   rp_context *ctx = NULL;
@@ -339,7 +328,7 @@ static int cmd_render(int argc, char **argv) {
     cli_error(ctx, "occupancy", err);
     goto out;
   }
-  if (open_device(ctx, &o, &dev) != 0)
+  if (cli_open_device(ctx, "--backend", o.backend, o.device, &dev) != 0)
     goto out;
   rp_device_get_caps(dev, &caps);
   if ((err = rp_device_set_volume(dev, vol)) != 0 ||
@@ -442,6 +431,10 @@ int main(int argc, char **argv) {
     return cmd_info(argc - 1, argv + 1);
   if (strcmp(argv[1], "render") == 0)
     return cmd_render(argc - 1, argv + 1);
+  if (strcmp(argv[1], "replay") == 0)
+    return cli_cmd_replay(argc - 1, argv + 1);
+  if (strcmp(argv[1], "bench") == 0)
+    return cli_cmd_bench(argc - 1, argv + 1);
   fprintf(stderr, "raypace: unknown command '%s'\n\n", argv[1]);
   usage_main(stderr);
   return 2;

@@ -419,6 +419,36 @@ RP_API void rp_image_upscale(const uint8_t *src, uint32_t src_w,
                              uint32_t src_h, uint8_t *dst, uint32_t dst_w,
                              uint32_t dst_h);
 
+/** How far an image is from a reference (seed 000 Table 4). */
+typedef struct rp_image_metrics {
+  double mse;  /* mean squared error, 0..255 units, over R, G and B */
+  double psnr; /* 10 log10(255^2 / mse) dB; +inf when mse is 0 */
+  double ssim; /* mean structural similarity of the luma, in [-1, 1] */
+} rp_image_metrics;
+
+/** Compares two RGBA8 premultiplied images of the same size as they are
+ *  seen composited over black, i.e. their premultiplied R, G and B; alpha
+ *  is not compared.
+ *  - MSE: the mean of (a - b)^2 over every pixel's R, G and B.
+ *  - PSNR: 10 log10(255^2 / MSE); +INFINITY for identical colours.
+ *  - SSIM (Wang et al. 2004) on the luma Y = 0.299 R + 0.587 G + 0.114 B
+ *    (unrounded): per window, (2 mu_a mu_b + C1)(2 cov_ab + C2) /
+ *    ((mu_a^2 + mu_b^2 + C1)(var_a + var_b + C2)), C1 = (0.01 * 255)^2,
+ *    C2 = (0.03 * 255)^2, moments weighted by an 11x11 Gaussian window
+ *    (sigma 1.5, weights summing to 1; population variances); the mean
+ *    over every window lying wholly inside the image ("valid" region, no
+ *    padding). Along an axis shorter than 11 pixels the window spans the
+ *    whole axis: the same Gaussian sampled at those pixels' offsets from
+ *    their middle and renormalised (a 1x1 image is one window of one
+ *    pixel, where SSIM reduces to its luminance term).
+ *  Scratch memory (ctx's allocator): two rows of luma and 11 rows of
+ *  window sums, 5 doubles per column.
+ *  \returns 0, RP_EINVAL (a NULL pointer, a zero size), RP_ERANGE (a size
+ *  whose byte count overflows), RP_ENOMEM. \since 0.1 */
+RP_API int rp_image_compare(rp_context *ctx, const uint8_t *a,
+                            const uint8_t *b, uint32_t width,
+                            uint32_t height, rp_image_metrics *out);
+
 /** Writes RGBA8 premultiplied pixels as an 8-bit RGB PNG composited over
  *  `background` (RGB in [0, 1]; NULL: black). */
 RP_API int rp_write_png(rp_context *ctx, const char *path,

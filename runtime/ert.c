@@ -101,24 +101,31 @@ static float ert_ray(const rp__raygen *rg, const rp__ray *ray,
   return INFINITY;
 }
 
+float rp__ert_prepass_ray(const rp__raygen *rg, uint32_t cx, uint32_t cy,
+                          const uint8_t *grid, const uint8_t *alpha_hist,
+                          const uint32_t blocks[3], float ref_step,
+                          float threshold, uint32_t seed, uint32_t frame) {
+  uint32_t gw, gh;
+  rp__ray ray;
+  rp__taus rng;
+  rp__ert_grid(rg->width, rg->height, &gw, &gh);
+  /* Through the centre of the ray's 4x4 pixel group. */
+  rp__raygen_ray_at(rg, (double)(RP_ERT_RAY_STRIDE * cx) + 2.0,
+                    (double)(RP_ERT_RAY_STRIDE * cy) + 2.0, &ray);
+  rp__taus_seed(&rng, seed, frame, cy * gw + cx);
+  return ert_ray(rg, &ray, grid, alpha_hist, blocks,
+                 RP_ERT_COARSE_STEP / (double)ref_step, threshold, &rng);
+}
+
 void rp__ert_prepass(const rp__raygen *rg, const uint8_t *grid,
                      const uint8_t *alpha_hist, const uint32_t blocks[3],
                      float ref_step, float threshold, uint32_t seed,
                      uint32_t frame, float *d_ert) {
   uint32_t gw, gh, cx, cy;
-  double ratio = RP_ERT_COARSE_STEP / (double)ref_step;
   rp__ert_grid(rg->width, rg->height, &gw, &gh);
-  for (cy = 0; cy < gh; cy++) {
-    for (cx = 0; cx < gw; cx++) {
-      uint32_t k = cy * gw + cx;
-      rp__ray ray;
-      rp__taus rng;
-      /* Through the centre of the ray's 4x4 pixel group. */
-      rp__raygen_ray_at(rg, (double)(RP_ERT_RAY_STRIDE * cx) + 2.0,
-                        (double)(RP_ERT_RAY_STRIDE * cy) + 2.0, &ray);
-      rp__taus_seed(&rng, seed, frame, k);
-      d_ert[k] = ert_ray(rg, &ray, grid, alpha_hist, blocks, ratio,
-                         threshold, &rng);
-    }
-  }
+  for (cy = 0; cy < gh; cy++)
+    for (cx = 0; cx < gw; cx++)
+      d_ert[cy * gw + cx] =
+          rp__ert_prepass_ray(rg, cx, cy, grid, alpha_hist, blocks,
+                              ref_step, threshold, seed, frame);
 }

@@ -545,7 +545,7 @@ int rp__krls_update(rp__krls *m, const double *x, double y) {
                       i, x[i]);
   if (!isfinite(y))
     return rp__fail(m->ctx, RP_ENOTFINITE, "krls: target y is %g", y);
-  if (y < 0)
+  if (y < 0 && !m->d.signed_y)
     return rp__fail(m->ctx, RP_ERANGE, "krls: target y = %g is negative "
                     "(timings and costs are >= 0)", y);
   m->t++;

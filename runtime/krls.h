@@ -140,6 +140,10 @@ typedef struct rp__krls_desc {
   double forget; /* lambda in (0, 1]; default 1: no forgetting */
   double clip;   /* residual clamp factor c >= 1; default 0: off */
   int evict;     /* rp__krls_evict; default least recently used */
+  int signed_y;  /* 1: any finite target is learned; 0 (default): a
+                    negative one is refused, since a timing or a cost
+                    cannot be. A caller that learns a residual around a
+                    mean (the cost model) sets it. */
 } rp__krls_desc;
 
 typedef struct rp__krls_stats {
@@ -167,8 +171,8 @@ void rp__krls_destroy(rp__krls *m); /* NULL: no-op */
 void rp__krls_reset(rp__krls *m);
 
 /* Learns (x, y), x of dim features. Returns 0, RP_ENOTFINITE (NaN or inf
- * in x[i] or y; the message names it) or RP_ERANGE (y < 0: timings and
- * costs are >= 0). On error the model is unchanged. O(m^2) and no
+ * in x[i] or y; the message names it) or RP_ERANGE (y < 0 unless
+ * signed_y: timings and costs are >= 0). On error the model is unchanged. O(m^2) and no
  * allocation; O(m^3) when the inverse is rebuilt. */
 int rp__krls_update(rp__krls *m, const double *x, double y);
 /* f(x); 0 before the first sample. x is not checked: NaN in, NaN out.

@@ -84,6 +84,30 @@ refuse "unwritable png" "$dir/no/such/dir/x.png" "$rp" render gen:ml:8 \
   --size 4x4 -o "$dir/no/such/dir/x.png"
 refuse "unknown command" "unknown command" "$rp" frobnicate
 
+# bench quality: a smoke test of the sweep, its JSON and its refusals.
+check "bench quality" "$rp" bench quality gen:ml:32 --quick --json \
+  --csv "$dir/q.csv"
+has "bench psnr" '"psnr":	'
+has "bench ssim" '"ssim":	'
+has "bench budgets" '"budgets":'
+if [ "$(head -1 "$dir/q.csv")" = \
+     "space,rho,step,scale,rays_x,rays_y,ms,mse,psnr,ssim" ] &&
+   [ "$(wc -l <"$dir/q.csv")" -eq 13 ]; then pass=$((pass + 1)); else
+  echo "FAIL: bench csv"; cat "$dir/q.csv"; fails=$((fails + 1)); fi
+check "bench help" "$rp" bench quality --help; has "bench help" "--ref-step"
+refuse "bench bad runs" "bad value '0' for --runs" "$rp" bench quality \
+  gen:ml:8 --quick --runs 0
+refuse "bench bad option" "unrecognized option" "$rp" bench quality \
+  gen:ml:8 --quick --frobnicate
+refuse "bench unknown" "unknown benchmark 'speed'" "$rp" bench speed
+if command -v gnuplot >/dev/null 2>&1; then
+  check "bench plot" "$rp" bench quality gen:ml:32 --quick \
+    --plot "$dir/q.png"
+  if [ -s "$dir/q.png" ] && [ "$(head -c 8 "$dir/q.png" | od -An -tx1 |
+       tr -d ' \n')" = "89504e470d0a1a0a" ]; then pass=$((pass + 1)); else
+    echo "FAIL: bench plot is not a PNG"; fails=$((fails + 1)); fi
+fi
+
 if [ -n "${RP_SHARED_DATA:-}" ] && [ -f "$RP_SHARED_DATA/bonsai/bonsai.txt" ]
 then
   check "bonsai info" "$rp" info "$RP_SHARED_DATA/bonsai/bonsai.txt" --json

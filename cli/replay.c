@@ -1,0 +1,776 @@
+/* raypace replay: plays an interaction sequence under each frame-time
+ * controller and reports how well each held the target (DESIGN section
+ * 10): per-frame CSV, a plot of frame times against the target (seed 000
+ * Fig. 5), and one summary per controller.
+ *
+ * Every controller sees the same frames: the same sequence, device, cost
+ * model settings and target. Before recording, each plays `--settle`
+ * frames of the sequence's first state (every controller's first frame
+ * is blind; what is compared is how they hold the target afterwards).
+ * The cost model is trained for every controller, so prediction error is
+ * reported for all; only "predicted" acts on it.
+ *
+ * Frame time is the wall time of the frame's render passes (device
+ * render with readback, plus the upscale when the image scale is below
+ * 1). The probe (depth pass + ERT pre-pass on the host) and the
+ * prediction run before the frame and are reported apart as overhead. */
+#include <cjson/cJSON.h>
+#include <getopt.h>
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "cli_util.h"
+#include "commands.h"
+#include "raypace.h"
+#include "raypace_pace.h"
+#include "raypace_sequence.h"
+
+typedef struct replay_opts {
+  const char *volume, *sequence, *controller, *backend, *csv, *plot;
+  double target_ms, target_fraction;
+  uint32_t device, width, height, settle, frames, seed;
+  float base_step;
+  rp_space space;
+  int json, list, quiet;
+} replay_opts;
+
+/* One recorded frame of one controller. */
+typedef struct frame_row {
+  uint32_t frame;
+  int passes, tf_changed;
+  double target_ms, measured_ms, predicted_ms, probe_ms;
+  double last_pass_ms; /* the pass the prediction is for */
+  double rho;
+  float step, scale;
+  double samples_est;
+  uint64_t samples;
+  double sigma_pred_ns, sigma_ns;
+} frame_row;
+
+typedef struct summary {
+  rp_controller_kind kind;
+  uint32_t frames;
+  double rmse_ms, rmse_rel, max_over, share_over_20, mean_density;
+  double pred_rmse_ms, sigma_err_30, overhead_ms, mean_ms, mean_target;
+} summary;
+
+typedef struct replay {
+  replay_opts o;
+  rp_context *ctx;
+  rp_volume *vol;
+  rp_histograms *h;
+  rp_occupancy *occ;
+  rp_tf **tfs;
+  int tf_count, tf_active;
+  rp_device *dev;
+  rp_sequence *seq;
+  uint32_t frames;
+  rp_space_desc space;
+  uint8_t *scaled, *image;
+  rp_tile_stats *tiles;
+  double full_ms;     /* frame time without adaptation, at the start */
+  double seq_target0; /* the sequence's first target, ms */
+} replay;
+
+static void usage(FILE *f) {
+  fprintf(f,
+      "usage: raypace replay VOLUME [--sequence S] [--controller C|all]\n"
+      "                      [--target-ms T | --target-fraction F] "
+      "[options]\n"
+      "       raypace replay --list\n\n"
+      "  --sequence S          built-in name or JSON file (default "
+      "tf-switch)\n"
+      "  --controller C        none, last-frame, two-pass, predicted, "
+      "vtk,\n"
+      "                        ue5, valve, or all (default all)\n"
+      "  --target-ms T         frame-time target in ms; the sequence's "
+      "own\n"
+      "                        target changes scale with it\n"
+      "  --target-fraction F   target as a fraction of the frame time "
+      "without\n"
+      "                        adaptation, measured at the start\n"
+      "                        (default: the sequence's target)\n"
+      "  --space S             ray, image or hybrid (default hybrid)\n"
+      "  --base-step D         step at full quality, voxels (default 1)\n"
+      "  --size WxH            output size (default 384x384)\n"
+      "  --backend NAME        opencl, vulkan or reference\n"
+      "  --device N            device index within the backend\n"
+      "  --settle N            unrecorded frames before the sequence "
+      "(default 10)\n"
+      "  --frames N            play only the first N frames\n"
+      "  --seed N              ERT pre-pass seed (default 1)\n"
+      "  --csv FILE            per-frame rows of every controller\n"
+      "  --plot FILE.png       frame times and densities against the "
+      "target\n"
+      "                        (gnuplot)\n"
+      "  --json                one JSON summary object per controller, "
+      "one\n"
+      "                        per line\n"
+      "  --quiet               no per-controller progress on stderr\n"
+      "  --list                name the built-in sequences and "
+      "controllers\n");
+}
+
+static int parse_u32(const char *s, uint32_t max, uint32_t *out) {
+  char *end;
+  unsigned long v = strtoul(s, &end, 10);
+  if (end == s || *end != '\0' || v > max || s[0] == '-')
+    return -1;
+  *out = (uint32_t)v;
+  return 0;
+}
+
+static int parse_opts(int argc, char **argv, replay_opts *o) {
+  static const struct option opts[] = {
+      {"sequence", required_argument, 0, 'q'},
+      {"controller", required_argument, 0, 'c'},
+      {"target-ms", required_argument, 0, 't'},
+      {"target-fraction", required_argument, 0, 'F'},
+      {"space", required_argument, 0, 'p'},
+      {"base-step", required_argument, 0, 'd'},
+      {"size", required_argument, 0, 's'},
+      {"backend", required_argument, 0, 'B'},
+      {"device", required_argument, 0, 'D'},
+      {"settle", required_argument, 0, 'S'},
+      {"frames", required_argument, 0, 'n'},
+      {"seed", required_argument, 0, 'e'},
+      {"csv", required_argument, 0, 'C'},
+      {"plot", required_argument, 0, 'P'},
+      {"json", no_argument, 0, 'j'},
+      {"quiet", no_argument, 0, 'Q'},
+      {"list", no_argument, 0, 'l'},
+      {"help", no_argument, 0, 'h'},
+      {0, 0, 0, 0}};
+  int c, li = 0;
+  memset(o, 0, sizeof *o);
+  o->sequence = "tf-switch";
+  o->controller = "all";
+  o->space = RP_SPACE_HYBRID;
+  o->base_step = 1.0f;
+  o->width = o->height = 384;
+  o->settle = 10;
+  o->seed = 1;
+  optind = 1;
+  while ((c = getopt_long(argc, argv, "h", opts, &li)) != -1) {
+    int bad = 0;
+    float v;
+    switch (c) {
+    case 'q': o->sequence = optarg; break;
+    case 'c': o->controller = optarg; break;
+    case 't':
+      bad = cli_parse_positive(optarg, &v);
+      o->target_ms = v;
+      break;
+    case 'F':
+      bad = cli_parse_positive(optarg, &v) || v > 100.0f;
+      o->target_fraction = v;
+      break;
+    case 'p': bad = rp_space_from_name(optarg, &o->space) != 0; break;
+    case 'd': bad = cli_parse_positive(optarg, &o->base_step); break;
+    case 's': bad = cli_parse_size(optarg, &o->width, &o->height); break;
+    case 'B': o->backend = optarg; break;
+    case 'D': bad = parse_u32(optarg, 1024, &o->device); break;
+    case 'S': bad = parse_u32(optarg, 100000, &o->settle); break;
+    case 'n': bad = parse_u32(optarg, 10000000, &o->frames); break;
+    case 'e': bad = parse_u32(optarg, UINT32_MAX, &o->seed); break;
+    case 'C': o->csv = optarg; break;
+    case 'P': o->plot = optarg; break;
+    case 'j': o->json = 1; break;
+    case 'Q': o->quiet = 1; break;
+    case 'l': o->list = 1; break;
+    case 'h': usage(stdout); return 1;
+    default: usage(stderr); return 2;
+    }
+    if (bad) {
+      fprintf(stderr, "raypace replay: bad value '%s' for --%s\n", optarg,
+              opts[li].name);
+      return 2;
+    }
+  }
+  if (o->target_ms > 0 && o->target_fraction > 0) {
+    fprintf(stderr, "raypace replay: --target-ms and --target-fraction "
+                    "exclude each other\n");
+    return 2;
+  }
+  if (o->list)
+    return optind == argc ? 0 : (usage(stderr), 2);
+  if (optind + 1 != argc) {
+    usage(stderr);
+    return 2;
+  }
+  o->volume = argv[optind];
+  return 0;
+}
+
+static int list_all(void) {
+  const char *const *n;
+  int k;
+  printf("sequences:\n");
+  for (n = rp_sequence_builtin_names(); *n != NULL; n++)
+    printf("  %-12s %s\n", *n, rp_sequence_builtin_about(*n));
+  printf("controllers:\n");
+  for (k = 0; k < RP_CONTROL_COUNT; k++)
+    printf("  %s\n", rp_controller_name((rp_controller_kind)k));
+  printf("spaces:\n  ray\n  image\n  hybrid\n");
+  return 0;
+}
+
+/* ---- Rendering ----------------------------------------------------------- */
+
+typedef struct pass_result {
+  double ms, raycast_ms;
+  uint64_t samples;
+  float step, scale;
+} pass_result;
+
+static int render_pass(replay *r, const rp_camera *cam, uint32_t effects,
+                       double rho, pass_result *out) {
+  rp_render_desc d = {0};
+  uint32_t sw, sh, tx, ty, i;
+  double t0;
+  int err;
+  rp_space_map(&r->space, rho, &out->step, &out->scale);
+  d.width = r->o.width;
+  d.height = r->o.height;
+  d.step = out->step;
+  d.image_scale = out->scale;
+  d.effects = effects;
+  rp_scaled_size(&d, &sw, &sh);
+  rp_tile_grid(sw, sh, &tx, &ty);
+  t0 = cli_now();
+  err = rp_device_render(r->dev, cam, &d, NULL, r->scaled, r->tiles);
+  if (err != 0)
+    return cli_error(r->ctx, "render", err);
+  if (sw != d.width || sh != d.height)
+    rp_image_upscale(r->scaled, sw, sh, r->image, d.width, d.height);
+  out->ms = (cli_now() - t0) * 1e3;
+  out->raycast_ms = rp_device_last_time_ns(r->dev) * 1e-6;
+  out->samples = 0;
+  for (i = 0; i < tx * ty; i++)
+    out->samples += r->tiles[i].samples;
+  return 0;
+}
+
+/* Makes TF `index` current on the host (occupancy) and the device. */
+static int use_tf(replay *r, int index) {
+  int err;
+  if (index == r->tf_active)
+    return 0;
+  if ((err = rp_occupancy_update(r->occ, r->tfs[index])) != 0 ||
+      (err = rp_device_set_tf(r->dev, r->tfs[index], r->occ)) != 0)
+    return cli_error(r->ctx, "transfer function", err);
+  r->tf_active = index;
+  return 0;
+}
+
+static double seq_target_ms(const replay *r, const rp_sequence_state *st) {
+  return st->target_ms > 0 ? st->target_ms
+                           : st->target_fraction * r->full_ms;
+}
+
+/* The target of a frame: the sequence's, rescaled so that its first
+ * target becomes the command line's when one was given. */
+static double frame_target(const replay *r, const rp_sequence_state *st) {
+  double t = seq_target_ms(r, st);
+  if (r->o.target_ms > 0)
+    return r->o.target_ms * t / r->seq_target0;
+  if (r->o.target_fraction > 0)
+    return r->o.target_fraction * r->full_ms * t / r->seq_target0;
+  return t;
+}
+
+typedef struct predict_ctx {
+  const replay *r;
+  const rp_cost_model *model;
+  const rp_frame_probe *probe;
+} predict_ctx;
+
+static double predict_ms(void *user, double rho) {
+  const predict_ctx *p = user;
+  rp_cost_estimate e;
+  float step, scale;
+  rp_space_map(&p->r->space, rho, &step, &scale);
+  if (rp_cost_predict(p->model, p->probe, step, scale, &e) != 0)
+    return NAN;
+  return e.ms;
+}
+
+static int probe_frame(replay *r, const rp_camera *cam, uint32_t effects,
+                       uint32_t frame, rp_frame_probe *p) {
+  rp_render_desc d = {0};
+  int err;
+  d.width = r->o.width;
+  d.height = r->o.height;
+  d.effects = effects;
+  err = rp_frame_probe_compute(r->ctx, r->vol, r->tfs[r->tf_active], r->occ,
+                               cam, &d, r->o.seed, frame, p);
+  return err != 0 ? cli_error(r->ctx, "probe", err) : 0;
+}
+
+/* Warms every kernel variant the sequence uses (a first build must not
+ * land in a recorded frame) and measures the frame time without
+ * adaptation: the median of 3 frames of the first state at density 1. */
+static int calibrate(replay *r) {
+  rp_sequence_state st;
+  rp_camera cam;
+  pass_result pr;
+  uint32_t i, seen[16], nseen = 0, k;
+  double t[3];
+  int err;
+  for (i = 0; i < r->frames; i++) {
+    if ((err = rp_sequence_frame(r->seq, i, &st)) != 0)
+      return cli_error(r->ctx, "sequence", err);
+    for (k = 0; k < nseen && seen[k] != st.effects; k++)
+      ;
+    if (k == nseen && nseen < 16) {
+      seen[nseen++] = st.effects;
+      rp_sequence_camera(&st, r->vol, &cam);
+      if ((err = use_tf(r, st.tf)) != 0 ||
+          (err = render_pass(r, &cam, st.effects, 1.0, &pr)) != 0 ||
+          (err = render_pass(r, &cam, st.effects, 0.3, &pr)) != 0)
+        return err;
+    }
+  }
+  if ((err = rp_sequence_frame(r->seq, 0, &st)) != 0)
+    return cli_error(r->ctx, "sequence", err);
+  rp_sequence_camera(&st, r->vol, &cam);
+  if ((err = use_tf(r, st.tf)) != 0)
+    return err;
+  for (i = 0; i < 3; i++) {
+    if ((err = render_pass(r, &cam, st.effects, 1.0, &pr)) != 0)
+      return err;
+    t[i] = pr.ms;
+  }
+  r->full_ms = cli_median(t, 3);
+  r->seq_target0 = seq_target_ms(r, &st);
+  if (!(r->seq_target0 > 0)) {
+    fprintf(stderr, "raypace replay: the sequence's first target is not "
+                    "positive\n");
+    return 1;
+  }
+  return 0;
+}
+
+/* ---- One controller over the sequence ------------------------------------ */
+
+static int play(replay *r, rp_controller_kind kind, frame_row *rows) {
+  rp_controller_desc cd = {0};
+  rp_controller *ctl = NULL;
+  rp_cost_model *model = NULL;
+  uint32_t total = r->o.settle + r->frames, i;
+  int err, rc = 1;
+  cd.kind = kind;
+  cd.rho_min = rp_space_min_density(&r->space);
+  cd.rho_max = 1.0;
+  if ((err = rp_controller_create(r->ctx, &cd, &ctl)) != 0 ||
+      (err = rp_cost_model_create(r->ctx, NULL, &model)) != 0) {
+    cli_error(r->ctx, "controller", err);
+    goto out;
+  }
+  for (i = 0; i < total; i++) {
+    uint32_t f = i < r->o.settle ? 0 : i - r->o.settle;
+    rp_sequence_state st;
+    rp_camera cam;
+    rp_frame_probe probe;
+    rp_cost_estimate est;
+    predict_ctx pc;
+    pass_result pr;
+    double rho, target, frame_ms = 0.0, t0;
+    int again = 1, passes = 0;
+    if ((err = rp_sequence_frame(r->seq, f, &st)) != 0) {
+      cli_error(r->ctx, "sequence", err);
+      goto out;
+    }
+    if (use_tf(r, st.tf) != 0)
+      goto out;
+    rp_sequence_camera(&st, r->vol, &cam);
+    target = frame_target(r, &st);
+    t0 = cli_now();
+    if (probe_frame(r, &cam, st.effects, f, &probe) != 0)
+      goto out;
+    pc.r = r;
+    pc.model = model;
+    pc.probe = &probe;
+    if ((err = rp_controller_begin_frame(ctl, target, predict_ms, &pc,
+                                         &rho)) != 0) {
+      cli_error(r->ctx, "controller", err);
+      goto out;
+    }
+    if (i >= r->o.settle)
+      rows[f].probe_ms = (cli_now() - t0) * 1e3;
+    while (again) {
+      if (render_pass(r, &cam, st.effects, rho, &pr) != 0)
+        goto out;
+      passes++;
+      frame_ms += pr.ms;
+      if (rp_cost_predict(model, &probe, pr.step, pr.scale, &est) != 0) {
+        cli_error(r->ctx, "predict", RP_EINVAL);
+        goto out;
+      }
+      if (i >= r->o.settle) {
+        frame_row *row = &rows[f];
+        row->frame = f;
+        row->tf_changed = st.tf_changed && f > 0;
+        row->target_ms = target;
+        row->predicted_ms = est.ms;
+        row->last_pass_ms = pr.ms;
+        row->rho = rho;
+        row->step = pr.step;
+        row->scale = pr.scale;
+        row->samples_est = est.samples;
+        row->samples = pr.samples;
+        row->sigma_pred_ns = est.sigma_ns;
+        row->sigma_ns = pr.samples > 0 && pr.raycast_ms > 0
+                            ? pr.raycast_ms * 1e6 /
+                                  (est.fetches * (double)pr.samples)
+                            : NAN;
+      }
+      if ((err = rp_cost_train(model, &probe, pr.step, pr.scale, pr.samples,
+                               pr.raycast_ms, pr.ms)) != 0 ||
+          (err = rp_controller_end_pass(ctl, pr.ms, &again, &rho)) != 0) {
+        cli_error(r->ctx, "train", err);
+        goto out;
+      }
+    }
+    if (i >= r->o.settle) {
+      rows[f].measured_ms = frame_ms;
+      rows[f].passes = passes;
+    }
+  }
+  rc = 0;
+out:
+  rp_cost_model_destroy(model);
+  rp_controller_destroy(ctl);
+  return rc;
+}
+
+static void summarise(rp_controller_kind kind, const frame_row *rows,
+                      uint32_t n, summary *s) {
+  uint32_t i, over = 0, sig_n = 0;
+  double se = 0, se_rel = 0, pe = 0, sig = 0, dens = 0, ov = 0, oh = 0;
+  double mt = 0, mm = 0;
+  memset(s, 0, sizeof(*s));
+  s->kind = kind;
+  s->frames = n;
+  for (i = 0; i < n; i++) {
+    const frame_row *w = &rows[i];
+    double d = w->measured_ms - w->target_ms, rel = d / w->target_ms;
+    se += d * d;
+    se_rel += rel * rel;
+    if (rel > ov)
+      ov = rel;
+    over += w->measured_ms > 1.2 * w->target_ms;
+    dens += w->rho;
+    /* The last pass's prediction against the last pass's time: for
+     * one-pass controllers that is the frame. */
+    d = w->predicted_ms - w->last_pass_ms;
+    pe += d * d;
+    if (i >= 30 && isfinite(w->sigma_ns) && w->sigma_ns > 0) {
+      sig += fabs(w->sigma_pred_ns - w->sigma_ns) / w->sigma_ns;
+      sig_n++;
+    }
+    oh += w->probe_ms;
+    mt += w->target_ms;
+    mm += w->measured_ms;
+  }
+  if (n == 0)
+    return;
+  s->rmse_ms = sqrt(se / n);
+  s->rmse_rel = sqrt(se_rel / n);
+  s->max_over = ov;
+  s->share_over_20 = (double)over / n;
+  s->mean_density = dens / n;
+  s->pred_rmse_ms = sqrt(pe / n);
+  s->sigma_err_30 = sig_n > 0 ? sig / sig_n : NAN;
+  s->overhead_ms = oh / n;
+  s->mean_target = mt / n;
+  s->mean_ms = mm / n;
+}
+
+/* ---- Output -------------------------------------------------------------- */
+
+static int write_csv(const char *path, const summary *sums,
+                     frame_row *const *rows, int nctl, uint32_t n) {
+  FILE *f = fopen(path, "w");
+  int k;
+  uint32_t i;
+  if (f == NULL) {
+    fprintf(stderr, "raypace replay: cannot write '%s'\n", path);
+    return 1;
+  }
+  fprintf(f, "controller,frame,target_ms,measured_ms,predicted_ms,"
+             "delta_ms,passes,density,step,scale,samples_est,samples,"
+             "sigma_pred_ns,sigma_ns,probe_ms,tf_switch\n");
+  for (k = 0; k < nctl; k++) {
+    for (i = 0; i < n; i++) {
+      const frame_row *w = &rows[k][i];
+      fprintf(f, "%s,%u,%.4f,%.4f,%.4f,%.4f,%d,%.5f,%.4f,%.4f,%.0f,%llu,"
+                 "%.4f,%.4f,%.4f,%d\n",
+              rp_controller_name(sums[k].kind), w->frame, w->target_ms,
+              w->measured_ms, w->predicted_ms,
+              w->measured_ms - w->target_ms, w->passes, w->rho,
+              (double)w->step, (double)w->scale, w->samples_est,
+              (unsigned long long)w->samples, w->sigma_pred_ns, w->sigma_ns,
+              w->probe_ms, w->tf_changed);
+    }
+  }
+  return fclose(f) == 0 ? 0 : 1;
+}
+
+/* Frame times of every controller against the target (top) and their
+ * densities (bottom), like seed 000 Fig. 5, drawn by gnuplot from the
+ * CSV. */
+static int write_plot(const char *png, const char *csv, const summary *sums,
+                      int nctl, const char *title) {
+  FILE *g = popen("gnuplot", "w");
+  int k, rc;
+  if (g == NULL) {
+    fprintf(stderr, "raypace replay: --plot needs gnuplot (Debian "
+                    "gnuplot-nox)\n");
+    return 1;
+  }
+  fprintf(g, "set terminal pngcairo size 1200,900 noenhanced\n"
+             "set output '%s'\n"
+             "set datafile separator ','\n"
+             "set key outside right top\n"
+             "set multiplot layout 2,1 title '%s'\n"
+             "set ylabel 'frame time (ms)'\n"
+             "set grid\n",
+          png, title);
+  fprintf(g, "plot '%s' skip 1 using 2:(strcol(1) eq '%s' ? $3 : 1/0) "
+             "with lines lw 3 lc rgb 'black' title 'target'",
+          csv, rp_controller_name(sums[0].kind));
+  for (k = 0; k < nctl; k++)
+    fprintf(g, ", '' skip 1 using 2:(strcol(1) eq '%s' ? $4 : 1/0) "
+               "with lines title '%s'",
+            rp_controller_name(sums[k].kind),
+            rp_controller_name(sums[k].kind));
+  fprintf(g, "\nset xlabel 'frame'\nset ylabel 'density (1 = finest)'\n"
+             "set logscale y\nplot ");
+  for (k = 0; k < nctl; k++)
+    fprintf(g, "%s'%s' skip 1 using 2:(strcol(1) eq '%s' ? $8 : 1/0) "
+               "with lines title '%s'",
+            k ? ", " : "", csv, rp_controller_name(sums[k].kind),
+            rp_controller_name(sums[k].kind));
+  fprintf(g, "\nunset multiplot\n");
+  rc = pclose(g);
+  if (rc != 0) {
+    fprintf(stderr, "raypace replay: gnuplot failed (status %d); is "
+                    "gnuplot installed?\n", rc);
+    return 1;
+  }
+  return 0;
+}
+
+static void print_json(const replay *r, const summary *s) {
+  cJSON *o = cJSON_CreateObject();
+  char *text;
+  cJSON_AddStringToObject(o, "controller", rp_controller_name(s->kind));
+  cJSON_AddStringToObject(o, "sequence", rp_sequence_name(r->seq));
+  cJSON_AddStringToObject(o, "space", rp_space_name(r->space.space));
+  cJSON_AddNumberToObject(o, "frames", s->frames);
+  cJSON_AddNumberToObject(o, "full_ms", r->full_ms);
+  cJSON_AddNumberToObject(o, "mean_target_ms", s->mean_target);
+  cJSON_AddNumberToObject(o, "mean_ms", s->mean_ms);
+  cJSON_AddNumberToObject(o, "target_rmse_ms", s->rmse_ms);
+  cJSON_AddNumberToObject(o, "target_rmse_rel", s->rmse_rel);
+  cJSON_AddNumberToObject(o, "max_overshoot", s->max_over);
+  cJSON_AddNumberToObject(o, "share_over_1_2", s->share_over_20);
+  cJSON_AddNumberToObject(o, "mean_density", s->mean_density);
+  cJSON_AddNumberToObject(o, "prediction_rmse_ms", s->pred_rmse_ms);
+  if (isfinite(s->sigma_err_30))
+    cJSON_AddNumberToObject(o, "sigma_error_after_30", s->sigma_err_30);
+  else
+    cJSON_AddNullToObject(o, "sigma_error_after_30");
+  cJSON_AddNumberToObject(o, "overhead_ms", s->overhead_ms);
+  text = cJSON_PrintUnformatted(o);
+  if (text != NULL)
+    printf("%s\n", text);
+  free(text);
+  cJSON_Delete(o);
+}
+
+static void print_table(const replay *r, const summary *sums, int nctl) {
+  int k;
+  printf("sequence %s, %u frames, %ux%u, space %s; no-adaptation frame "
+         "%.1f ms\n", rp_sequence_name(r->seq), r->frames, r->o.width,
+         r->o.height, rp_space_name(r->space.space), r->full_ms);
+  printf("%-11s %8s %8s %8s %8s %7s %8s %9s %8s %8s\n", "controller",
+         "mean_ms", "target", "rmse_ms", "rmse_rel", "max_ovr", ">1.2T",
+         "density", "pred_rmse", "sigma_e30");
+  for (k = 0; k < nctl; k++) {
+    const summary *s = &sums[k];
+    printf("%-11s %8.2f %8.2f %8.2f %8.3f %6.1f%% %7.1f%% %9.4f %8.2f "
+           "%8.3f\n", rp_controller_name(s->kind), s->mean_ms,
+           s->mean_target, s->rmse_ms, s->rmse_rel, 100 * s->max_over,
+           100 * s->share_over_20, s->mean_density, s->pred_rmse_ms,
+           s->sigma_err_30);
+  }
+}
+
+/* The issue's goals as ratios within this run, when the controllers they
+ * compare were all played. */
+static void print_goals(const summary *sums, int nctl) {
+  const summary *by[RP_CONTROL_COUNT] = {0};
+  double best = INFINITY;
+  int k;
+  for (k = 0; k < nctl; k++)
+    by[sums[k].kind] = &sums[k];
+  if (by[RP_CONTROL_PREDICTED] == NULL)
+    return;
+  for (k = 0; k < RP_CONTROL_COUNT; k++) {
+    if (k != RP_CONTROL_LAST_FRAME && k != RP_CONTROL_VTK &&
+        k != RP_CONTROL_UE5 && k != RP_CONTROL_VALVE)
+      continue;
+    if (by[k] != NULL && by[k]->rmse_ms < best)
+      best = by[k]->rmse_ms;
+  }
+  printf("goals: predicted rmse / best reactive = %.3f (<= 0.5); "
+         "max overshoot %.1f%% (<= 25%%)",
+         isfinite(best) ? by[RP_CONTROL_PREDICTED]->rmse_ms / best : NAN,
+         100 * by[RP_CONTROL_PREDICTED]->max_over);
+  if (by[RP_CONTROL_TWO_PASS] != NULL)
+    printf("; density / two-pass = %.2f (>= 1.5)",
+           by[RP_CONTROL_PREDICTED]->mean_density /
+               by[RP_CONTROL_TWO_PASS]->mean_density);
+  if (by[RP_CONTROL_LAST_FRAME] != NULL)
+    printf("; density / last-frame = %.2f (>= 0.9)",
+           by[RP_CONTROL_PREDICTED]->mean_density /
+               by[RP_CONTROL_LAST_FRAME]->mean_density);
+  printf("\n");
+}
+
+/* ---- The command --------------------------------------------------------- */
+
+static int open_scene(replay *r) {
+  rp_sequence_state st;
+  uint32_t tx, ty;
+  size_t px = (size_t)r->o.width * r->o.height;
+  int err, i;
+  if ((err = rp_context_create(NULL, &r->ctx)) != 0)
+    return cli_error(NULL, "context", err);
+  if ((err = rp_sequence_load(r->ctx, r->o.sequence, &r->seq)) != 0)
+    return cli_error(r->ctx, "--sequence", err);
+  r->frames = rp_sequence_frames(r->seq);
+  if (r->o.frames > 0 && r->o.frames < r->frames)
+    r->frames = r->o.frames;
+  if (cli_open_volume(r->ctx, r->o.volume, &r->vol) != 0)
+    return 1;
+  if ((err = rp_histograms_build(r->ctx, r->vol, &r->h)) != 0)
+    return cli_error(r->ctx, "histograms", err);
+  r->tf_count = rp_sequence_tf_count(r->seq);
+  r->tfs = calloc((size_t)r->tf_count, sizeof(*r->tfs));
+  if (r->tfs == NULL)
+    return cli_error(r->ctx, "transfer functions", RP_ENOMEM);
+  for (i = 0; i < r->tf_count; i++)
+    if ((err = rp_sequence_tf_create(r->ctx, r->seq, i, &r->tfs[i])) != 0)
+      return cli_error(r->ctx, "transfer function", err);
+  if ((err = rp_sequence_frame(r->seq, 0, &st)) != 0)
+    return cli_error(r->ctx, "sequence", err);
+  if ((err = rp_occupancy_build(r->ctx, r->h, r->tfs[st.tf], &r->occ)) != 0)
+    return cli_error(r->ctx, "occupancy", err);
+  r->tf_active = st.tf;
+  if (cli_open_device(r->ctx, "--backend", r->o.backend, r->o.device,
+                      &r->dev) != 0)
+    return 1;
+  if ((err = rp_device_set_volume(r->dev, r->vol)) != 0 ||
+      (err = rp_device_set_tf(r->dev, r->tfs[st.tf], r->occ)) != 0)
+    return cli_error(r->ctx, "upload", err);
+  r->space.space = r->o.space;
+  r->space.base_step = r->o.base_step;
+  rp_tile_grid(r->o.width, r->o.height, &tx, &ty);
+  r->scaled = malloc(px * 4);
+  r->image = malloc(px * 4);
+  r->tiles = malloc((size_t)tx * ty * sizeof(*r->tiles));
+  if (r->scaled == NULL || r->image == NULL || r->tiles == NULL)
+    return cli_error(r->ctx, "images", RP_ENOMEM);
+  return 0;
+}
+
+static void close_scene(replay *r) {
+  int i;
+  free(r->scaled);
+  free(r->image);
+  free(r->tiles);
+  rp_device_destroy(r->dev);
+  rp_occupancy_destroy(r->occ);
+  for (i = 0; r->tfs != NULL && i < r->tf_count; i++)
+    rp_tf_destroy(r->tfs[i]);
+  free(r->tfs);
+  rp_histograms_destroy(r->h);
+  rp_volume_destroy(r->vol);
+  rp_sequence_destroy(r->seq);
+  rp_context_destroy(r->ctx);
+}
+
+int cli_cmd_replay(int argc, char **argv) {
+  replay r;
+  rp_controller_kind kinds[RP_CONTROL_COUNT];
+  frame_row *rows[RP_CONTROL_COUNT] = {0};
+  summary sums[RP_CONTROL_COUNT];
+  char csv_tmp[4096] = "";
+  const char *csv;
+  int nctl = 0, k, rc;
+  memset(&r, 0, sizeof(r));
+  if ((rc = parse_opts(argc, argv, &r.o)) != 0)
+    return rc == 1 ? 0 : rc;
+  if (r.o.list)
+    return list_all();
+  if (strcmp(r.o.controller, "all") == 0) {
+    for (k = 0; k < RP_CONTROL_COUNT; k++)
+      kinds[nctl++] = (rp_controller_kind)k;
+  } else if (rp_controller_from_name(r.o.controller, &kinds[0]) == 0) {
+    nctl = 1;
+  } else {
+    fprintf(stderr, "raypace replay: unknown controller '%s' (see "
+                    "--list)\n", r.o.controller);
+    return 2;
+  }
+  rc = 1;
+  if (open_scene(&r) != 0 || calibrate(&r) != 0)
+    goto out;
+  for (k = 0; k < nctl; k++) {
+    rows[k] = calloc(r.frames, sizeof(frame_row));
+    if (rows[k] == NULL) {
+      cli_error(r.ctx, "rows", RP_ENOMEM);
+      goto out;
+    }
+    if (!r.o.quiet)
+      fprintf(stderr, "replay: %s ...\n", rp_controller_name(kinds[k]));
+    if (play(&r, kinds[k], rows[k]) != 0)
+      goto out;
+    summarise(kinds[k], rows[k], r.frames, &sums[k]);
+  }
+  if (r.o.json) {
+    for (k = 0; k < nctl; k++)
+      print_json(&r, &sums[k]);
+  } else {
+    print_table(&r, sums, nctl);
+    print_goals(sums, nctl);
+  }
+  csv = r.o.csv;
+  if (csv == NULL && r.o.plot != NULL) {
+    snprintf(csv_tmp, sizeof(csv_tmp), "%s.csv", r.o.plot);
+    csv = csv_tmp;
+  }
+  if (csv != NULL && write_csv(csv, sums, rows, nctl, r.frames) != 0)
+    goto out;
+  if (r.o.plot != NULL) {
+    char title[256];
+    snprintf(title, sizeof(title), "%s: %s, space %s",
+             rp_sequence_name(r.seq), r.o.volume,
+             rp_space_name(r.space.space));
+    if (write_plot(r.o.plot, csv, sums, nctl, title) != 0)
+      goto out;
+    if (csv == csv_tmp)
+      remove(csv_tmp);
+  }
+  rc = 0;
+out:
+  for (k = 0; k < nctl; k++)
+    free(rows[k]);
+  close_scene(&r);
+  return rc;
+}

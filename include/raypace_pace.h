@@ -1,0 +1,269 @@
+/* raypace pacing: hold a frame-time target (DESIGN sections 5 and 6).
+ *
+ * Three parts, usable on their own:
+ * - sampling density and the tuning spaces: one number rho in (0, 1]
+ *   that frame time is (nearly) linear in, and its mapping to a step and
+ *   an image scale in ray, image or hybrid space;
+ * - the cost model: a probe of the frame (the depth pass and ERT
+ *   pre-pass, summarised) and t' = sigma * k * S' + c0, sigma learned per
+ *   device by KRLS;
+ * - the tuner (Eq. 2) and the controllers that choose rho each frame:
+ *   none, last-frame, two-pass, predicted (ours) and three reactive rules
+ *   from well-known systems, all behind one interface.
+ *
+ * Threading: every object here belongs to one thread at a time. */
+#ifndef RAYPACE_PACE_H
+#define RAYPACE_PACE_H
+
+#include <stdint.h>
+
+#include "raypace.h"
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+/* ---- Sampling density and tuning spaces -------------------------------- */
+
+/** Where quality is traded for time. Density rho = scale^2 * base_step /
+ *  step: 1 is the finest image (base step, full resolution); frame time
+ *  is close to linear in it (rays x samples per ray). */
+typedef enum rp_space {
+  RP_SPACE_RAY = 0,    /* step changes, full resolution */
+  RP_SPACE_IMAGE = 1,  /* image scale changes (upscaled to the output) */
+  RP_SPACE_HYBRID = 2  /* both */
+} rp_space;
+
+/** Bounds of the tuning spaces; zero fields take the defaults. */
+typedef struct rp_space_desc {
+  rp_space space;
+  float base_step;   /* step at rho = 1, voxels; 0: 1.0 */
+  float max_step;    /* coarsest step; 0: 16 * base_step */
+  float min_scale;   /* smallest image scale; 0: 0.125 */
+} rp_space_desc;
+
+/** The step and image scale that give density rho in d's space (rho
+ *  clamped to [rp_space_min_density(d), 1]). \since 0.1 */
+RP_API void rp_space_map(const rp_space_desc *d, double rho, float *step,
+                         float *scale);
+/** The smallest density d's space can reach. \since 0.1 */
+RP_API double rp_space_min_density(const rp_space_desc *d);
+/** "ray", "image", "hybrid"; and the reverse (RP_EINVAL if unknown). */
+RP_API const char *rp_space_name(rp_space space);
+RP_API int rp_space_from_name(const char *name, rp_space *out);
+
+/* ---- Tuner: Eq. 2 ------------------------------------------------------- */
+
+/** Predicted frame time in ms at density rho (the cost model, or any
+ *  model a caller supplies). May return NaN/inf for "unknown". */
+typedef double (*rp_predict_fn)(void *user, double rho);
+
+/** Zero fields take the defaults; negative or non-finite ones are
+ *  refused. */
+typedef struct rp_tune_desc {
+  double target_ms;   /* required, > 0 */
+  double rho_prev;    /* last frame's density: the damping reference and
+                         the search's start; 0: no damping, start at
+                         rho_max (first frame) */
+  double rho_min;     /* 0: 1e-3; 0 < rho_min <= rho_max */
+  double rho_max;     /* 0: 1; at most 1 */
+  double raise_limit; /* largest rise of rho per frame, >= 1;
+                         0: 1 / 0.8 */
+  int max_iters;      /* predictions per frame; 0: 8 */
+  double tolerance;   /* accept t' in [target (1 - tolerance), target];
+                         in (0, 1); 0: 0.01 */
+  double max_time_us; /* checked before each prediction after the
+                         first (CLOCK_MONOTONIC), so a call overruns it
+                         by at most one prediction; 0: 200 */
+} rp_tune_desc;
+
+typedef struct rp_tune_result {
+  double rho;          /* the density to render at */
+  double predicted_ms; /* t'(rho); NaN when no valid prediction was made
+                          at rho */
+  int iters;           /* predictions made */
+  int limited;         /* 1 if rho was cut by raise_limit, rho_min or
+                          rho_max */
+} rp_tune_result;
+
+/** Eq. 2 (DESIGN section 6): the largest density whose predicted time
+ *  meets the target. Clamps: rho stays in [rho_min, ub] with
+ *  ub = min(rho_max, max(rho_min, rho_prev * raise_limit)) (rho_prev
+ *  > 0): a rise is damped, a fall is not, and rho_min wins over the
+ *  damping. Predictions that are NaN, infinite or <= 0 count as unknown.
+ *  The result is the largest rho seen with t' <= target; if none was
+ *  seen, rho_min when t'(rho_min) > target, else (the budget ran out
+ *  first) Eq. 2's unverified step down from the smallest rho tried. A
+ *  model that predicts nothing valid leaves rho at rho_prev (or rho_max
+ *  on the first frame). Never NaN. No context: errors carry no message.
+ *  \returns 0; RP_EINVAL (NULL argument, field out of range) or
+ *  RP_ENOTFINITE for a bad desc. \since 0.1 */
+RP_API int rp_tune(const rp_tune_desc *d, rp_predict_fn predict,
+                   void *user, rp_tune_result *out);
+
+/* ---- Controllers -------------------------------------------------------- */
+
+/** The rules; runtime/control.c states each one exactly and cites its
+ *  source. Every rule decides at rp_controller_begin_frame from the
+ *  frames before and this frame's target, and never emits NaN or a rho
+ *  outside [rho_min, rho_max]. */
+typedef enum rp_controller_kind {
+  RP_CONTROL_NONE = 0,       /* rho_start every frame */
+  RP_CONTROL_LAST_FRAME = 1, /* rho_last * target / t_last, damped */
+  RP_CONTROL_TWO_PASS = 2,   /* pass at rho_last / 4; if under half the
+                                target, extrapolate to the rest and
+                                render again */
+  RP_CONTROL_PREDICTED = 3,  /* ours: rp_tune on the caller's model */
+  RP_CONTROL_VTK = 4,        /* isd' = isd sqrt(t_last f / target),
+                                isd in [1, 10], rho = 1 / isd^2 */
+  RP_CONTROL_UE5 = 5,        /* UE5 dynamic resolution, rho = s^2 */
+  RP_CONTROL_VALVE = 6,      /* Valve's adaptive quality: a ladder of
+                                15 % fill-rate steps */
+  RP_CONTROL_COUNT = 7
+} rp_controller_kind;
+
+typedef struct rp_controller rp_controller;
+
+/** Zero fields take the defaults. */
+typedef struct rp_controller_desc {
+  rp_controller_kind kind;
+  double rho_min;     /* 0: 1e-3; 0 < rho_min <= rho_max */
+  double rho_max;     /* 0: 1; at most 1 */
+  double rho_start;   /* the density before the first frame, in
+                         [rho_min, rho_max]; 0: rho_max. NONE renders it
+                         every frame; LAST_FRAME, VTK and UE5 render it on
+                         the first frame, VALVE its highest ladder level
+                         not above it; PREDICTED uses it as the first
+                         frame's damping reference; TWO_PASS's first pass
+                         renders at a quarter of it */
+  double raise_limit; /* largest rise per frame, >= 1, for LAST_FRAME and
+                         PREDICTED; 0: 1 / 0.8 */
+  double vtk_f;       /* VTK's time factor f, > 0; 0: VTK's own choice,
+                         1.66 for targets under 1000 ms, else 1 (see
+                         runtime/control.c) */
+} rp_controller_desc;
+
+/** "none", "last-frame", "two-pass", "predicted", "vtk", "ue5", "valve"
+ *  ("unknown" out of range); from_name is its reverse (RP_EINVAL if
+ *  unknown). \since 0.1 */
+RP_API const char *rp_controller_name(rp_controller_kind kind);
+RP_API int rp_controller_from_name(const char *name,
+                                   rp_controller_kind *out);
+
+/** `ctx` is kept: failed calls on the controller leave their message in
+ *  rp_last_error(ctx). `desc` may be NULL (all defaults).
+ *  \returns 0, RP_EINVAL, RP_ENOTFINITE or RP_ENOMEM. \since 0.1 */
+RP_API int rp_controller_create(rp_context *ctx,
+                                const rp_controller_desc *desc,
+                                rp_controller **out);
+/** NULL is a no-op. \since 0.1 */
+RP_API void rp_controller_destroy(rp_controller *c);
+/** Forgets the history and closes an open frame; keeps the desc.
+ *  \since 0.1 */
+RP_API void rp_controller_reset(rp_controller *c);
+
+/** Before a frame: the density of its first render pass. `predict` is
+ *  required by RP_CONTROL_PREDICTED (RP_EINVAL without) and ignored by
+ *  the others. \returns 0, RP_EINVAL (target <= 0, a frame already begun
+ *  and not ended), RP_ENOTFINITE (target NaN or infinite); a failed call
+ *  changes nothing. \since 0.1 */
+RP_API int rp_controller_begin_frame(rp_controller *c, double target_ms,
+                                     rp_predict_fn predict, void *user,
+                                     double *rho);
+/** After each render pass of the frame, its measured time (ms, >= 0 and
+ *  finite, else RP_ERANGE/RP_ENOTFINITE with the frame still open and
+ *  nothing learned). Sets *again to 1 and *rho to the next pass's density
+ *  when the frame renders again (two-pass), else *again = 0 and *rho to
+ *  the frame's final density: the frame is over and its time (the sum of
+ *  its passes) is what the controller learns from. RP_EINVAL without an
+ *  open frame. \since 0.1 */
+RP_API int rp_controller_end_pass(rp_controller *c, double pass_ms,
+                                  int *again, double *rho);
+
+/* ---- Cost model (DESIGN section 5) -------------------------------------- */
+
+/** What the depth pass and ERT pre-pass say about a frame, summarised for
+ *  the cost model. It does not depend on the step or the image scale:
+ *  one probe per camera / transfer function / effect set serves every
+ *  density the tuner tries. Probe rays are the ERT pre-pass grid of the
+ *  output image (one ray per 4x4 output pixels). */
+typedef struct rp_frame_probe {
+  uint32_t width, height;  /* output size */
+  uint32_t effects;        /* RP_EFFECT_* the frame renders with */
+  uint32_t rays;           /* probe rays */
+  uint32_t rays_hit;       /* probe rays with a non-empty sampled span */
+  uint32_t rays_ended;     /* of those, rays the ERT pre-pass ends */
+  double depth_sum;        /* sum over probe rays of the sampled span L,
+                              voxels: from D_front to D'_ERT (ERT on) or
+                              D_back */
+  double depth_max;        /* largest L */
+  double ert_cut;          /* share of the span that ERT removes, [0, 1]
+                              (0 with ERT off) */
+  double view[3];          /* unit view direction, volume axes */
+  double pixels_per_voxel; /* splatted voxel size at scale 1: output
+                              pixels one voxel spans at the volume centre */
+  double diagonal;         /* the volume's diagonal, voxels */
+  double probe_ms;         /* wall time the probe took */
+} rp_frame_probe;
+
+/** Runs the depth pass and ERT pre-pass on the host for `cam` and
+ *  `desc` (width, height, effects and ert_threshold are used; step and
+ *  image_scale are not) and summarises them. `occ` must be built for
+ *  `tf` on `vol`. (seed, frame) seed the ERT pre-pass as on a device.
+ *  \since 0.1 */
+RP_API int rp_frame_probe_compute(rp_context *ctx, const rp_volume *vol,
+                                  const rp_tf *tf, const rp_occupancy *occ,
+                                  const rp_camera *cam,
+                                  const rp_render_desc *desc, uint32_t seed,
+                                  uint32_t frame, rp_frame_probe *out);
+
+/** Volume fetches per sample for an effect set: k = 1 + 6 * shading +
+ *  1 * AO. */
+RP_API uint32_t rp_fetches_per_sample(uint32_t effects);
+
+#define RP_COST_FEATURES 8
+
+typedef struct rp_cost_model rp_cost_model;
+
+/** Zero fields take the defaults. */
+typedef struct rp_cost_model_desc {
+  double gamma;      /* KRLS RBF width on features in [0, 1]; 0: 2 */
+  double nu;         /* ALD tolerance; 0: 1e-3 */
+  int max_dict;      /* dictionary bound; 0: 32 */
+  double forget;     /* KRLS forgetting factor; 0: 0.995 */
+  double clip;       /* KRLS residual clamp; 0: 4 */
+  double sigma0_ns;  /* cost per fetch before any training; 0: 5 */
+} rp_cost_model_desc;
+
+typedef struct rp_cost_estimate {
+  double samples;        /* S' */
+  double fetches;        /* k */
+  double sigma_ns;       /* predicted cost per fetch */
+  double c0_ms;          /* per-frame fixed cost */
+  double ms;             /* t' = sigma * k * S' + c0 */
+  double features[RP_COST_FEATURES]; /* in [0, 1] */
+} rp_cost_estimate;
+
+RP_API int rp_cost_model_create(rp_context *ctx,
+                                const rp_cost_model_desc *desc,
+                                rp_cost_model **out);
+RP_API void rp_cost_model_destroy(rp_cost_model *m);
+/** Forgets everything learned. */
+RP_API void rp_cost_model_reset(rp_cost_model *m);
+/** The predicted cost of rendering the probed frame at (step, scale).
+ *  Const: may run concurrently with other predictions. \since 0.1 */
+RP_API int rp_cost_predict(const rp_cost_model *m, const rp_frame_probe *p,
+                           float step, float scale, rp_cost_estimate *out);
+/** Learns from a rendered frame: its measured sample count (the tiles'
+ *  sum), the raycast's own time and the whole frame's time (ms).
+ *  
+eturns RP_ENOTFINITE / RP_ERANGE for NaN, inf or negative figures
+ *  (the model is unchanged). \since 0.1 */
+RP_API int rp_cost_train(rp_cost_model *m, const rp_frame_probe *p,
+                         float step, float scale, uint64_t samples,
+                         double raycast_ms, double frame_ms);
+
+#ifdef __cplusplus
+}
+#endif
+#endif /* RAYPACE_PACE_H */

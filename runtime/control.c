@@ -1,0 +1,497 @@
+/* Controllers: the rule that picks each frame's sampling density rho
+ * (DESIGN section 6). All share one life cycle: begin_frame gives the
+ * density of the frame's first render pass, end_pass takes each pass's
+ * measured time, and a frame ends when end_pass says so (one pass, or two
+ * for two-pass). Decisions are made at begin_frame, from what the
+ * previous frames measured and this frame's target, so that a target that
+ * changes between frames is honoured at once. Every density leaves
+ * through emit(), which keeps it finite and inside [rho_min, rho_max].
+ *
+ * The three reactive rules from other systems are re-implemented from
+ * their published behaviour; each rule's block below cites its source. */
+#include <math.h>
+#include <string.h>
+
+#include "internal.h"
+#include "raypace_pace.h"
+
+#define CTL_RHO_MIN 1e-3
+#define CTL_RHO_MAX 1.0
+#define CTL_RAISE (1.0 / 0.8) /* seed 000 §6.1 */
+
+/* VTK (Kitware, https://github.com/Kitware/VTK: vtkFixedPointVolumeRay
+ * CastMapper.cxx, ComputeRequiredImageSampleDistance() and Render();
+ * vtkVolumeRayCastMapper.cxx, Render()): image sample distances 1 .. 10
+ * (Minimum/MaximumImageSampleDistance defaults). The fixed-point mapper
+ * stores t * (1 + 0.66 (d_used - d) / d) where d_used is the ray sample
+ * distance the frame used; for renders allotted under one second it uses
+ * InteractiveSampleDistance 2 against SampleDistance 1, so f = 1.66 there
+ * and 1 otherwise. */
+#define VTK_ISD_MIN 1.0
+#define VTK_ISD_MAX 10.0
+#define VTK_F_INTERACTIVE (1.0 + 0.66 * (2.0 - 1.0) / 1.0)
+#define VTK_INTERACTIVE_MS 1000.0
+
+/* Unreal Engine 5 dynamic resolution, console variables and defaults
+ * (https://dev.epicgames.com/documentation/en-us/unreal-engine/
+ * dynamic-resolution-in-unreal-engine; the r.DynamicRes.* help texts in
+ * the UE 5 console variable reference; DynamicRenderScaling::
+ * FHeuristicSettings, https://dev.epicgames.com/documentation/en-us/
+ * unreal-engine/API/Runtime/RenderCore/FHeuristicSettings). */
+#define UE_HISTORY 16     /* r.DynamicRes.HistorySize */
+#define UE_WEIGHT 0.9     /* r.DynamicRes.FrameWeightExponent */
+#define UE_HEADROOM 0.10  /* r.DynamicRes.TargetedGPUHeadRoomPercentage */
+#define UE_PERIOD 8       /* r.DynamicRes.MinResolutionChangePeriod */
+#define UE_PANIC 2 /* r.DynamicRes.MaxConsecutiveOverbudgetGPUFrameCount */
+#define UE_THRESHOLD 0.02 /* r.DynamicRes.ChangePercentageThreshold 2 % */
+#define UE_AMORTIZE 0.9   /* r.DynamicRes.IncreaseAmortizationBlendFactor */
+
+/* Valve adaptive quality (A. Vlachos, "Advanced VR Rendering
+ * Performance", GDC 2016, https://gdcvault.com/play/1023134/; its
+ * published implementation, ValveCamera.cs UpdateAdaptiveQuality in
+ * https://github.com/ValveSoftware/the_lab_renderer). Thresholds in
+ * shares of the frame budget; a quality level is one fill-rate step. */
+#define VALVE_LOW 0.70     /* raise under this for 3 frames */
+#define VALVE_PREDICT 0.85 /* extrapolate when the last frame is over */
+#define VALVE_HIGH 0.90    /* drop over this for 3 frames */
+#define VALVE_WAIT 2       /* frames ignored after any change */
+#define VALVE_DROP 2       /* levels per drop */
+#define VALVE_STEP 1.15    /* fill rate per level (15 % steps) */
+#define VALVE_MAX_LEVELS 4096
+
+struct rp_controller {
+  rp_context *ctx;
+  rp_controller_desc d; /* defaults filled in */
+  int open;             /* a frame has begun and not ended */
+  int pass;             /* passes ended in the open frame */
+  double target;        /* the open frame's target */
+  double frame_ms;      /* its passes' time so far */
+  double rho_pass;      /* density of its current pass */
+  uint64_t frames;      /* frames ended since create or reset */
+  double rho_last;      /* final density of the last frame (rho_start
+                           before the first) */
+  double t_last;        /* its time */
+  /* UE5: history newest first, the screen fraction s (rho = s^2) and
+   * decisions since the last change. */
+  double ue_t[UE_HISTORY], ue_s[UE_HISTORY];
+  int ue_n;
+  double ue_frac;
+  int ue_since;
+  /* Valve: ladder top, current level, frames rendered at it and the
+   * last three frame times, newest first. */
+  int v_top, v_level, v_since;
+  double v_t[3];
+};
+
+/* ---- names and desc ---------------------------------------------------- */
+
+static const char *const names[RP_CONTROL_COUNT] = {
+    "none", "last-frame", "two-pass", "predicted", "vtk", "ue5", "valve"};
+
+const char *rp_controller_name(rp_controller_kind kind) {
+  return (unsigned)kind < RP_CONTROL_COUNT ? names[kind] : "unknown";
+}
+
+int rp_controller_from_name(const char *name, rp_controller_kind *out) {
+  int i;
+  if (name == NULL || out == NULL)
+    return RP_EINVAL;
+  for (i = 0; i < RP_CONTROL_COUNT; i++)
+    if (strcmp(name, names[i]) == 0) {
+      *out = (rp_controller_kind)i;
+      return 0;
+    }
+  return RP_EINVAL;
+}
+
+/* The desc with its defaults filled in: the one place that knows them
+ * (STYLE rule 3). */
+static rp_controller_desc controller_defaults(const rp_controller_desc *in) {
+  rp_controller_desc d;
+  if (in != NULL)
+    d = *in;
+  else
+    memset(&d, 0, sizeof d);
+  if (d.rho_min == 0)
+    d.rho_min = CTL_RHO_MIN;
+  if (d.rho_max == 0)
+    d.rho_max = CTL_RHO_MAX;
+  if (d.rho_start == 0)
+    d.rho_start = d.rho_max;
+  if (d.raise_limit == 0)
+    d.raise_limit = CTL_RAISE;
+  /* vtk_f = 0 stays: VTK's own f depends on each frame's target, so
+   * vtk_factor() resolves it per frame. */
+  return d;
+}
+
+static int check_desc(rp_context *ctx, const rp_controller_desc *d) {
+  const struct {
+    const char *name;
+    double v;
+  } f[] = {{"rho_min", d->rho_min},
+           {"rho_max", d->rho_max},
+           {"rho_start", d->rho_start},
+           {"raise_limit", d->raise_limit},
+           {"vtk_f", d->vtk_f}};
+  size_t i;
+  if ((unsigned)d->kind >= RP_CONTROL_COUNT)
+    return rp__fail(ctx, RP_EINVAL, "controller: field 'kind' = %d is not "
+                    "a controller kind", (int)d->kind);
+  for (i = 0; i < sizeof f / sizeof f[0]; i++)
+    if (!isfinite(f[i].v))
+      return rp__fail(ctx, RP_ENOTFINITE, "controller: field '%s' is %g",
+                      f[i].name, f[i].v);
+  if (!(d->rho_min > 0) || d->rho_min > d->rho_max || d->rho_max > 1)
+    return rp__fail(ctx, RP_EINVAL, "controller: need 0 < rho_min (%g) <= "
+                    "rho_max (%g) <= 1", d->rho_min, d->rho_max);
+  if (d->rho_start < d->rho_min || d->rho_start > d->rho_max)
+    return rp__fail(ctx, RP_EINVAL, "controller: field 'rho_start' = %g is "
+                    "not in [rho_min, rho_max] = [%g, %g]", d->rho_start,
+                    d->rho_min, d->rho_max);
+  if (d->raise_limit < 1)
+    return rp__fail(ctx, RP_EINVAL, "controller: field 'raise_limit' = %g "
+                    "is under 1", d->raise_limit);
+  if (d->vtk_f < 0)
+    return rp__fail(ctx, RP_EINVAL, "controller: field 'vtk_f' = %g is "
+                    "negative", d->vtk_f);
+  return 0;
+}
+
+/* ---- shared helpers ---------------------------------------------------- */
+
+static double clampd(double v, double lo, double hi) {
+  return v < lo ? lo : v > hi ? hi : v;
+}
+
+/* The one exit for densities: finite and inside [rho_min, rho_max]. A
+ * rule that produced NaN (it should not) repeats last frame's density. */
+static double emit(const rp_controller *c, double rho) {
+  if (isnan(rho))
+    rho = c->rho_last;
+  return clampd(rho, c->d.rho_min, c->d.rho_max);
+}
+
+/* Seed 000 §6.1's damping: a rise is capped at raise_limit times the
+ * reference, a fall is taken at once. */
+static double damp(const rp_controller *c, double rho, double ref) {
+  return fmin(rho, ref * c->d.raise_limit);
+}
+
+/* rho * target / t, the linear extrapolation every "last frame" rule
+ * shares. t = 0 (an empty frame) asks for the most there is; the damping
+ * or the clamp then bounds it. */
+static double scale_to(double rho, double target, double t) {
+  return t > 0 ? rho * (target / t) : INFINITY;
+}
+
+/* ---- Valve ladder ------------------------------------------------------ */
+
+/* Level k of 0..v_top has rho_max * 1.15^(k - v_top), the bottom level
+ * clamped to rho_min: ValveCamera.cs builds its ladder in 15 % fill-rate
+ * steps (m_nFillRatePercentStep = 15), scale_{k+1} = sqrt(1.15) scale_k,
+ * and fill rate is rho here. Valve's ladder spans render scales 0.8 to
+ * 1.4; ours spans the controller's [rho_min, rho_max]. */
+static double valve_rho(const rp_controller *c, int level) {
+  return fmax(c->d.rho_min,
+              c->d.rho_max * pow(VALVE_STEP, (double)(level - c->v_top)));
+}
+
+static void valve_init(rp_controller *c) {
+  double steps = log(c->d.rho_max / c->d.rho_min) / log(VALVE_STEP);
+  int down;
+  c->v_top = (int)fmin(ceil(steps - 1e-9), VALVE_MAX_LEVELS - 1);
+  /* The start: the highest level not above rho_start. */
+  down = (int)ceil(log(c->d.rho_max / c->d.rho_start) / log(VALVE_STEP) -
+                   1e-9);
+  c->v_level = c->v_top - (down < 0 ? 0 : down > c->v_top ? c->v_top : down);
+  c->v_since = 0;
+}
+
+/* ---- create / reset ---------------------------------------------------- */
+
+void rp_controller_reset(rp_controller *c) {
+  if (c == NULL)
+    return;
+  c->open = 0;
+  c->pass = 0;
+  c->frame_ms = 0;
+  c->frames = 0;
+  c->rho_last = c->d.rho_start;
+  c->t_last = 0;
+  c->ue_n = 0;
+  c->ue_frac = sqrt(c->d.rho_start);
+  c->ue_since = 0;
+  valve_init(c);
+  memset(c->v_t, 0, sizeof c->v_t);
+}
+
+int rp_controller_create(rp_context *ctx, const rp_controller_desc *desc,
+                         rp_controller **out) {
+  rp_controller_desc d;
+  rp_controller *c;
+  int err;
+  if (ctx == NULL || out == NULL)
+    return rp__fail(ctx, RP_EINVAL, "controller: NULL %s",
+                    ctx == NULL ? "context" : "output");
+  d = controller_defaults(desc);
+  if ((err = check_desc(ctx, &d)) != 0)
+    return err;
+  c = rp__calloc(ctx, 1, sizeof *c);
+  if (c == NULL)
+    return rp__fail(ctx, RP_ENOMEM, "controller: out of memory");
+  c->ctx = ctx;
+  c->d = d;
+  rp_controller_reset(c);
+  *out = c;
+  return 0;
+}
+
+void rp_controller_destroy(rp_controller *c) {
+  if (c != NULL)
+    rp__free(c->ctx, c);
+}
+
+/* ---- the rules --------------------------------------------------------- */
+
+/* Seed 000 §7 "Last frame", with §6.1's damping: rho * target / t_last. */
+static double rule_last_frame(const rp_controller *c, double target) {
+  return damp(c, scale_to(c->rho_last, target, c->t_last), c->rho_last);
+}
+
+/* VTK: isd' = isd * sqrt(t_last * f / budget), isd clamped to [1, 10],
+ * no damping; rho = 1 / isd^2 (isd is pixels per ray along each image
+ * axis). VTK picks f by the allotted time; vtk_f overrides it. */
+static double vtk_factor(const rp_controller *c, double target) {
+  if (c->d.vtk_f > 0)
+    return c->d.vtk_f;
+  return target < VTK_INTERACTIVE_MS ? VTK_F_INTERACTIVE : 1.0;
+}
+
+static double rule_vtk(const rp_controller *c, double target) {
+  double isd = 1.0 / sqrt(c->rho_last);
+  isd *= sqrt(c->t_last * vtk_factor(c, target) / target);
+  isd = clampd(isd, VTK_ISD_MIN, VTK_ISD_MAX);
+  return 1.0 / (isd * isd);
+}
+
+/* UE5's heuristic on the primary screen fraction s, GPU time ~ s^2
+ * (the Quadratic model), rho = s^2. Once more than UE_PANIC frames are
+ * known, at each frame:
+ * - targeted time T = budget * (1 - 10 %);
+ * - over: the last 2 frames both over T; panic: both over the budget;
+ * - each history frame k (newest first, weight 0.9^k; only the last 2
+ *   when over) suggests s_k * sqrt(T / t_k), capped at s_k in a panic;
+ *   the new s is the weighted mean;
+ * - a rise is amortised: s + 0.9 (new - s); then clamped to the bounds;
+ * - taken when over, or when >= 8 decisions passed since the last change
+ *   and it moves s by more than 2 % (or onto a bound).
+ * Departures: the bounds are the controller's sqrt(rho_min) ..
+ * sqrt(rho_max), not r.DynamicRes.Min/MaxScreenPercentage (50 .. 100),
+ * so that every controller searches the same space; UE's skip of the
+ * first frame after a reset (its timing predates the reset) does not
+ * apply to frames measured synchronously. Returns s. */
+static double ue_decide(rp_controller *c, double budget) {
+  const double smin = sqrt(c->d.rho_min), smax = sqrt(c->d.rho_max);
+  const double T = budget * (1.0 - UE_HEADROOM);
+  double s = c->ue_frac, sum = 0, wsum = 0, w = 1, next;
+  int k, n = c->ue_n, panic = 1, over = 1, take;
+  if (n <= UE_PANIC)
+    return s; /* not enough history: no decision, nothing counted */
+  for (k = 0; k < UE_PANIC; k++) {
+    panic &= c->ue_t[k] > budget;
+    over &= c->ue_t[k] > T;
+  }
+  if (panic || over)
+    n = UE_PANIC;
+  for (k = 0; k < n; k++) {
+    /* t = 0 (an empty frame) asks for the largest fraction there is. */
+    double f = c->ue_t[k] > 0 ? sqrt(T / c->ue_t[k]) : smax / c->ue_s[k];
+    if (panic && f > 1)
+      f = 1;
+    sum += w * f * c->ue_s[k];
+    wsum += w;
+    w *= UE_WEIGHT;
+  }
+  next = sum / wsum;
+  if (next > s)
+    next = s + UE_AMORTIZE * (next - s);
+  next = clampd(next, smin, smax);
+  take = over || (c->ue_since >= UE_PERIOD &&
+                  (next > s * (1 + UE_THRESHOLD) ||
+                   next < s * (1 - UE_THRESHOLD) ||
+                   (next != s && (next == smin || next == smax))));
+  if (take) {
+    c->ue_frac = next;
+    c->ue_since = 0;
+  } else {
+    c->ue_since++;
+  }
+  return c->ue_frac;
+}
+
+/* Valve's rules, first match wins, each looking only at frames rendered
+ * at the current level after the first VALVE_WAIT of them:
+ * - the last 3 frames over 90 % of the budget: drop 2 levels;
+ * - the last frame over 85 % and the linear extrapolation of the last two,
+ *   t0 + (t0 - t1), over 90 %: drop 2 levels;
+ * - the last 3 frames under 70 %: raise 1 level.
+ * A change restarts the count (so a 3-frame rule fires at the earliest on
+ * the 6th frame at a level). Drops of 2 levels and the 2-frame wait are
+ * ValveCamera.cs's. That file also drops on any single frame over 90 %
+ * and, with three frames known, extrapolates with max(t0 - t1,
+ * (t0 - t2) / 2); both are left out here: this controller follows the
+ * rule as the project states it (3 frames over 90 %, or 1 over 85 %
+ * extrapolated from the last two). Returns the level. */
+static int valve_decide(rp_controller *c, double budget) {
+  const double lo = VALVE_LOW * budget, pr = VALVE_PREDICT * budget,
+               hi = VALVE_HIGH * budget;
+  const double *t = c->v_t;
+  int level = c->v_level;
+  if (c->v_since >= VALVE_WAIT + 3 && t[0] > hi && t[1] > hi && t[2] > hi)
+    level -= VALVE_DROP;
+  else if (c->v_since >= VALVE_WAIT + 2 && t[0] > pr &&
+           t[0] + (t[0] - t[1]) > hi)
+    level -= VALVE_DROP;
+  else if (c->v_since >= VALVE_WAIT + 3 && t[0] < lo && t[1] < lo &&
+           t[2] < lo)
+    level += 1;
+  level = level < 0 ? 0 : level > c->v_top ? c->v_top : level;
+  if (level != c->v_level) {
+    c->v_level = level;
+    c->v_since = 0;
+  }
+  return c->v_level;
+}
+
+/* ---- frame life cycle -------------------------------------------------- */
+
+int rp_controller_begin_frame(rp_controller *c, double target_ms,
+                              rp_predict_fn predict, void *user,
+                              double *rho) {
+  double r;
+  if (c == NULL || rho == NULL)
+    return rp__fail(c != NULL ? c->ctx : NULL, RP_EINVAL,
+                    "controller: NULL %s", c == NULL ? "controller" : "rho");
+  if (c->open)
+    return rp__fail(c->ctx, RP_EINVAL, "controller: begin_frame while a "
+                    "frame is open (%d passes ended); end it with "
+                    "rp_controller_end_pass first", c->pass);
+  if (isnan(target_ms) || isinf(target_ms))
+    return rp__fail(c->ctx, RP_ENOTFINITE, "controller: target_ms is %g",
+                    target_ms);
+  if (!(target_ms > 0))
+    return rp__fail(c->ctx, RP_EINVAL, "controller: target_ms = %g is not "
+                    "positive", target_ms);
+  if (c->d.kind == RP_CONTROL_PREDICTED && predict == NULL)
+    return rp__fail(c->ctx, RP_EINVAL, "controller: 'predicted' needs a "
+                    "predict function");
+
+  switch (c->d.kind) {
+  case RP_CONTROL_NONE: r = c->d.rho_start; break;
+  case RP_CONTROL_LAST_FRAME:
+    r = c->frames > 0 ? rule_last_frame(c, target_ms) : c->d.rho_start;
+    break;
+  case RP_CONTROL_TWO_PASS:
+    /* Seed 000 §7 "Two pass": the first pass at a quarter of the last
+     * frame's final density (rho_start stands in for it at first). */
+    r = 0.25 * c->rho_last;
+    break;
+  case RP_CONTROL_PREDICTED: {
+    rp_tune_desc td;
+    rp_tune_result res;
+    int err;
+    memset(&td, 0, sizeof td);
+    td.target_ms = target_ms;
+    td.rho_prev = c->rho_last; /* rho_start before the first frame */
+    td.rho_min = c->d.rho_min;
+    td.rho_max = c->d.rho_max;
+    td.raise_limit = c->d.raise_limit;
+    if ((err = rp_tune(&td, predict, user, &res)) != 0)
+      return rp__fail(c->ctx, err, "controller: rp_tune failed (%s)",
+                      rp_err_name(err));
+    r = res.rho;
+    break;
+  }
+  case RP_CONTROL_VTK:
+    r = c->frames > 0 ? rule_vtk(c, target_ms) : c->d.rho_start;
+    break;
+  case RP_CONTROL_UE5: {
+    double s = ue_decide(c, target_ms);
+    r = s * s;
+    break;
+  }
+  case RP_CONTROL_VALVE: r = valve_rho(c, valve_decide(c, target_ms)); break;
+  default: r = c->d.rho_start; break; /* unreachable: checked at create */
+  }
+
+  r = emit(c, r);
+  c->open = 1;
+  c->pass = 0;
+  c->target = target_ms;
+  c->frame_ms = 0;
+  c->rho_pass = r;
+  *rho = r;
+  return 0;
+}
+
+/* What the rules learn from a finished frame of time t whose final
+ * density was rho. */
+static void end_frame(rp_controller *c, double t, double rho) {
+  int k;
+  c->open = 0;
+  c->frames++;
+  c->rho_last = rho;
+  c->t_last = t;
+  for (k = UE_HISTORY - 1; k > 0; k--) {
+    c->ue_t[k] = c->ue_t[k - 1];
+    c->ue_s[k] = c->ue_s[k - 1];
+  }
+  c->ue_t[0] = t;
+  c->ue_s[0] = c->ue_frac;
+  if (c->ue_n < UE_HISTORY)
+    c->ue_n++;
+  c->v_t[2] = c->v_t[1];
+  c->v_t[1] = c->v_t[0];
+  c->v_t[0] = t;
+  c->v_since++;
+}
+
+int rp_controller_end_pass(rp_controller *c, double pass_ms, int *again,
+                           double *rho) {
+  double t;
+  if (c == NULL || again == NULL || rho == NULL)
+    return rp__fail(c != NULL ? c->ctx : NULL, RP_EINVAL,
+                    "controller: NULL %s", c == NULL ? "controller"
+                                           : again == NULL ? "again"
+                                                           : "rho");
+  if (!c->open)
+    return rp__fail(c->ctx, RP_EINVAL, "controller: end_pass without "
+                    "begin_frame (no frame is open)");
+  if (isnan(pass_ms) || isinf(pass_ms))
+    return rp__fail(c->ctx, RP_ENOTFINITE, "controller: pass_ms is %g",
+                    pass_ms);
+  if (pass_ms < 0)
+    return rp__fail(c->ctx, RP_ERANGE, "controller: pass_ms = %g is "
+                    "negative", pass_ms);
+
+  t = c->frame_ms + pass_ms;
+  c->pass++;
+  if (c->d.kind == RP_CONTROL_TWO_PASS && c->pass == 1 &&
+      pass_ms < 0.5 * c->target) {
+    /* Under half the budget: extrapolate linearly to what is left of it
+     * and render again; no damping (the paper's mode has none). */
+    double r2 = emit(c, scale_to(c->rho_pass, c->target - pass_ms, pass_ms));
+    if (r2 > c->rho_pass) {
+      c->frame_ms = t;
+      c->rho_pass = r2;
+      *again = 1;
+      *rho = r2;
+      return 0;
+    }
+  }
+  end_frame(c, t, c->rho_pass);
+  *again = 0;
+  *rho = c->rho_pass;
+  return 0;
+}

@@ -1,0 +1,486 @@
+/* The hybrid cost model (DESIGN section 5, seed 000 section 5):
+ * t' = sigma * k * S' + c0.
+ *
+ * The analytic part. S' comes from a probe of the frame: the depth pass
+ * and the ERT pre-pass run on the pre-pass grid of the OUTPUT image (one
+ * ray per 4x4 pixels). A probe ray's sampled span is
+ * L = min(D_back, D'_ERT) - D_front (D'_ERT only with ERT on) and the
+ * raycast takes about L / step + 1/2 lattice samples on it (the lattice
+ * starts at the box entry, so the first sample lies uniformly within one
+ * step of D_front), or L / step + 1 when ERT ends it (the sample that
+ * crosses the threshold is taken too: a ray ended at once takes one).
+ * At image scale s the raycast casts rp_scaled_size() rays over the same
+ * frustum: the same distribution of spans, sampled more or less densely:
+ *   S'(step, s) = rays(s) / probe_rays * sum_i (L_i / step + e_i),
+ * e_i = 1 for rays ERT ends and 1/2 for the others.
+ * One probe serves every (step, s) the tuner tries.
+ *
+ * The learned part. sigma, the cost of one volume fetch, is learned per
+ * device by KRLS (runtime/krls.h) from sigma_measured =
+ * raycast time / (k * S_measured), with S_measured the frame's tile
+ * sample counts: the truth, not the estimate, so an error in S' is not
+ * folded into sigma. KRLS learns the residual r = ln(sigma) - m around a
+ * running mean m of ln(sigma), and sigma' = exp(m + f(x)):
+ * - an RBF model's prediction goes to 0 away from every dictionary
+ *   element. Learning sigma itself would predict a free frame for a view
+ *   never seen, and the tuner would overshoot on exactly the frames that
+ *   matter (a new transfer function, a new zoom). On the residual, an
+ *   unseen view falls back to the mean cost.
+ * - in the logarithm the model is multiplicative, as cache effects are,
+ *   and sigma' is positive whatever the fit does.
+ * m is a robust running mean (below), so it follows a slow drift (a
+ * warming cache, the OS) that KRLS's forgetting alone would take a
+ * dictionary's worth of frames to follow, and one stalled frame does not
+ * drag it.
+ *
+ * c0, the per-frame fixed cost (launch, depth pass, readback, upscale),
+ * is measured per frame as frame time - raycast time and averaged the
+ * same way, apart for frames at scale 1 and frames upscaled from a
+ * smaller image: the upscale is a pass over every output pixel that a
+ * full-scale frame does not have (measured on PoCL at 256^2: 1.5 ms
+ * against 3.5 ms), and a tuner stepping across scale 1 must see it.
+ *
+ * Robust running mean: the plain mean of the first 16 values, then an
+ * exponential mean of rate 1/16; after the first 4 values a value moves
+ * it at most as far as 4 times the running mean absolute deviation (plus
+ * a floor), the clamp KRLS applies to its residuals. One timing 1000x off
+ * then moves the mean by at most a quarter of its usual spread, while a
+ * true step (a new transfer function that makes fetches dearer) is
+ * followed within a few tens of frames: each clamped value widens the
+ * limit by about a fifth.
+ *
+ * Features, each scaled to [0, 1] with fixed bounds (so a new frame
+ * never rescales what was learned) and clamped:
+ *   0-2  view direction, (d + 1) / 2 per axis. DESIGN names two view
+ *        angles; an azimuth wraps at 360 degrees, which puts two nearly
+ *        equal views at opposite ends of the feature range, while the
+ *        direction vector is continuous.
+ *   3    splatted voxel size at the rendered scale, pixels per voxel,
+ *        log2 over [1/16, 16]: how far apart neighbouring rays sample
+ *        (cache reuse);
+ *   4    step, log2 over [1/8, 16] voxels;
+ *   5    the share of the span ERT removes. DESIGN (after seed 000) names
+ *        the ERT pre-pass time; a time carries the machine's noise and
+ *        needs a scale, while the share it stands for is exact;
+ *   6, 7 max and mean span over the volume diagonal. */
+#include <math.h>
+#include <string.h>
+#include <time.h>
+
+#include "internal.h"
+#include "krls.h"
+#include "passes.h"
+#include "raypace_pace.h"
+
+/* The robust running mean (above): window, clamp start and factor. */
+#define MEAN_WINDOW 16
+#define MEAN_CLAMP_AFTER 4
+#define MEAN_CLAMP 4.0
+
+typedef struct robust_mean {
+  double mean, spread; /* spread: running mean absolute deviation */
+  double min_spread;   /* smallest spread the clamp assumes */
+  uint64_t n;
+} robust_mean;
+
+struct rp_cost_model {
+  rp_context *ctx;
+  rp_cost_model_desc d;
+  rp__krls *krls;
+  robust_mean log_sigma; /* m: of ln(sigma_ns) */
+  robust_mean c0[2];     /* of frame - raycast time, ms: [0] frames at
+                            scale 1, [1] upscaled ones */
+};
+
+static double now_ms(void) {
+  struct timespec ts;
+  clock_gettime(CLOCK_MONOTONIC, &ts);
+  return (double)ts.tv_sec * 1e3 + (double)ts.tv_nsec * 1e-6;
+}
+
+static double clamp01(double v) {
+  return v > 0.0 ? (v < 1.0 ? v : 1.0) : 0.0; /* NaN -> 0 */
+}
+
+uint32_t rp_fetches_per_sample(uint32_t effects) {
+  return 1u + ((effects & RP_EFFECT_SHADING) ? 6u : 0u) +
+         ((effects & RP_EFFECT_AO) ? 1u : 0u);
+}
+
+/* ---- Probe --------------------------------------------------------------- */
+
+/* One probe row's sums: rows are reduced in order afterwards, so the
+ * result does not depend on how threads split the grid. */
+typedef struct probe_row {
+  double span, span_no_ert, max;
+  uint32_t hit, ended;
+} probe_row;
+
+typedef struct probe_job {
+  const rp__raygen *rg;
+  const uint8_t *grid;       /* occupancy, or NULL */
+  const uint8_t *alpha_hist; /* H-alpha, or NULL */
+  const uint32_t *blocks;
+  int skip, ert;
+  float ref_step, threshold;
+  uint32_t seed, frame, gw;
+  probe_row *rows;
+} probe_job;
+
+static void probe_rows(uint32_t begin, uint32_t end, void *user) {
+  const probe_job *j = user;
+  uint32_t cy, cx;
+  for (cy = begin; cy < end; cy++) {
+    probe_row r = {0.0, 0.0, 0.0, 0, 0};
+    for (cx = 0; cx < j->gw; cx++) {
+      rp__ray ray;
+      double front, back, stop;
+      rp__raygen_ray_at(j->rg, (double)(RP_ERT_RAY_STRIDE * cx) + 2.0,
+                        (double)(RP_ERT_RAY_STRIDE * cy) + 2.0, &ray);
+      if (!ray.hit)
+        continue;
+      rp__depth_ray(&ray, j->rg->dims, j->skip ? j->grid : NULL, j->blocks,
+                    &front, &back);
+      if (!(front <= back))
+        continue;
+      stop = back;
+      if (j->ert) {
+        double d = rp__ert_prepass_ray(j->rg, cx, cy, j->grid, j->alpha_hist,
+                                       j->blocks, j->ref_step, j->threshold,
+                                       j->seed, j->frame);
+        if (d <= stop) {
+          stop = d > front ? d : front;
+          r.ended++;
+        }
+      }
+      r.span += stop - front;
+      r.span_no_ert += back - front;
+      if (stop - front > r.max)
+        r.max = stop - front;
+      r.hit++;
+    }
+    j->rows[cy] = r;
+  }
+}
+
+/* Output pixels one voxel (of the finest spacing) spans where the view
+ * axis meets the volume centre; an eye at or inside the centre counts as
+ * one voxel away. */
+static double pixels_per_voxel(const rp__raygen *rg) {
+  double dist = 0.0, world_h;
+  int a;
+  if (rg->ortho) {
+    world_h = 2.0 * rg->half_h;
+  } else {
+    /* The centre is the world origin: its depth along f. */
+    for (a = 0; a < 3; a++)
+      dist -= rg->eye[a] * rg->f[a];
+    if (dist < rg->min_spacing)
+      dist = rg->min_spacing;
+    world_h = 2.0 * rg->half_h * dist;
+  }
+  return (double)rg->height * rg->min_spacing / world_h;
+}
+
+int rp_frame_probe_compute(rp_context *ctx, const rp_volume *vol,
+                           const rp_tf *tf, const rp_occupancy *occ,
+                           const rp_camera *cam, const rp_render_desc *desc,
+                           uint32_t seed, uint32_t frame,
+                           rp_frame_probe *out) {
+  static const char fn[] = "rp_frame_probe_compute";
+  const char *missing = vol == NULL   ? "vol"
+                        : tf == NULL  ? "tf"
+                        : occ == NULL ? "occ"
+                        : cam == NULL ? "cam"
+                        : desc == NULL ? "desc"
+                        : out == NULL ? "out"
+                                      : NULL;
+  rp_render_desc d;
+  rp__raygen rg;
+  probe_job job;
+  uint32_t gw, gh, y;
+  double t0 = now_ms(), span_no_ert = 0.0;
+  int err, a;
+  if (ctx == NULL)
+    return RP_EINVAL;
+  if (missing != NULL)
+    return rp__fail(ctx, RP_EINVAL, "%s: %s is NULL", fn, missing);
+  d = rp__render_desc_defaults(desc);
+  if ((err = rp__check_render_desc(ctx, fn, &d)) != 0)
+    return err;
+  /* The ERT pre-pass reads H-alpha even without skipping, so the
+   * occupancy is always required and must match. */
+  if (occ->tf_id != tf->id)
+    return rp__fail(ctx, RP_EINVAL, "%s: occ was built for another "
+                    "transfer function", fn);
+  if (occ->h->vol_id != vol->id)
+    return rp__fail(ctx, RP_EINVAL, "%s: occ was built from the "
+                    "histograms of another volume", fn);
+  if ((err = rp__raygen_init(ctx, cam, vol, d.width, d.height, &rg)) != 0)
+    return err;
+  rp__ert_grid(d.width, d.height, &gw, &gh);
+  memset(out, 0, sizeof(*out));
+  job.rows = rp__calloc(ctx, gh, sizeof(probe_row));
+  if (job.rows == NULL)
+    return rp__fail(ctx, RP_ENOMEM, "%s: %u probe rows", fn, gh);
+  job.rg = &rg;
+  job.grid = occ->grid;
+  job.alpha_hist = occ->alpha_hist;
+  job.blocks = occ->h->blocks;
+  job.skip = (d.effects & RP_EFFECT_SKIP) != 0;
+  job.ert = (d.effects & RP_EFFECT_ERT) != 0;
+  job.ref_step = tf->reference_step;
+  job.threshold = d.ert_threshold;
+  job.seed = seed;
+  job.frame = frame;
+  job.gw = gw;
+  err = rp__parallel_for(ctx, gh, probe_rows, &job);
+  if (err != 0) {
+    rp__free(ctx, job.rows);
+    return rp__fail(ctx, err, "%s: worker threads failed", fn);
+  }
+  for (y = 0; y < gh; y++) {
+    out->depth_sum += job.rows[y].span;
+    span_no_ert += job.rows[y].span_no_ert;
+    out->rays_hit += job.rows[y].hit;
+    out->rays_ended += job.rows[y].ended;
+    if (job.rows[y].max > out->depth_max)
+      out->depth_max = job.rows[y].max;
+  }
+  rp__free(ctx, job.rows);
+  out->width = d.width;
+  out->height = d.height;
+  out->effects = d.effects;
+  out->rays = gw * gh;
+  out->ert_cut = span_no_ert > 0.0 ? 1.0 - out->depth_sum / span_no_ert
+                                   : 0.0;
+  out->ert_cut = clamp01(out->ert_cut);
+  for (a = 0; a < 3; a++)
+    out->view[a] = rg.f[a];
+  out->pixels_per_voxel = pixels_per_voxel(&rg);
+  out->diagonal = 0.0;
+  for (a = 0; a < 3; a++) {
+    double e = rg.dims[a] * rg.spacing[a] / rg.min_spacing;
+    out->diagonal += e * e;
+  }
+  out->diagonal = sqrt(out->diagonal);
+  out->probe_ms = now_ms() - t0;
+  return 0;
+}
+
+/* ---- Model --------------------------------------------------------------- */
+
+static void mean_reset(robust_mean *r, double start, double min_spread) {
+  r->mean = start;
+  r->spread = 0.0;
+  r->min_spread = min_spread;
+  r->n = 0;
+}
+
+/* Adds v and returns it as the mean took it: clamped. */
+static double mean_add(robust_mean *r, double v) {
+  double dev = v - r->mean, rate, lim;
+  r->n++;
+  if (r->n == 1) {
+    r->mean = v;
+    return v;
+  }
+  lim = MEAN_CLAMP * (r->spread + r->min_spread);
+  if (r->n > MEAN_CLAMP_AFTER)
+    dev = dev > lim ? lim : dev < -lim ? -lim : dev;
+  rate = 1.0 / (double)(r->n < MEAN_WINDOW ? r->n : MEAN_WINDOW);
+  v = r->mean + dev;
+  r->mean += rate * dev;
+  r->spread += rate * (fabs(dev) - r->spread);
+  return v;
+}
+
+
+static rp_cost_model_desc model_defaults(const rp_cost_model_desc *in) {
+  rp_cost_model_desc d = {0};
+  if (in != NULL)
+    d = *in;
+  if (d.gamma == 0)
+    d.gamma = 2.0;
+  if (d.nu == 0)
+    d.nu = 1e-3;
+  if (d.max_dict == 0)
+    d.max_dict = 32;
+  if (d.forget == 0)
+    d.forget = 0.995;
+  if (d.clip == 0)
+    d.clip = 4.0;
+  if (d.sigma0_ns == 0)
+    d.sigma0_ns = 5.0;
+  return d;
+}
+
+int rp_cost_model_create(rp_context *ctx, const rp_cost_model_desc *desc,
+                         rp_cost_model **out) {
+  rp_cost_model *m;
+  rp__krls_desc kd = {0};
+  int err;
+  if (ctx == NULL)
+    return RP_EINVAL;
+  if (out == NULL)
+    return rp__fail(ctx, RP_EINVAL, "rp_cost_model_create: out is NULL");
+  *out = NULL;
+  m = rp__calloc(ctx, 1, sizeof(*m));
+  if (m == NULL)
+    return rp__fail(ctx, RP_ENOMEM, "rp_cost_model_create: out of memory");
+  m->ctx = ctx;
+  m->d = model_defaults(desc);
+  if (!(m->d.sigma0_ns > 0.0) || !isfinite(m->d.sigma0_ns)) {
+    rp__free(ctx, m);
+    return rp__fail(ctx, isfinite(m->d.sigma0_ns) ? RP_EINVAL
+                                                  : RP_ENOTFINITE,
+                    "rp_cost_model_create: sigma0_ns = %g: must be > 0",
+                    m->d.sigma0_ns);
+  }
+  /* KRLS checks its own fields and names the bad one. */
+  kd.dim = RP_COST_FEATURES;
+  kd.gamma = m->d.gamma;
+  kd.nu = m->d.nu;
+  kd.max_dict = m->d.max_dict;
+  kd.forget = m->d.forget;
+  kd.clip = m->d.clip;
+  kd.signed_y = 1;
+  if ((err = rp__krls_create(ctx, &kd, &m->krls)) != 0) {
+    rp__free(ctx, m);
+    return err;
+  }
+  rp_cost_model_reset(m);
+  *out = m;
+  return 0;
+}
+
+void rp_cost_model_destroy(rp_cost_model *m) {
+  if (m == NULL)
+    return;
+  rp__krls_destroy(m->krls);
+  rp__free(m->ctx, m);
+}
+
+void rp_cost_model_reset(rp_cost_model *m) {
+  if (m == NULL)
+    return;
+  rp__krls_reset(m->krls);
+  /* Floors: 2 % in sigma; 10 microseconds of fixed cost. */
+  mean_reset(&m->log_sigma, log(m->d.sigma0_ns), 0.02);
+  mean_reset(&m->c0[0], 0.0, 0.01);
+  mean_reset(&m->c0[1], 0.0, 0.01);
+}
+
+static double log2_unit(double v, double lo_log2, double hi_log2) {
+  return clamp01((log2(v) - lo_log2) / (hi_log2 - lo_log2));
+}
+
+static void features(const rp_frame_probe *p, float step, float scale,
+                     double *x) {
+  int a;
+  for (a = 0; a < 3; a++)
+    x[a] = clamp01(0.5 * (p->view[a] + 1.0));
+  x[3] = log2_unit(p->pixels_per_voxel * scale, -4.0, 4.0);
+  x[4] = log2_unit(step, -3.0, 4.0);
+  x[5] = clamp01(p->ert_cut);
+  x[6] = p->diagonal > 0.0 ? clamp01(p->depth_max / p->diagonal) : 0.0;
+  x[7] = p->diagonal > 0.0 && p->rays_hit > 0
+             ? clamp01(p->depth_sum / p->rays_hit / p->diagonal)
+             : 0.0;
+}
+
+static double estimate_samples(const rp_frame_probe *p, float step,
+                               float scale) {
+  rp_render_desc d = {0};
+  uint32_t w, h;
+  if (p->rays == 0)
+    return 0.0;
+  d.width = p->width;
+  d.height = p->height;
+  d.image_scale = scale;
+  rp_scaled_size(&d, &w, &h);
+  return (double)w * (double)h / (double)p->rays *
+         (p->depth_sum / (double)step +
+          0.5 * (double)(p->rays_hit - p->rays_ended) +
+          (double)p->rays_ended);
+}
+
+static int check_point(rp_context *ctx, const char *fn,
+                       const rp_frame_probe *p, float step, float scale) {
+  if (p == NULL)
+    return rp__fail(ctx, RP_EINVAL, "%s: probe is NULL", fn);
+  if (!isfinite(step) || !isfinite(scale))
+    return rp__fail(ctx, RP_ENOTFINITE, "%s: step %g, scale %g", fn,
+                    (double)step, (double)scale);
+  if (!(step > 0.0f) || !(scale > 0.0f && scale <= 1.0f))
+    return rp__fail(ctx, RP_EINVAL, "%s: step %g must be > 0 and scale %g "
+                    "in (0, 1]", fn, (double)step, (double)scale);
+  if (!isfinite(p->depth_sum) || !isfinite(p->depth_max) ||
+      p->depth_sum < 0.0 || p->width == 0 || p->height == 0 ||
+      p->rays_hit > p->rays || p->rays_ended > p->rays_hit)
+    return rp__fail(ctx, RP_EINVAL, "%s: the probe was not filled in by "
+                    "rp_frame_probe_compute", fn);
+  return 0;
+}
+
+int rp_cost_predict(const rp_cost_model *m, const rp_frame_probe *p,
+                    float step, float scale, rp_cost_estimate *out) {
+  double r;
+  int err, up;
+  if (m == NULL)
+    return RP_EINVAL;
+  if ((err = check_point(m->ctx, "rp_cost_predict", p, step, scale)) != 0)
+    return err;
+  if (out == NULL)
+    return rp__fail(m->ctx, RP_EINVAL, "rp_cost_predict: out is NULL");
+  features(p, step, scale, out->features);
+  out->samples = estimate_samples(p, step, scale);
+  out->fetches = rp_fetches_per_sample(p->effects);
+  r = m->log_sigma.n > 0 ? rp__krls_predict(m->krls, out->features) : 0.0;
+  /* The residual model is trusted within a factor of e^3 = 20 of the
+   * mean: a wild extrapolation must not decide a frame on its own. */
+  if (!isfinite(r))
+    r = 0.0;
+  r = r < -3.0 ? -3.0 : r > 3.0 ? 3.0 : r;
+  out->sigma_ns = exp(m->log_sigma.mean + r);
+  /* Until frames of its own kind arrive, the other kind's is the best
+   * guess. */
+  up = scale < 1.0f;
+  out->c0_ms = m->c0[up].n > 0 ? m->c0[up].mean : m->c0[!up].mean;
+  out->ms = out->sigma_ns * 1e-6 * out->fetches * out->samples + out->c0_ms;
+  return 0;
+}
+
+int rp_cost_train(rp_cost_model *m, const rp_frame_probe *p, float step,
+                  float scale, uint64_t samples, double raycast_ms,
+                  double frame_ms) {
+  static const char fn[] = "rp_cost_train";
+  double x[RP_COST_FEATURES], ls, r;
+  int err;
+  if (m == NULL)
+    return RP_EINVAL;
+  if ((err = check_point(m->ctx, fn, p, step, scale)) != 0)
+    return err;
+  if (!isfinite(raycast_ms) || !isfinite(frame_ms))
+    return rp__fail(m->ctx, RP_ENOTFINITE, "%s: raycast_ms %g, frame_ms "
+                    "%g", fn, raycast_ms, frame_ms);
+  if (raycast_ms < 0.0 || frame_ms < 0.0)
+    return rp__fail(m->ctx, RP_ERANGE, "%s: negative timing (raycast_ms "
+                    "%g, frame_ms %g)", fn, raycast_ms, frame_ms);
+  /* A raycast the device could not time (0) costs the whole frame. */
+  if (raycast_ms == 0.0 || raycast_ms > frame_ms)
+    raycast_ms = frame_ms;
+  (void)mean_add(&m->c0[scale < 1.0f], frame_ms - raycast_ms);
+  /* A frame with no sample (all empty) or no measurable time says
+   * nothing about the cost of a fetch. */
+  if (samples == 0 || raycast_ms <= 0.0)
+    return 0;
+  ls = log(raycast_ms * 1e6 /
+           ((double)rp_fetches_per_sample(p->effects) * (double)samples));
+  features(p, step, scale, x);
+  /* KRLS learns the clamped value too: a stalled frame must not reach
+   * the model through the back door of a huge residual. */
+  ls = mean_add(&m->log_sigma, ls);
+  r = ls - m->log_sigma.mean;
+  return rp__krls_update(m->krls, x, r);
+}

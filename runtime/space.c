@@ -1,0 +1,110 @@
+/* Sampling density and the three tuning spaces (DESIGN section 6).
+ *
+ * Density rho = scale^2 * base_step / step: rays per output pixel times
+ * samples per voxel of depth, relative to the finest setting. Frame time
+ * is close to linear in it, which is what lets the tuner extrapolate.
+ * Each space turns a rho into a (step, scale) pair:
+ * - ray: scale 1, step = base_step / rho;
+ * - image: step = base_step, scale = sqrt(rho);
+ * - hybrid: the reduction -ln(rho) split evenly between the two factors
+ *   (scale^2 and base_step / step each take half of it), and when one
+ *   factor reaches its bound the other takes the rest. An even split in
+ *   the logarithm degrades both the same relative amount: seed 000 §7.6
+ *   finds that neither pure space wins everywhere (under-sampling along
+ *   rays shows on thin structures, image scaling blurs edges). */
+#include <math.h>
+#include <string.h>
+
+#include "internal.h"
+#include "raypace_pace.h"
+
+/* The bounds with their defaults filled in: the one place that knows
+ * them. A max_step below base_step or a min_scale outside (0, 1] is
+ * clamped rather than refused: mapping must not fail inside a frame. */
+static rp_space_desc space_defaults(const rp_space_desc *in) {
+  rp_space_desc d = {0};
+  if (in != NULL)
+    d = *in;
+  if (!(d.base_step > 0.0f) || !isfinite(d.base_step))
+    d.base_step = 1.0f;
+  if (!(d.max_step > 0.0f) || !isfinite(d.max_step))
+    d.max_step = 16.0f * d.base_step;
+  if (d.max_step < d.base_step)
+    d.max_step = d.base_step;
+  if (!(d.min_scale > 0.0f) || !(d.min_scale <= 1.0f))
+    d.min_scale = 0.125f;
+  return d;
+}
+
+/* The largest reduction -ln(rho) each factor can take. */
+static void reductions(const rp_space_desc *d, double *ray, double *image) {
+  *ray = d->space == RP_SPACE_IMAGE ? 0.0
+                                    : log((double)d->max_step /
+                                          (double)d->base_step);
+  *image = d->space == RP_SPACE_RAY ? 0.0 : -2.0 * log((double)d->min_scale);
+}
+
+double rp_space_min_density(const rp_space_desc *in) {
+  rp_space_desc d = space_defaults(in);
+  double ray, image;
+  reductions(&d, &ray, &image);
+  return exp(-(ray + image));
+}
+
+void rp_space_map(const rp_space_desc *in, double rho, float *step,
+                  float *scale) {
+  rp_space_desc d = space_defaults(in);
+  double ray_max, image_max, h, ray, image;
+  reductions(&d, &ray_max, &image_max);
+  /* NaN and rho > 1 give the finest setting: never a NaN step. */
+  h = !(rho < 1.0) ? 0.0 : rho > 0.0 ? -log(rho) : INFINITY;
+  if (h > ray_max + image_max)
+    h = ray_max + image_max;
+  if (d.space == RP_SPACE_RAY) {
+    ray = h;
+    image = 0.0;
+  } else if (d.space == RP_SPACE_IMAGE) {
+    ray = 0.0;
+    image = h;
+  } else {
+    ray = 0.5 * h;
+    image = 0.5 * h;
+    if (ray > ray_max) {
+      image += ray - ray_max;
+      ray = ray_max;
+    } else if (image > image_max) {
+      ray += image - image_max;
+      image = image_max;
+    }
+  }
+  /* The bounds hold exactly, not just up to exp/log rounding. */
+  *step = (float)((double)d.base_step * exp(ray));
+  if (*step > d.max_step || ray >= ray_max)
+    *step = ray > 0.0 ? d.max_step : d.base_step;
+  if (ray <= 0.0)
+    *step = d.base_step;
+  *scale = (float)exp(-0.5 * image);
+  if (*scale < d.min_scale || image >= image_max)
+    *scale = image > 0.0 ? d.min_scale : 1.0f;
+  if (*scale > 1.0f || image <= 0.0)
+    *scale = 1.0f;
+}
+
+static const char *const space_names[] = {"ray", "image", "hybrid"};
+
+const char *rp_space_name(rp_space space) {
+  return (unsigned)space < 3 ? space_names[space] : "unknown";
+}
+
+int rp_space_from_name(const char *name, rp_space *out) {
+  int i;
+  for (i = 0; name != NULL && i < 3; i++) {
+    if (strcmp(name, space_names[i]) == 0) {
+      *out = (rp_space)i;
+      return 0;
+    }
+  }
+  return rp__fail(NULL, RP_EINVAL,
+                  "unknown tuning space '%s' (ray, image, hybrid)",
+                  name != NULL ? name : "(null)");
+}

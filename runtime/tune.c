@@ -1,0 +1,335 @@
+/* The Eq. 2 tuner (DESIGN section 6, seed 000 section 6.1): the largest
+ * sampling density rho whose predicted frame time t'(rho) meets the
+ * target. Frame time is close to linear in rho, so the search is a
+ * bracketed root find on g(rho) = t'(rho) - aim:
+ * - one side known (every prediction so far under the aim, or every one
+ *   over it): extrapolate. From one point, Eq. 2's rho * aim / t', which
+ *   assumes t' proportional to rho; from two points on the same side,
+ *   the secant through them, which is exact for t' = a rho + b (the
+ *   proportional step alone only creeps up on a model with b != 0);
+ * - both sides known: Eq. 2's third case, linear interpolation between
+ *   the bracket ends (regula falsi). Plain regula falsi stalls when one
+ *   end is never replaced (a convex t' keeps the far end forever); the
+ *   Illinois rule (Dowell and Jarratt, BIT 11 (1971) 168-174) halves the
+ *   stored g of an end that survives two steps in a row, which moves the
+ *   interpolant toward it; an interpolant outside the bracket (rounding)
+ *   falls back to bisection.
+ * The aim is the middle of the accepted band [T (1 - tol), T], so that a
+ * prediction landing on it (exactly, for a linear model) is feasible even
+ * after rounding; a prediction inside the band ends the search. */
+#include <math.h>
+#include <string.h>
+#include <time.h>
+
+#include "internal.h"
+#include "raypace_pace.h"
+
+#define TUNE_RHO_MIN 1e-3
+#define TUNE_RHO_MAX 1.0
+#define TUNE_RAISE (1.0 / 0.8) /* seed 000 §6.1: Delta_max = 0.8 Delta */
+#define TUNE_ITERS 8
+#define TUNE_TOL 0.01
+#define TUNE_TIME_US 200.0
+/* A bracket narrower than this, relative to its upper end, has nothing
+ * left to find. */
+#define TUNE_COLLAPSE 1e-12
+/* Densities where the model predicted nothing usable, kept so that later
+ * candidates step around them. More than this are not remembered. */
+#define TUNE_MAX_BAD 16
+
+/* The desc with its defaults filled in: the one place that knows them
+ * (STYLE rule 3). */
+static rp_tune_desc tune_defaults(const rp_tune_desc *in) {
+  rp_tune_desc d = *in;
+  if (d.rho_min == 0)
+    d.rho_min = TUNE_RHO_MIN;
+  if (d.rho_max == 0)
+    d.rho_max = TUNE_RHO_MAX;
+  if (d.raise_limit == 0)
+    d.raise_limit = TUNE_RAISE;
+  if (d.max_iters == 0)
+    d.max_iters = TUNE_ITERS;
+  if (d.tolerance == 0)
+    d.tolerance = TUNE_TOL;
+  if (d.max_time_us == 0)
+    d.max_time_us = TUNE_TIME_US;
+  return d;
+}
+
+static int check_desc(const rp_tune_desc *d) {
+  const struct {
+    const char *name;
+    double v;
+  } f[] = {{"target_ms", d->target_ms},   {"rho_prev", d->rho_prev},
+           {"rho_min", d->rho_min},       {"rho_max", d->rho_max},
+           {"raise_limit", d->raise_limit}, {"tolerance", d->tolerance},
+           {"max_time_us", d->max_time_us}};
+  size_t i;
+  /* rp_tune has no context: the messages are dropped (rp__fail with a
+   * NULL ctx), the codes say which class of fault it was. */
+  for (i = 0; i < sizeof f / sizeof f[0]; i++)
+    if (!isfinite(f[i].v))
+      return rp__fail(NULL, RP_ENOTFINITE, "tune: field '%s' is %g",
+                      f[i].name, f[i].v);
+  if (!(d->target_ms > 0) || d->rho_prev < 0 || !(d->rho_min > 0) ||
+      d->rho_min > d->rho_max || d->rho_max > 1 || d->raise_limit < 1 ||
+      d->max_iters < 1 || !(d->tolerance > 0 && d->tolerance < 1) ||
+      !(d->max_time_us > 0))
+    return rp__fail(NULL, RP_EINVAL, "tune: a field is out of range");
+  return 0;
+}
+
+static double now_us(void) {
+  struct timespec ts;
+  clock_gettime(CLOCK_MONOTONIC, &ts);
+  return (double)ts.tv_sec * 1e6 + (double)ts.tv_nsec * 1e-3;
+}
+
+typedef struct point {
+  double r, t;
+} point;
+
+typedef struct search {
+  double target, aim, band_lo; /* T, T (1 - tol / 2), T (1 - tol) */
+  double lb, ub;               /* rho_min and the damped upper clamp */
+  int have_lo, have_lo2, have_hi, have_hi2;
+  point lo, lo2; /* largest rho with t' <= aim, and the one before */
+  point hi, hi2; /* smallest rho with t' > aim, and the one before */
+  double glo, ghi; /* g at lo and hi, Illinois-scaled */
+  int last_side;   /* -1: lo replaced last, +1: hi, 0: neither yet */
+  int have_best;
+  point best; /* largest rho with a valid t' <= T */
+  int have_lb, tried_lb;
+  double t_lb; /* t'(rho_min) when predicted validly */
+  double bad[TUNE_MAX_BAD];
+  int nbad;
+  int probe; /* next fallback probe while nothing valid is known */
+} search;
+
+/* The smallest known-bad density above r (+inf if none), and the
+ * largest below it (0 if none). */
+static double bad_above(const search *s, double r) {
+  double b = INFINITY;
+  int i;
+  for (i = 0; i < s->nbad; i++)
+    if (s->bad[i] > r && s->bad[i] < b)
+      b = s->bad[i];
+  return b;
+}
+
+static double bad_below(const search *s, double r) {
+  double b = 0;
+  int i;
+  for (i = 0; i < s->nbad; i++)
+    if (s->bad[i] < r && s->bad[i] > b)
+      b = s->bad[i];
+  return b;
+}
+
+/* Eq. 2's one-sided step from p toward the aim. With a second point q on
+ * the same side, the secant through both; a secant that is flat or
+ * falls (rho does not drive the time there) sends the search to the
+ * clamp `bound`, where the model has to answer whether any density
+ * helps. With p alone, rho * aim / t' (t' > 0 for every valid point). */
+static double extrapolate(const search *s, point p, const point *q,
+                          double bound) {
+  if (q != NULL) {
+    double slope = (p.t - q->t) / (p.r - q->r);
+    if (!(slope > 0) || !isfinite(slope))
+      return bound;
+    return p.r + (s->aim - p.t) / slope;
+  }
+  return p.r * (s->aim / p.t);
+}
+
+/* The next density to predict, or -1 when the search can make no more
+ * progress. */
+static double next_candidate(search *s, double r0) {
+  double r, bar;
+  if (s->have_lo && s->have_hi) {
+    double w = s->hi.r - s->lo.r;
+    if (!(w > TUNE_COLLAPSE * s->hi.r))
+      return -1;
+    /* glo <= 0 < ghi, so the denominator is positive. */
+    r = s->lo.r + w * (-s->glo / (s->ghi - s->glo));
+    if (!(r > s->lo.r && r < s->hi.r))
+      r = s->lo.r + 0.5 * w;
+    return r;
+  }
+  if (s->have_lo) {
+    if (s->lo.r >= s->ub)
+      return -1; /* the upper clamp is under the aim: done */
+    r = extrapolate(s, s->lo, s->have_lo2 ? &s->lo2 : NULL, s->ub);
+    if (!(r <= s->ub)) /* also catches NaN */
+      r = s->ub;
+    bar = bad_above(s, s->lo.r);
+    if (r >= bar)
+      r = 0.5 * (s->lo.r + bar);
+    return r > s->lo.r ? r : -1;
+  }
+  if (s->have_hi) {
+    if (s->hi.r <= s->lb)
+      return -1; /* rho_min itself is over the aim */
+    r = extrapolate(s, s->hi, s->have_hi2 ? &s->hi2 : NULL, s->lb);
+    if (!(r >= s->lb))
+      r = s->lb;
+    bar = bad_below(s, s->hi.r);
+    if (r <= bar) {
+      /* The model cannot price the way down. Nothing feasible is known
+       * yet, so first ask at rho_min, past the gap: a feasible point
+       * there makes a bracket, and the search continues from below. */
+      if (!s->tried_lb)
+        return s->lb;
+      r = 0.5 * (bar + s->hi.r);
+    }
+    return r < s->hi.r ? r : -1;
+  }
+  /* Nothing usable yet: the start, then each clamp. */
+  while (s->probe < 3) {
+    int i, seen = 0;
+    r = s->probe == 0 ? r0 : s->probe == 1 ? s->ub : s->lb;
+    s->probe++;
+    for (i = 0; i < s->nbad; i++)
+      seen |= s->bad[i] == r;
+    if (!seen)
+      return r;
+  }
+  return -1;
+}
+
+/* Files a valid prediction t at r. Returns 1 when it lands in the
+ * accepted band. */
+static int record(search *s, double r, double t) {
+  s->tried_lb |= r == s->lb;
+  if (t <= s->target && (!s->have_best || r > s->best.r)) {
+    s->best.r = r;
+    s->best.t = t;
+    s->have_best = 1;
+  }
+  if (r == s->lb) {
+    s->have_lb = 1;
+    s->t_lb = t;
+  }
+  if (t <= s->aim) {
+    if (!s->have_lo || r > s->lo.r) {
+      s->lo2 = s->lo;
+      s->have_lo2 = s->have_lo;
+      s->lo.r = r;
+      s->lo.t = t;
+      s->glo = t - s->aim;
+      s->have_lo = 1;
+      /* A point under the aim above a point over it: the model is not
+       * monotone there. Keep the newer point; the old end is void. */
+      if (s->have_hi && s->hi.r <= r)
+        s->have_hi = s->have_hi2 = 0;
+      if (s->have_hi && s->last_side == -1)
+        s->ghi *= 0.5; /* Illinois: hi survived twice */
+      s->last_side = -1;
+    }
+  } else if ((!s->have_hi || r < s->hi.r) && !(s->have_lo && r <= s->lo.r)) {
+    s->hi2 = s->hi;
+    s->have_hi2 = s->have_hi;
+    s->hi.r = r;
+    s->hi.t = t;
+    s->ghi = t - s->aim;
+    s->have_hi = 1;
+    if (s->have_lo && s->last_side == 1)
+      s->glo *= 0.5; /* Illinois: lo survived twice */
+    s->last_side = 1;
+  }
+  return t >= s->band_lo && t <= s->target;
+}
+
+/* Files a prediction that was NaN, infinite or <= 0 at r. */
+static void record_bad(search *s, double r) {
+  s->tried_lb |= r == s->lb;
+  if (s->nbad < TUNE_MAX_BAD)
+    s->bad[s->nbad++] = r;
+  /* An interpolant between the bracket ends that the model cannot price:
+   * drop the upper end, so the search continues upward from lo with this
+   * point as a barrier, never past it. */
+  if (s->have_lo && s->have_hi && r > s->lo.r && r < s->hi.r)
+    s->have_hi = s->have_hi2 = 0;
+}
+
+int rp_tune(const rp_tune_desc *desc, rp_predict_fn predict, void *user,
+            rp_tune_result *out) {
+  rp_tune_desc d;
+  search s;
+  double r0, start, r;
+  int err, iters = 0;
+  if (desc == NULL || predict == NULL || out == NULL)
+    return rp__fail(NULL, RP_EINVAL, "tune: NULL argument");
+  d = tune_defaults(desc);
+  if ((err = check_desc(&d)) != 0)
+    return err;
+
+  memset(&s, 0, sizeof s);
+  s.target = d.target_ms;
+  s.aim = d.target_ms * (1.0 - 0.5 * d.tolerance);
+  s.band_lo = d.target_ms * (1.0 - d.tolerance);
+  /* The clamps: rho in [rho_min, ub], ub = min(rho_max, rho_prev *
+   * raise_limit) (seed 000 §6.1: damping applies to rises only), and
+   * never under rho_min, which wins over the damping. */
+  s.lb = d.rho_min;
+  s.ub = d.rho_max;
+  if (d.rho_prev > 0 && d.rho_prev * d.raise_limit < s.ub)
+    s.ub = d.rho_prev * d.raise_limit;
+  if (s.ub < s.lb)
+    s.ub = s.lb;
+  /* Start at last frame's density: Eq. 2 extrapolates from it, and for
+   * a scene that did not change it is the answer already. */
+  r0 = d.rho_prev > 0 ? fmin(fmax(d.rho_prev, s.lb), s.ub) : s.ub;
+
+  start = now_us();
+  while (iters < d.max_iters) {
+    double t;
+    /* Checked before each prediction but the first: the call overruns
+     * max_time_us by at most one prediction. */
+    if (iters > 0 && now_us() - start >= d.max_time_us)
+      break;
+    r = next_candidate(&s, r0);
+    if (r < 0)
+      break;
+    t = predict(user, r);
+    iters++;
+    if (isfinite(t) && t > 0) {
+      if (record(&s, r, t))
+        break;
+    } else {
+      record_bad(&s, r);
+    }
+  }
+
+  memset(out, 0, sizeof *out);
+  out->iters = iters;
+  if (s.have_best) {
+    out->rho = s.best.r;
+    out->predicted_ms = s.best.t;
+    /* Cut by a clamp: at ub while still under the band (it would have
+     * gone higher). */
+    out->limited = s.best.r >= s.ub && s.best.t < s.band_lo;
+  } else if (s.have_lb) {
+    /* Even rho_min is over the target. */
+    out->rho = s.lb;
+    out->predicted_ms = s.t_lb;
+    out->limited = 1;
+  } else if (s.have_hi) {
+    /* Every valid prediction was over the target and the budget ran out
+     * before rho_min was tried: Eq. 2's step down from the lowest one,
+     * unverified. */
+    r = extrapolate(&s, s.hi, s.have_hi2 ? &s.hi2 : NULL, s.lb);
+    /* A step into or past a density the model could not price is no
+     * guess at all: rho_min then. */
+    out->rho = r >= s.lb && r < s.hi.r && bad_below(&s, s.hi.r) < r ? r
+                                                                    : s.lb;
+    out->predicted_ms = NAN;
+    out->limited = out->rho <= s.lb;
+  } else {
+    /* The model priced nothing: keep last frame's density. */
+    out->rho = d.rho_prev > 0 ? fmin(fmax(d.rho_prev, d.rho_min), d.rho_max)
+                              : d.rho_max;
+    out->predicted_ms = NAN;
+  }
+  return 0;
+}

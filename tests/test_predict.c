@@ -1,0 +1,479 @@
+/* The cost model (runtime/predict.c) and the tuning spaces
+ * (runtime/space.c): probes against closed forms and the reference
+ * raycaster's sample counts, the learned model against a synthetic plant
+ * whose cost is known, and the hard cases (outliers, duplicates, bad
+ * timings, unseen views). */
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "raypace_pace.h"
+#include "test_util.h"
+
+/* ---- Tuning spaces ------------------------------------------------------- */
+
+static void expect_map(rp_space space, double rho, double step,
+                       double scale) {
+  rp_space_desc d = {0};
+  float st, sc;
+  d.space = space;
+  rp_space_map(&d, rho, &st, &sc);
+  assert_float_equal(st, step, 1e-5 * step);
+  assert_float_equal(sc, scale, 1e-6);
+}
+
+static void test_space_closed_forms(void **state) {
+  rp_space_desc d = {0};
+  rp_space sp;
+  float st, sc;
+  int i;
+  (void)state;
+  expect_map(RP_SPACE_RAY, 0.25, 4.0, 1.0);
+  expect_map(RP_SPACE_IMAGE, 0.25, 1.0, 0.5);
+  expect_map(RP_SPACE_HYBRID, 0.25, 2.0, sqrt(0.5));
+  expect_map(RP_SPACE_RAY, 1.0, 1.0, 1.0);
+  /* Above 1, NaN: the finest; at or below 0 and past the bound: the
+   * coarsest, never a NaN or an out-of-bounds step. */
+  expect_map(RP_SPACE_HYBRID, 7.0, 1.0, 1.0);
+  expect_map(RP_SPACE_HYBRID, NAN, 1.0, 1.0);
+  expect_map(RP_SPACE_RAY, 0.0, 16.0, 1.0);
+  expect_map(RP_SPACE_IMAGE, -1.0, 1.0, 0.125);
+  expect_map(RP_SPACE_HYBRID, 1e-9, 16.0, 0.125);
+  d.space = RP_SPACE_RAY;
+  assert_float_equal(rp_space_min_density(&d), 1.0 / 16, 1e-12);
+  d.space = RP_SPACE_IMAGE;
+  assert_float_equal(rp_space_min_density(&d), 1.0 / 64, 1e-12);
+  d.space = RP_SPACE_HYBRID;
+  assert_float_equal(rp_space_min_density(&d), 1.0 / 1024, 1e-12);
+  /* Hybrid with the ray factor saturating at max_step 2: the image
+   * factor takes the rest of -ln(1/32), 32 / 2 = 16 = 1 / scale^2. */
+  d.base_step = 1.0f;
+  d.max_step = 2.0f;
+  rp_space_map(&d, 1.0 / 32, &st, &sc);
+  assert_float_equal(st, 2.0, 1e-6);
+  assert_float_equal(sc, 0.25, 1e-6);
+  /* The identity rho = scale^2 * base / step, in every space, for
+   * densities inside the bounds; base step 0.5. */
+  for (i = 0; i < 3; i++) {
+    int k;
+    memset(&d, 0, sizeof(d));
+    d.space = (rp_space)i;
+    d.base_step = 0.5f;
+    for (k = 0; k < 50; k++) {
+      double lo = rp_space_min_density(&d);
+      double rho = lo * pow(1.0 / lo, k / 49.0);
+      rp_space_map(&d, rho, &st, &sc);
+      assert_float_equal((double)sc * sc * 0.5 / st, rho, 1e-5 * rho);
+      assert_true(st >= 0.5f && st <= 8.0f);
+      assert_true(sc >= 0.125f && sc <= 1.0f);
+    }
+  }
+  assert_int_equal(rp_space_from_name("hybrid", &sp), 0);
+  assert_int_equal(sp, RP_SPACE_HYBRID);
+  assert_string_equal(rp_space_name(RP_SPACE_IMAGE), "image");
+  assert_int_equal(rp_space_from_name("rays", &sp), RP_EINVAL);
+}
+
+/* ---- Probe --------------------------------------------------------------- */
+
+typedef struct scene {
+  rp_context *ctx;
+  rp_volume *vol;
+  rp_histograms *h;
+  rp_tf *tf;
+  rp_occupancy *occ;
+  rp_camera cam;
+} scene;
+
+/* A 32x24x40 box of constant 200 (range made [0, 255] by two corner
+ * voxels), seen orthographically along -z through a 64-unit-high view: one
+ * output pixel per world unit, so which probe rays hit and how long they
+ * are is a matter of counting. */
+static void box_scene(scene *s, const char *tf) {
+  enum { X = 32, Y = 24, Z = 40 };
+  uint8_t *v = malloc((size_t)X * Y * Z);
+  rp_volume_desc vd = {{X, Y, Z}, RP_U8, {0, 0, 0}, NULL};
+  assert_non_null(v);
+  memset(v, 200, (size_t)X * Y * Z);
+  v[0] = 0;
+  v[(size_t)X * Y * Z - 1] = 255;
+  vd.data = v;
+  s->ctx = rp_test_context();
+  assert_int_equal(rp_volume_create(s->ctx, &vd, &s->vol), 0);
+  free(v);
+  assert_int_equal(rp_histograms_build(s->ctx, s->vol, &s->h), 0);
+  assert_int_equal(rp_tf_create_preset(s->ctx, tf, &s->tf), 0);
+  assert_int_equal(rp_occupancy_build(s->ctx, s->h, s->tf, &s->occ), 0);
+  memset(&s->cam, 0, sizeof(s->cam));
+  s->cam.projection = RP_ORTHOGRAPHIC;
+  s->cam.eye[2] = 100.0f;
+  s->cam.up[1] = 1.0f;
+  s->cam.ortho_height = 64.0f;
+}
+
+static void scene_free(scene *s) {
+  rp_occupancy_destroy(s->occ);
+  rp_tf_destroy(s->tf);
+  rp_histograms_destroy(s->h);
+  rp_volume_destroy(s->vol);
+  rp_context_destroy(s->ctx);
+}
+
+static uint64_t reference_samples(scene *s, const rp_render_desc *d) {
+  uint32_t w, h, tx, ty, i;
+  uint64_t n = 0;
+  uint8_t *rgba;
+  rp_tile_stats *tiles;
+  rp_scaled_size(d, &w, &h);
+  rp_tile_grid(w, h, &tx, &ty);
+  rgba = malloc((size_t)w * h * 4);
+  tiles = calloc((size_t)tx * ty, sizeof(*tiles));
+  assert_non_null(rgba);
+  assert_non_null(tiles);
+  assert_int_equal(rp_render_reference(s->ctx, s->vol, s->tf, s->occ,
+                                       &s->cam, d, rgba, tiles), 0);
+  for (i = 0; i < tx * ty; i++)
+    n += tiles[i].samples;
+  free(rgba);
+  free(tiles);
+  return n;
+}
+
+static void test_probe_box_closed_form(void **state) {
+  scene s;
+  rp_render_desc d = {0};
+  rp_frame_probe p;
+  rp_cost_model *m;
+  rp_cost_estimate e;
+  double expect;
+  uint64_t measured;
+  (void)state;
+  box_scene(&s, "ramp");
+  d.width = d.height = 64;
+  d.effects = 0;
+  assert_int_equal(rp_frame_probe_compute(s.ctx, s.vol, s.tf, s.occ, &s.cam,
+                                          &d, 1, 0, &p), 0);
+  /* Probe ray (cx, cy) passes through x = 4 cx + 2 - 32: inside the box
+   * (|x| < 16) for cx = 4..11, and |y| < 12 for cy = 5..10: 8 x 6 rays,
+   * each through the full 40-voxel depth. */
+  assert_int_equal(p.rays, 256);
+  assert_int_equal(p.rays_hit, 48);
+  assert_int_equal(p.rays_ended, 0);
+  assert_float_equal(p.depth_sum, 48 * 40.0, 1e-9);
+  assert_float_equal(p.depth_max, 40.0, 1e-12);
+  assert_float_equal(p.ert_cut, 0.0, 0.0);
+  assert_float_equal(p.pixels_per_voxel, 1.0, 1e-12);
+  assert_float_equal(p.diagonal, sqrt(32.0 * 32 + 24 * 24 + 40 * 40),
+                     1e-9);
+  assert_float_equal(p.view[2], -1.0, 1e-12);
+  /* S' at step 1: 16 pixels per probe ray x (1920 + 48 / 2). The
+   * reference takes 41 lattice samples on each of the 32 x 24 rays that
+   * hit: the estimate is within 1/82 of it. */
+  assert_int_equal(rp_cost_model_create(s.ctx, NULL, &m), 0);
+  assert_int_equal(rp_cost_predict(m, &p, 1.0f, 1.0f, &e), 0);
+  expect = 16.0 * (1920.0 + 24.0);
+  assert_float_equal(e.samples, expect, 1e-9);
+  assert_float_equal(e.fetches, 1.0, 0.0);
+  d.step = 1.0f;
+  measured = reference_samples(&s, &d);
+  assert_int_equal(measured, 32 * 24 * 41);
+  assert_true(fabs(e.samples - (double)measured) <= measured / 60.0);
+  /* Scale 1/2: a quarter of the rays over the same frustum. */
+  assert_int_equal(rp_cost_predict(m, &p, 1.0f, 0.5f, &e), 0);
+  assert_float_equal(e.samples, expect / 4.0, 1e-9);
+  d.image_scale = 0.5f;
+  measured = reference_samples(&s, &d);
+  assert_true(fabs(e.samples - (double)measured) <= measured / 20.0);
+  rp_cost_model_destroy(m);
+  scene_free(&s);
+}
+
+/* An opaque TF with ERT: the pre-pass ends every ray at its first coarse
+ * step, the raycast after its first sample: S' = 16 x 48 x 1 exactly. */
+static void test_probe_ert_opaque(void **state) {
+  scene s;
+  rp_render_desc d = {0};
+  rp_frame_probe p;
+  rp_cost_model *m;
+  rp_cost_estimate e;
+  (void)state;
+  box_scene(&s, "opaque");
+  d.width = d.height = 64;
+  d.effects = RP_EFFECT_ERT | RP_EFFECT_SKIP;
+  assert_int_equal(rp_frame_probe_compute(s.ctx, s.vol, s.tf, s.occ, &s.cam,
+                                          &d, 7, 3, &p), 0);
+  assert_int_equal(p.rays_hit, 48);
+  assert_int_equal(p.rays_ended, 48);
+  assert_float_equal(p.depth_sum, 0.0, 1e-9);
+  assert_float_equal(p.ert_cut, 1.0, 1e-12);
+  assert_int_equal(rp_cost_model_create(s.ctx, NULL, &m), 0);
+  assert_int_equal(rp_cost_predict(m, &p, 0.5f, 1.0f, &e), 0);
+  assert_float_equal(e.samples, 16.0 * 48, 1e-9);
+  d.step = 0.5f;
+  assert_int_equal(reference_samples(&s, &d), 32 * 24);
+  rp_cost_model_destroy(m);
+  scene_free(&s);
+}
+
+/* All transparent: nothing is occupied, no ray samples anything. */
+static void test_probe_transparent(void **state) {
+  scene s;
+  rp_render_desc d = {0};
+  rp_frame_probe p;
+  (void)state;
+  box_scene(&s, "transparent");
+  d.width = 7;
+  d.height = 513;
+  d.effects = RP_EFFECT_ERT | RP_EFFECT_SKIP;
+  assert_int_equal(rp_frame_probe_compute(s.ctx, s.vol, s.tf, s.occ, &s.cam,
+                                          &d, 1, 0, &p), 0);
+  assert_int_equal(p.rays, 2 * 129);
+  assert_int_equal(p.rays_hit, 0);
+  assert_float_equal(p.depth_sum, 0.0, 0.0);
+  scene_free(&s);
+}
+
+static void test_probe_errors(void **state) {
+  scene s;
+  rp_render_desc d = {0};
+  rp_frame_probe p;
+  rp_tf *other;
+  (void)state;
+  box_scene(&s, "ramp");
+  d.width = d.height = 16;
+  assert_int_equal(rp_frame_probe_compute(s.ctx, s.vol, s.tf, NULL, &s.cam,
+                                          &d, 1, 0, &p), RP_EINVAL);
+  assert_non_null(strstr(rp_last_error(s.ctx), "occ is NULL"));
+  assert_int_equal(rp_tf_create_preset(s.ctx, "opaque", &other), 0);
+  assert_int_equal(rp_frame_probe_compute(s.ctx, s.vol, other, s.occ,
+                                          &s.cam, &d, 1, 0, &p), RP_EINVAL);
+  assert_non_null(strstr(rp_last_error(s.ctx), "another transfer"));
+  d.width = 0;
+  assert_int_equal(rp_frame_probe_compute(s.ctx, s.vol, s.tf, s.occ, &s.cam,
+                                          &d, 1, 0, &p), RP_EINVAL);
+  rp_tf_destroy(other);
+  scene_free(&s);
+}
+
+/* ---- Model --------------------------------------------------------------- */
+
+/* A probe as rp_frame_probe_compute would fill it, for a view direction
+ * (x, y, z): S'(1, 1) = 16 * (depth_sum + rays_hit / 2). */
+static rp_frame_probe synthetic_probe(double x, double y, double z) {
+  rp_frame_probe p;
+  double n = sqrt(x * x + y * y + z * z);
+  memset(&p, 0, sizeof(p));
+  p.width = p.height = 256;
+  p.effects = RP_EFFECT_ERT | RP_EFFECT_SKIP;
+  p.rays = 64 * 64;
+  p.rays_hit = 2000;
+  p.depth_sum = 2000 * 100.0;
+  p.depth_max = 180.0;
+  p.ert_cut = 0.3;
+  p.view[0] = x / n;
+  p.view[1] = y / n;
+  p.view[2] = z / n;
+  p.pixels_per_voxel = 1.5;
+  p.diagonal = 220.0;
+  return p;
+}
+
+/* Trains one frame of a plant whose fetch costs sigma_ns and whose frame
+ * has c0_ms on top, rendering exactly the estimated samples. */
+static void train_plant(rp_cost_model *m, const rp_frame_probe *p,
+                        double sigma_ns, double c0_ms) {
+  rp_cost_estimate e;
+  double ray_ms;
+  assert_int_equal(rp_cost_predict(m, p, 1.0f, 1.0f, &e), 0);
+  ray_ms = sigma_ns * 1e-6 * e.fetches * floor(e.samples);
+  assert_int_equal(rp_cost_train(m, p, 1.0f, 1.0f, (uint64_t)e.samples,
+                                 ray_ms, ray_ms + c0_ms), 0);
+}
+
+static double predicted_sigma(const rp_cost_model *m,
+                              const rp_frame_probe *p) {
+  rp_cost_estimate e;
+  assert_int_equal(rp_cost_predict(m, p, 1.0f, 1.0f, &e), 0);
+  return e.sigma_ns;
+}
+
+static void test_model_learns_plant(void **state) {
+  rp_context *ctx = rp_test_context();
+  rp_cost_model *m;
+  rp_cost_estimate e;
+  rp_frame_probe p = synthetic_probe(0, 0, -1);
+  int i;
+  (void)state;
+  assert_int_equal(rp_cost_model_create(ctx, NULL, &m), 0);
+  /* Before training: the prior sigma0 (5 ns) and no fixed cost. */
+  assert_int_equal(rp_cost_predict(m, &p, 1.0f, 1.0f, &e), 0);
+  assert_float_equal(e.sigma_ns, 5.0, 1e-12);
+  assert_float_equal(e.c0_ms, 0.0, 0.0);
+  for (i = 0; i < 20; i++)
+    train_plant(m, &p, 3.0, 1.5);
+  /* k = 1 (no shading), S' = 16 (200000 + 1000). */
+  assert_int_equal(rp_cost_predict(m, &p, 1.0f, 1.0f, &e), 0);
+  assert_float_equal(e.samples, 16.0 * 201000, 1e-6);
+  assert_float_equal(e.sigma_ns, 3.0, 3e-9);
+  assert_float_equal(e.c0_ms, 1.5, 1e-9);
+  assert_float_equal(e.ms, 3e-6 * 16.0 * 201000 + 1.5, 1e-6);
+  /* Shading: seven fetches per sample, the same sigma. */
+  p.effects |= RP_EFFECT_SHADING;
+  assert_int_equal(rp_cost_predict(m, &p, 1.0f, 1.0f, &e), 0);
+  assert_float_equal(e.fetches, 7.0, 0.0);
+  rp_cost_model_destroy(m);
+  rp_context_destroy(ctx);
+}
+
+/* Two views of different cost learned apart; a view far from both falls
+ * back between them, never towards a free frame. */
+static void test_model_views_and_unseen(void **state) {
+  rp_context *ctx = rp_test_context();
+  rp_cost_model *m;
+  rp_frame_probe a = synthetic_probe(1, 0, 0), b = synthetic_probe(-1, 0, 0);
+  rp_frame_probe c = synthetic_probe(0, 1, 0);
+  double sc;
+  int i;
+  (void)state;
+  c.ert_cut = 0.9;
+  c.pixels_per_voxel = 8.0;
+  assert_int_equal(rp_cost_model_create(ctx, NULL, &m), 0);
+  for (i = 0; i < 60; i++) {
+    train_plant(m, &a, 2.0, 0.0);
+    train_plant(m, &b, 8.0, 0.0);
+  }
+  assert_float_equal(predicted_sigma(m, &a), 2.0, 0.2);
+  assert_float_equal(predicted_sigma(m, &b), 8.0, 0.8);
+  sc = predicted_sigma(m, &c);
+  assert_true(sc > 2.0 && sc < 8.0);
+  rp_cost_model_destroy(m);
+  rp_context_destroy(ctx);
+}
+
+/* One timing 1000x off (a stalled frame) moves the model by under 10 %;
+ * 2000 identical frames keep it exact. */
+static void test_model_outlier_and_duplicates(void **state) {
+  rp_context *ctx = rp_test_context();
+  rp_cost_model *m;
+  rp_frame_probe p = synthetic_probe(0, 1, 1);
+  rp_cost_estimate e;
+  int i;
+  (void)state;
+  assert_int_equal(rp_cost_model_create(ctx, NULL, &m), 0);
+  for (i = 0; i < 2000; i++)
+    train_plant(m, &p, 4.0, 0.5);
+  assert_float_equal(predicted_sigma(m, &p), 4.0, 4e-9);
+  assert_int_equal(rp_cost_predict(m, &p, 1.0f, 1.0f, &e), 0);
+  train_plant(m, &p, 4000.0, 500.0);
+  assert_true(fabs(predicted_sigma(m, &p) - 4.0) < 0.4);
+  assert_int_equal(rp_cost_predict(m, &p, 1.0f, 1.0f, &e), 0);
+  assert_true(fabs(e.c0_ms - 0.5) < 0.05);
+  /* And it comes back. */
+  for (i = 0; i < 50; i++)
+    train_plant(m, &p, 4.0, 0.5);
+  assert_float_equal(predicted_sigma(m, &p), 4.0, 0.04);
+  rp_cost_model_destroy(m);
+  rp_context_destroy(ctx);
+}
+
+/* A true, lasting step in the cost is followed, not clamped away. */
+static void test_model_follows_step(void **state) {
+  rp_context *ctx = rp_test_context();
+  rp_cost_model *m;
+  rp_frame_probe p = synthetic_probe(1, 1, 0);
+  int i;
+  (void)state;
+  assert_int_equal(rp_cost_model_create(ctx, NULL, &m), 0);
+  for (i = 0; i < 100; i++)
+    train_plant(m, &p, 2.0, 0.0);
+  for (i = 0; i < 60; i++)
+    train_plant(m, &p, 6.0, 0.0);
+  assert_float_equal(predicted_sigma(m, &p), 6.0, 0.3);
+  rp_cost_model_destroy(m);
+  rp_context_destroy(ctx);
+}
+
+/* The fixed cost is learned apart for full-scale and upscaled frames; one
+ * kind stands in for the other until it has frames of its own. */
+static void test_model_c0_by_scale(void **state) {
+  rp_context *ctx = rp_test_context();
+  rp_cost_model *m;
+  rp_frame_probe p = synthetic_probe(1, 0, 1);
+  rp_cost_estimate e;
+  int i;
+  (void)state;
+  assert_int_equal(rp_cost_model_create(ctx, NULL, &m), 0);
+  for (i = 0; i < 10; i++)
+    assert_int_equal(rp_cost_train(m, &p, 1.0f, 1.0f, 1000, 2.0, 3.0), 0);
+  assert_int_equal(rp_cost_predict(m, &p, 1.0f, 0.5f, &e), 0);
+  assert_float_equal(e.c0_ms, 1.0, 1e-12);
+  for (i = 0; i < 10; i++)
+    assert_int_equal(rp_cost_train(m, &p, 1.0f, 0.5f, 250, 0.5, 4.0), 0);
+  assert_int_equal(rp_cost_predict(m, &p, 1.0f, 0.5f, &e), 0);
+  assert_float_equal(e.c0_ms, 3.5, 1e-12);
+  assert_int_equal(rp_cost_predict(m, &p, 1.0f, 1.0f, &e), 0);
+  assert_float_equal(e.c0_ms, 1.0, 1e-12);
+  rp_cost_model_destroy(m);
+  rp_context_destroy(ctx);
+}
+
+static void test_model_bad_input(void **state) {
+  rp_context *ctx = rp_test_context();
+  rp_cost_model *m;
+  rp_cost_model_desc d = {0};
+  rp_frame_probe p = synthetic_probe(0, 0, 1), bad = p;
+  rp_cost_estimate before, after;
+  (void)state;
+  assert_int_equal(rp_cost_model_create(ctx, NULL, &m), 0);
+  train_plant(m, &p, 3.0, 1.0);
+  train_plant(m, &p, 3.5, 1.0);
+  assert_int_equal(rp_cost_predict(m, &p, 1.0f, 1.0f, &before), 0);
+  assert_int_equal(rp_cost_train(m, &p, 1.0f, 1.0f, 1000, NAN, 2.0),
+                   RP_ENOTFINITE);
+  assert_int_equal(rp_cost_train(m, &p, 1.0f, 1.0f, 1000, 1.0, INFINITY),
+                   RP_ENOTFINITE);
+  assert_int_equal(rp_cost_train(m, &p, 1.0f, 1.0f, 1000, -1.0, 2.0),
+                   RP_ERANGE);
+  assert_non_null(strstr(rp_last_error(ctx), "negative"));
+  assert_int_equal(rp_cost_train(m, &p, 0.0f, 1.0f, 1000, 1.0, 2.0),
+                   RP_EINVAL);
+  assert_int_equal(rp_cost_train(m, &p, 1.0f, 1.5f, 1000, 1.0, 2.0),
+                   RP_EINVAL);
+  assert_int_equal(rp_cost_train(m, &p, NAN, 1.0f, 1000, 1.0, 2.0),
+                   RP_ENOTFINITE);
+  bad.rays_hit = bad.rays + 1;
+  assert_int_equal(rp_cost_train(m, &bad, 1.0f, 1.0f, 1000, 1.0, 2.0),
+                   RP_EINVAL);
+  assert_int_equal(rp_cost_predict(m, &p, 1.0f, 1.0f, &after), 0);
+  assert_memory_equal(&before, &after, sizeof(before));
+  /* A frame with no samples teaches c0 only. */
+  assert_int_equal(rp_cost_train(m, &p, 1.0f, 1.0f, 0, 0.0, 1.0), 0);
+  assert_int_equal(rp_cost_predict(m, &p, 1.0f, 1.0f, &after), 0);
+  assert_float_equal(after.sigma_ns, before.sigma_ns, 0.0);
+  rp_cost_model_destroy(m);
+  d.sigma0_ns = -1.0;
+  assert_int_equal(rp_cost_model_create(ctx, &d, &m), RP_EINVAL);
+  d.sigma0_ns = 0.0;
+  d.gamma = -1.0;
+  assert_int_equal(rp_cost_model_create(ctx, &d, &m), RP_EINVAL);
+  assert_non_null(strstr(rp_last_error(ctx), "gamma"));
+  rp_cost_model_destroy(NULL);
+  rp_context_destroy(ctx);
+}
+
+int main(void) {
+  const struct CMUnitTest tests[] = {
+      cmocka_unit_test(test_space_closed_forms),
+      cmocka_unit_test(test_probe_box_closed_form),
+      cmocka_unit_test(test_probe_ert_opaque),
+      cmocka_unit_test(test_probe_transparent),
+      cmocka_unit_test(test_probe_errors),
+      cmocka_unit_test(test_model_learns_plant),
+      cmocka_unit_test(test_model_views_and_unseen),
+      cmocka_unit_test(test_model_outlier_and_duplicates),
+      cmocka_unit_test(test_model_follows_step),
+      cmocka_unit_test(test_model_c0_by_scale),
+      cmocka_unit_test(test_model_bad_input),
+  };
+  return cmocka_run_group_tests(tests, NULL, NULL);
+}
