@@ -108,6 +108,45 @@ if command -v gnuplot >/dev/null 2>&1; then
     echo "FAIL: bench plot is not a PNG"; fails=$((fails + 1)); fi
 fi
 
+# replay: every controller over a short sequence on the scalar reference
+# (no driver needed), its JSON, CSV and refusals.
+check "replay list" "$rp" replay --list
+has "replay list sequences" "tf-switch"
+has "replay list controllers" "predicted"
+check "replay all" "$rp" replay gen:phantom:24 --backend reference \
+  --sequence tf-switch --frames 24 --settle 2 --size 32x32 --json --quiet \
+  --csv "$dir/r.csv"
+for c in none last-frame two-pass predicted vtk ue5 valve; do
+  has "replay json $c" "\"controller\":\"$c\""
+done
+has "replay rmse" '"target_rmse_ms":'
+has "replay sigma" '"sigma_error_after_30":null'
+if [ "$(head -1 "$dir/r.csv" | cut -d, -f1-5)" = \
+     "controller,frame,target_ms,measured_ms,predicted_ms" ] &&
+   [ "$(wc -l <"$dir/r.csv")" -eq $((7 * 24 + 1)) ]; then
+  pass=$((pass + 1)); else
+  echo "FAIL: replay csv"; head -3 "$dir/r.csv"; fails=$((fails + 1)); fi
+check "replay table" "$rp" replay gen:ml:16 --backend reference \
+  --sequence orbit --frames 4 --settle 1 --size 16x16 --controller vtk \
+  --target-ms 5 --space ray --quiet
+has "replay table header" "rmse_ms"
+refuse "replay controller" "unknown controller 'pid'" "$rp" replay \
+  gen:ml:8 --controller pid
+refuse "replay sequence" "no-such-seq" "$rp" replay gen:ml:8 \
+  --backend reference --sequence no-such-seq
+refuse "replay targets" "exclude each other" "$rp" replay gen:ml:8 \
+  --target-ms 5 --target-fraction 0.5
+refuse "replay space" "bad value 'diagonal' for --space" "$rp" replay \
+  gen:ml:8 --space diagonal
+if command -v gnuplot >/dev/null 2>&1; then
+  check "replay plot" "$rp" replay gen:ml:16 --backend reference \
+    --sequence zoom-in --frames 6 --settle 1 --size 16x16 --quiet \
+    --plot "$dir/r.png"
+  if [ -s "$dir/r.png" ] && [ ! -e "$dir/r.png.csv" ]; then
+    pass=$((pass + 1)); else
+    echo "FAIL: replay plot"; fails=$((fails + 1)); fi
+fi
+
 if [ -n "${RP_SHARED_DATA:-}" ] && [ -f "$RP_SHARED_DATA/bonsai/bonsai.txt" ]
 then
   check "bonsai info" "$rp" info "$RP_SHARED_DATA/bonsai/bonsai.txt" --json
