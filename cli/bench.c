@@ -305,21 +305,6 @@ static int write_csv(FILE *f, const char *path, const sweep_point *p,
   return 0;
 }
 
-/* A string as a gnuplot single-quoted literal, where '' is a quote. */
-static void gnuplot_string(FILE *g, const char *s) {
-  fputc('\'', g);
-  for (; *s != '\0'; s++) {
-    if (*s == '\'')
-      fputc('\'', g);
-    fputc(*s, g);
-  }
-  fputc('\'', g);
-}
-
-static int have_gnuplot(void) {
-  return system("command -v gnuplot >/dev/null 2>&1") == 0;
-}
-
 /* PSNR over time, one line per space, through gnuplot: pngcairo where it
  * is built in, else the plain png terminal. */
 static int write_plot(const quality_opts *o, const char *device,
@@ -337,14 +322,14 @@ static int write_plot(const quality_opts *o, const char *device,
              "{ set terminal pngcairo size 960,640 } "
              "else { set terminal png size 960,640 }\n"
              "set termoption noenhanced\nset output ");
-  gnuplot_string(g, o->plot);
+  cli_gnuplot_string(g, o->plot);
   fprintf(g, "\nset title ");
   {
     char title[512];
     snprintf(title, sizeof title,
              "%s, %ux%u, %s: PSNR against a step %g reference", o->volume,
              o->width, o->height, device, o->ref_step);
-    gnuplot_string(g, title);
+    cli_gnuplot_string(g, title);
   }
   fprintf(g, "\nset xlabel 'frame time, median (ms)'\n"
              "set ylabel 'PSNR (dB)'\nset grid\nset key bottom right\n");
@@ -473,7 +458,7 @@ static int bench_quality(int argc, char **argv) {
   per_space = o.quick ? (int)(sizeof quick_grid / sizeof quick_grid[0])
                       : MAX_DENSITIES;
   /* Before the minutes of rendering, not after them. */
-  if (o.plot != NULL && !have_gnuplot()) {
+  if (o.plot != NULL && !cli_have_gnuplot()) {
     fprintf(stderr, "raypace bench: --plot needs gnuplot, which is not "
                     "installed (Debian: gnuplot-nox)\n");
     return 1;

@@ -145,3 +145,17 @@ double cli_median(double *v, int n) {
   qsort(v, (size_t)n, sizeof *v, cmp_double);
   return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
 }
+
+void cli_gnuplot_string(FILE *g, const char *s) {
+  fputc('\'', g);
+  for (; *s != '\0'; s++) {
+    if (*s == '\'')
+      fputc('\'', g);
+    fputc(*s, g);
+  }
+  fputc('\'', g);
+}
+
+int cli_have_gnuplot(void) {
+  return system("command -v gnuplot >/dev/null 2>&1") == 0;
+}

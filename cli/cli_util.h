@@ -3,6 +3,7 @@
 #define RP_CLI_UTIL_H
 
 #include <stdint.h>
+#include <stdio.h>
 
 #include "raypace.h"
 
@@ -26,6 +27,12 @@ int cli_open_device(rp_context *ctx, const char *option, const char *backend,
                     uint32_t index, rp_device **dev);
 /* Median of n > 0 values; sorts them in place. */
 double cli_median(double *v, int n);
+/* Writes s as a gnuplot single-quoted literal ('' is a quote), so that a
+ * path cannot end the string or inject commands. */
+void cli_gnuplot_string(FILE *g, const char *s);
+/* 1 if a gnuplot command is on the PATH: checked before a long run that
+ * ends in a plot. */
+int cli_have_gnuplot(void);
 /* Seconds from a monotonic clock. */
 double cli_now(void);
 /* Prints "raypace: <what>: <rp_strerror>: <last error>" to stderr. */

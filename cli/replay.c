@@ -17,6 +17,7 @@
 #include <cjson/cJSON.h>
 #include <getopt.h>
 #include <math.h>
+#include <signal.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -155,7 +156,7 @@ static int parse_opts(int argc, char **argv, replay_opts *o) {
   optind = 1;
   while ((c = getopt_long(argc, argv, "h", opts, &li)) != -1) {
     int bad = 0;
-    float v;
+    float v = 0.0f;
     switch (c) {
     case 'q': o->sequence = optarg; break;
     case 'c': o->controller = optarg; break;
@@ -524,24 +525,28 @@ static int write_csv(const char *path, const summary *sums,
  * CSV. */
 static int write_plot(const char *png, const char *csv, const summary *sums,
                       int nctl, const char *title) {
-  FILE *g = popen("gnuplot", "w");
+  FILE *g;
   int k, rc;
+  /* A gnuplot that dies early must not kill us with SIGPIPE. */
+  void (*old)(int) = signal(SIGPIPE, SIG_IGN);
+  g = popen("gnuplot", "w");
   if (g == NULL) {
-    fprintf(stderr, "raypace replay: --plot needs gnuplot (Debian "
-                    "gnuplot-nox)\n");
+    signal(SIGPIPE, old);
+    fprintf(stderr, "raypace replay: --plot: cannot run gnuplot\n");
     return 1;
   }
   fprintf(g, "set terminal pngcairo size 1200,900 noenhanced\n"
-             "set output '%s'\n"
-             "set datafile separator ','\n"
+             "set output ");
+  cli_gnuplot_string(g, png);
+  fprintf(g, "\nset datafile separator ','\n"
              "set key outside right top\n"
-             "set multiplot layout 2,1 title '%s'\n"
-             "set ylabel 'frame time (ms)'\n"
-             "set grid\n",
-          png, title);
-  fprintf(g, "plot '%s' skip 1 using 2:(strcol(1) eq '%s' ? $3 : 1/0) "
+             "set multiplot layout 2,1 title ");
+  cli_gnuplot_string(g, title);
+  fprintf(g, "\nset ylabel 'frame time (ms)'\nset grid\nplot ");
+  cli_gnuplot_string(g, csv);
+  fprintf(g, " skip 1 using 2:(strcol(1) eq '%s' ? $3 : 1/0) "
              "with lines lw 3 lc rgb 'black' title 'target'",
-          csv, rp_controller_name(sums[0].kind));
+          rp_controller_name(sums[0].kind));
   for (k = 0; k < nctl; k++)
     fprintf(g, ", '' skip 1 using 2:(strcol(1) eq '%s' ? $4 : 1/0) "
                "with lines title '%s'",
@@ -549,16 +554,19 @@ static int write_plot(const char *png, const char *csv, const summary *sums,
             rp_controller_name(sums[k].kind));
   fprintf(g, "\nset xlabel 'frame'\nset ylabel 'density (1 = finest)'\n"
              "set logscale y\nplot ");
-  for (k = 0; k < nctl; k++)
-    fprintf(g, "%s'%s' skip 1 using 2:(strcol(1) eq '%s' ? $8 : 1/0) "
+  for (k = 0; k < nctl; k++) {
+    fprintf(g, "%s", k ? ", " : "");
+    cli_gnuplot_string(g, csv);
+    fprintf(g, " skip 1 using 2:(strcol(1) eq '%s' ? $8 : 1/0) "
                "with lines title '%s'",
-            k ? ", " : "", csv, rp_controller_name(sums[k].kind),
+            rp_controller_name(sums[k].kind),
             rp_controller_name(sums[k].kind));
+  }
   fprintf(g, "\nunset multiplot\n");
   rc = pclose(g);
+  signal(SIGPIPE, old);
   if (rc != 0) {
-    fprintf(stderr, "raypace replay: gnuplot failed (status %d); is "
-                    "gnuplot installed?\n", rc);
+    fprintf(stderr, "raypace replay: gnuplot failed (status %d)\n", rc);
     return 1;
   }
   return 0;
@@ -728,6 +736,17 @@ int cli_cmd_replay(int argc, char **argv) {
                     "--list)\n", r.o.controller);
     return 2;
   }
+  if (r.o.plot != NULL && !cli_have_gnuplot()) {
+    fprintf(stderr, "raypace replay: --plot needs gnuplot (Debian "
+                    "gnuplot-nox)\n");
+    return 1;
+  }
+  if (r.o.plot != NULL && r.o.csv == NULL &&
+      (size_t)snprintf(csv_tmp, sizeof(csv_tmp), "%s.csv", r.o.plot) >=
+          sizeof(csv_tmp)) {
+    fprintf(stderr, "raypace replay: --plot path too long\n");
+    return 2;
+  }
   rc = 1;
   if (open_scene(&r) != 0 || calibrate(&r) != 0)
     goto out;
@@ -750,11 +769,8 @@ int cli_cmd_replay(int argc, char **argv) {
     print_table(&r, sums, nctl);
     print_goals(sums, nctl);
   }
-  csv = r.o.csv;
-  if (csv == NULL && r.o.plot != NULL) {
-    snprintf(csv_tmp, sizeof(csv_tmp), "%s.csv", r.o.plot);
-    csv = csv_tmp;
-  }
+  /* Without --csv the plot's data goes to PLOT.csv, removed after. */
+  csv = r.o.csv != NULL ? r.o.csv : r.o.plot != NULL ? csv_tmp : NULL;
   if (csv != NULL && write_csv(csv, sums, rows, nctl, r.frames) != 0)
     goto out;
   if (r.o.plot != NULL) {

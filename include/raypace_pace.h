@@ -48,7 +48,8 @@ RP_API void rp_space_map(const rp_space_desc *d, double rho, float *step,
                          float *scale);
 /** The smallest density d's space can reach. \since 0.1 */
 RP_API double rp_space_min_density(const rp_space_desc *d);
-/** "ray", "image", "hybrid"; and the reverse (RP_EINVAL if unknown). */
+/** "ray", "image", "hybrid"; and the reverse (RP_EINVAL if unknown).
+ *  \since 0.1 */
 RP_API const char *rp_space_name(rp_space space);
 RP_API int rp_space_from_name(const char *name, rp_space *out);
 
@@ -210,7 +211,8 @@ typedef struct rp_frame_probe {
  *  `desc` (width, height, effects and ert_threshold are used; step and
  *  image_scale are not) and summarises them. `occ` must be built for
  *  `tf` on `vol`. (seed, frame) seed the ERT pre-pass as on a device.
- *  \since 0.1 */
+ *  \returns 0, RP_EINVAL (a NULL argument, a bad desc, an occupancy of
+ *  another TF or volume), RP_ENOMEM. \since 0.1 */
 RP_API int rp_frame_probe_compute(rp_context *ctx, const rp_volume *vol,
                                   const rp_tf *tf, const rp_occupancy *occ,
                                   const rp_camera *cam,
@@ -218,7 +220,7 @@ RP_API int rp_frame_probe_compute(rp_context *ctx, const rp_volume *vol,
                                   uint32_t frame, rp_frame_probe *out);
 
 /** Volume fetches per sample for an effect set: k = 1 + 6 * shading +
- *  1 * AO. */
+ *  1 * AO. \since 0.1 */
 RP_API uint32_t rp_fetches_per_sample(uint32_t effects);
 
 #define RP_COST_FEATURES 8
@@ -244,21 +246,24 @@ typedef struct rp_cost_estimate {
   double features[RP_COST_FEATURES]; /* in [0, 1] */
 } rp_cost_estimate;
 
+/** A cost model for one device. \returns 0, RP_EINVAL / RP_ENOTFINITE
+ *  naming a bad desc field, RP_ENOMEM. \since 0.1 */
 RP_API int rp_cost_model_create(rp_context *ctx,
                                 const rp_cost_model_desc *desc,
                                 rp_cost_model **out);
+/** NULL is a no-op. \since 0.1 */
 RP_API void rp_cost_model_destroy(rp_cost_model *m);
-/** Forgets everything learned. */
+/** Forgets everything learned. \since 0.1 */
 RP_API void rp_cost_model_reset(rp_cost_model *m);
 /** The predicted cost of rendering the probed frame at (step, scale).
- *  Const: may run concurrently with other predictions. \since 0.1 */
+ *  Const: valid calls may run concurrently (a failing one records its
+ *  message in the context). \since 0.1 */
 RP_API int rp_cost_predict(const rp_cost_model *m, const rp_frame_probe *p,
                            float step, float scale, rp_cost_estimate *out);
 /** Learns from a rendered frame: its measured sample count (the tiles'
  *  sum), the raycast's own time and the whole frame's time (ms).
- *  
-eturns RP_ENOTFINITE / RP_ERANGE for NaN, inf or negative figures
- *  (the model is unchanged). \since 0.1 */
+ *  \returns RP_ENOTFINITE / RP_ERANGE for NaN, inf, negative or
+ *  overflowing figures (the model is unchanged). \since 0.1 */
 RP_API int rp_cost_train(rp_cost_model *m, const rp_frame_probe *p,
                          float step, float scale, uint64_t samples,
                          double raycast_ms, double frame_ms);

@@ -331,11 +331,11 @@ int rp_cost_model_create(rp_context *ctx, const rp_cost_model_desc *desc,
   m->ctx = ctx;
   m->d = model_defaults(desc);
   if (!(m->d.sigma0_ns > 0.0) || !isfinite(m->d.sigma0_ns)) {
+    double s0 = m->d.sigma0_ns;
     rp__free(ctx, m);
-    return rp__fail(ctx, isfinite(m->d.sigma0_ns) ? RP_EINVAL
-                                                  : RP_ENOTFINITE,
+    return rp__fail(ctx, isfinite(s0) ? RP_EINVAL : RP_ENOTFINITE,
                     "rp_cost_model_create: sigma0_ns = %g: must be > 0",
-                    m->d.sigma0_ns);
+                    s0);
   }
   /* KRLS checks its own fields and names the bad one. */
   kd.dim = RP_COST_FEATURES;
@@ -470,13 +470,21 @@ int rp_cost_train(rp_cost_model *m, const rp_frame_probe *p, float step,
   /* A raycast the device could not time (0) costs the whole frame. */
   if (raycast_ms == 0.0 || raycast_ms > frame_ms)
     raycast_ms = frame_ms;
+  /* Everything is checked before anything is learned: a time so large
+   * that its cost per fetch overflows is refused whole. */
+  ls = samples > 0 && raycast_ms > 0.0
+           ? log(raycast_ms * 1e6 / ((double)rp_fetches_per_sample(
+                                         p->effects) * (double)samples))
+           : 0.0;
+  if (!isfinite(ls))
+    return rp__fail(m->ctx, RP_ERANGE, "%s: raycast_ms %g for %llu "
+                    "samples is out of range", fn, raycast_ms,
+                    (unsigned long long)samples);
   (void)mean_add(&m->c0[scale < 1.0f], frame_ms - raycast_ms);
   /* A frame with no sample (all empty) or no measurable time says
    * nothing about the cost of a fetch. */
   if (samples == 0 || raycast_ms <= 0.0)
     return 0;
-  ls = log(raycast_ms * 1e6 /
-           ((double)rp_fetches_per_sample(p->effects) * (double)samples));
   features(p, step, scale, x);
   /* KRLS learns the clamped value too: a stalled frame must not reach
    * the model through the back door of a huge residual. */

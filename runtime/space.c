@@ -19,8 +19,9 @@
 #include "raypace_pace.h"
 
 /* The bounds with their defaults filled in: the one place that knows
- * them. A max_step below base_step or a min_scale outside (0, 1] is
- * clamped rather than refused: mapping must not fail inside a frame. */
+ * them. A max_step below base_step or a min_scale above 1 is clamped
+ * rather than refused (mapping must not fail inside a frame); zero,
+ * negative or NaN fields take the defaults. */
 static rp_space_desc space_defaults(const rp_space_desc *in) {
   rp_space_desc d = {0};
   if (in != NULL)
@@ -31,7 +32,9 @@ static rp_space_desc space_defaults(const rp_space_desc *in) {
     d.max_step = 16.0f * d.base_step;
   if (d.max_step < d.base_step)
     d.max_step = d.base_step;
-  if (!(d.min_scale > 0.0f) || !(d.min_scale <= 1.0f))
+  if (d.min_scale > 1.0f)
+    d.min_scale = 1.0f;
+  if (!(d.min_scale > 0.0f))
     d.min_scale = 0.125f;
   return d;
 }
@@ -98,7 +101,7 @@ const char *rp_space_name(rp_space space) {
 
 int rp_space_from_name(const char *name, rp_space *out) {
   int i;
-  for (i = 0; name != NULL && i < 3; i++) {
+  for (i = 0; name != NULL && out != NULL && i < 3; i++) {
     if (strcmp(name, space_names[i]) == 0) {
       *out = (rp_space)i;
       return 0;

@@ -68,6 +68,11 @@ static void test_space_closed_forms(void **state) {
       assert_true(sc >= 0.125f && sc <= 1.0f);
     }
   }
+  /* A min_scale above 1 means no image scaling: clamped, not replaced. */
+  memset(&d, 0, sizeof(d));
+  d.space = RP_SPACE_HYBRID;
+  d.min_scale = 1.5f;
+  assert_float_equal(rp_space_min_density(&d), 1.0 / 16, 1e-12);
   assert_int_equal(rp_space_from_name("hybrid", &sp), 0);
   assert_int_equal(sp, RP_SPACE_HYBRID);
   assert_string_equal(rp_space_name(RP_SPACE_IMAGE), "image");
@@ -441,6 +446,9 @@ static void test_model_bad_input(void **state) {
                    RP_EINVAL);
   assert_int_equal(rp_cost_train(m, &p, NAN, 1.0f, 1000, 1.0, 2.0),
                    RP_ENOTFINITE);
+  /* Finite, but its cost per fetch overflows: refused whole. */
+  assert_int_equal(rp_cost_train(m, &p, 1.0f, 1.0f, 1, 1e303, 1e303),
+                   RP_ERANGE);
   bad.rays_hit = bad.rays + 1;
   assert_int_equal(rp_cost_train(m, &bad, 1.0f, 1.0f, 1000, 1.0, 2.0),
                    RP_EINVAL);
@@ -453,6 +461,9 @@ static void test_model_bad_input(void **state) {
   rp_cost_model_destroy(m);
   d.sigma0_ns = -1.0;
   assert_int_equal(rp_cost_model_create(ctx, &d, &m), RP_EINVAL);
+  d.sigma0_ns = NAN;
+  assert_int_equal(rp_cost_model_create(ctx, &d, &m), RP_ENOTFINITE);
+  assert_non_null(strstr(rp_last_error(ctx), "sigma0_ns"));
   d.sigma0_ns = 0.0;
   d.gamma = -1.0;
   assert_int_equal(rp_cost_model_create(ctx, &d, &m), RP_EINVAL);
