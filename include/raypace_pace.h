@@ -238,11 +238,12 @@ typedef struct rp_cost_model_desc {
 } rp_cost_model_desc;
 
 typedef struct rp_cost_estimate {
-  double samples;        /* S' */
+  double samples;        /* S', from the probe */
+  double sample_ratio;   /* kappa: learned S_measured / S' */
   double fetches;        /* k */
   double sigma_ns;       /* predicted cost per fetch */
   double c0_ms;          /* per-frame fixed cost */
-  double ms;             /* t' = sigma * k * S' + c0 */
+  double ms;             /* t' = sigma * k * kappa * S' + c0 */
   double features[RP_COST_FEATURES]; /* in [0, 1] */
 } rp_cost_estimate;
 
