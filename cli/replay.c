@@ -764,7 +764,9 @@ int cli_cmd_replay(int argc, char **argv) {
     return 2;
   }
   rc = 1;
-  if (open_scene(&r) != 0 || calibrate(&r) != 0)
+  /* A loaded sequence has at least one frame; said here for readers and
+   * the analyzer alike. */
+  if (open_scene(&r) != 0 || r.frames == 0 || calibrate(&r) != 0)
     goto out;
   for (k = 0; k < nctl; k++) {
     rows[k] = calloc(r.frames, sizeof(frame_row));

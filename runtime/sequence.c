@@ -459,7 +459,7 @@ static int parse_points(parser *p, const cJSON *v, const char *path,
     return fail(p, RP_ENOMEM, path, "out of memory");
   cJSON_ArrayForEach(pt, v) {
     const cJSON *c;
-    float v5[5];
+    float v5[5] = {0.0f, 0.0f, 0.0f, 0.0f, 0.0f};
     int k = 0;
     index_path(pp, path, (size_t)i);
     if (!cJSON_IsArray(pt) || cJSON_GetArraySize(pt) != 5)
@@ -909,7 +909,7 @@ static int not_json(parser *p, const char *text, size_t len,
                     const char *end) {
   size_t off = end != NULL && end >= text ? (size_t)(end - text) : len;
   size_t line, col;
-  char raw[26], near[96];
+  char raw[26] = "", near[96];
   size_t k = 0;
   if (off > len)
     off = len;
