@@ -222,7 +222,7 @@ static int make_buffers(rp_vk_impl *impl) {
   if ((err = rp_vk__buffer(impl, "frame parameters", sizeof(rp_vk_params),
                            VK_BUFFER_USAGE_STORAGE_BUFFER_BIT, 1,
                            &impl->params)) != 0 ||
-      (err = rp_vk__buffer(impl, "placeholder", 256,
+      (err = rp_vk__buffer(impl, "unbound-slot filler", 256,
                            VK_BUFFER_USAGE_UNIFORM_TEXEL_BUFFER_BIT |
                                VK_BUFFER_USAGE_STORAGE_BUFFER_BIT,
                            1, &impl->dummy)) != 0)
