@@ -295,13 +295,9 @@ int rp_device_set_tf(rp_device *dev, const rp_tf *tf,
   if (!dev->have_volume)
     return rp__fail(ctx, RP_ESTATE, "rp_device_set_tf: no volume on the "
                     "device yet (rp_device_set_volume first)");
-  if (occ->tf_id != tf->id)
-    return rp__fail(ctx, RP_EINVAL, "rp_device_set_tf: occ was built for "
-                    "another transfer function");
-  if (occ->h->vol_id != dev->vol_id)
-    return rp__fail(ctx, RP_EINVAL, "rp_device_set_tf: occ was built from "
-                    "the histograms of another volume than the device "
-                    "holds");
+  if ((err = rp__occupancy_check(ctx, "rp_device_set_tf", occ, tf->id,
+                                 dev->vol_id)) != 0)
+    return err;
   nb = occ->h->block_count;
   if (dev->ops != NULL) {
     err = dev->ops->upload_tf(dev->impl, tf->lut, (uint32_t)tf->lut_size);

@@ -66,6 +66,15 @@ struct rp_occupancy {
   uint32_t empty;
 };
 
+/* Checks that `occ` was built for the transfer function with id `tf_id`
+ * from the histograms of the volume with id `vol_id` (RP_EINVAL, message
+ * prefixed by fn): same dims is not enough, an occupancy of another
+ * volume or TF would let skipping drop visible samples without a trace.
+ * One check for every entry point that takes an occupancy. */
+int rp__occupancy_check(rp_context *ctx, const char *fn,
+                        const rp_occupancy *occ, uint64_t tf_id,
+                        uint64_t vol_id);
+
 /* ---- core.c ------------------------------------------------------------ */
 
 void *rp__malloc(rp_context *ctx, size_t size);

@@ -198,3 +198,17 @@ const uint8_t *rp_occupancy_grid(const rp_occupancy *occ) {
 uint32_t rp_occupancy_empty_blocks(const rp_occupancy *occ) {
   return occ != NULL ? occ->empty : 0;
 }
+
+int rp__occupancy_check(rp_context *ctx, const char *fn,
+                        const rp_occupancy *occ, uint64_t tf_id,
+                        uint64_t vol_id) {
+  if (occ->tf_id != tf_id)
+    return rp__fail(ctx, RP_EINVAL, "%s: occ was built for another "
+                    "transfer function (tf id %llu, occ for %llu)", fn,
+                    (unsigned long long)tf_id,
+                    (unsigned long long)occ->tf_id);
+  if (occ->h->vol_id != vol_id)
+    return rp__fail(ctx, RP_EINVAL, "%s: occ was built from the "
+                    "histograms of another volume", fn);
+  return 0;
+}

@@ -223,12 +223,8 @@ int rp_frame_probe_compute(rp_context *ctx, const rp_volume *vol,
     return err;
   /* The ERT pre-pass reads H-alpha even without skipping, so the
    * occupancy is always required and must match. */
-  if (occ->tf_id != tf->id)
-    return rp__fail(ctx, RP_EINVAL, "%s: occ was built for another "
-                    "transfer function", fn);
-  if (occ->h->vol_id != vol->id)
-    return rp__fail(ctx, RP_EINVAL, "%s: occ was built from the "
-                    "histograms of another volume", fn);
+  if ((err = rp__occupancy_check(ctx, fn, occ, tf->id, vol->id)) != 0)
+    return err;
   if ((err = rp__raygen_init(ctx, cam, vol, d.width, d.height, &rg)) != 0)
     return err;
   rp__ert_grid(d.width, d.height, &gw, &gh);

@@ -277,18 +277,9 @@ static int check_args(rp_context *ctx, const rp_volume *vol,
                     "RP_EFFECT_SKIP but occ is NULL");
   /* An occupancy passed without SKIP is unused, but a mismatched one is
    * still a caller bug worth reporting before it bites with SKIP on. */
-  if (occ != NULL) {
-    if (occ->tf_id != tf->id)
-      return rp__fail(ctx, RP_EINVAL, "rp_render_reference: occ was built "
-                      "for another transfer function (tf id %llu, occ for "
-                      "%llu)", (unsigned long long)tf->id,
-                      (unsigned long long)occ->tf_id);
-    /* Same dims is not enough: an occupancy of another volume would let
-     * skipping drop visible samples without a trace. */
-    if (occ->h->vol_id != vol->id)
-      return rp__fail(ctx, RP_EINVAL, "rp_render_reference: occ was "
-                      "built from the histograms of another volume");
-  }
+  if (occ != NULL)
+    return rp__occupancy_check(ctx, "rp_render_reference", occ, tf->id,
+                               vol->id);
   return 0;
 }
 
