@@ -143,18 +143,12 @@ static int parse_quality(int argc, char **argv, quality_opts *o) {
       break;
     case 'B': o->backend = optarg; break;
     case 'R': o->ref_backend = optarg; break;
-    case 'D':
+    case 'D': bad = cli_parse_u32(optarg, 1024, &o->device); break;
     case 'n': {
-      char *end;
-      unsigned long v = strtoul(optarg, &end, 10);
-      bad = end == optarg || *end != '\0' || optarg[0] == '-' ||
-            (c == 'D' ? v > 1024 : v < 1 || v > MAX_RUNS);
-      if (c == 'D') {
-        o->device = (uint32_t)v;
-      } else {
-        o->runs = (int)v;
-        have_runs = 1;
-      }
+      uint32_t v = 0;
+      bad = cli_parse_u32(optarg, MAX_RUNS, &v) || v < 1;
+      o->runs = (int)v;
+      have_runs = 1;
       break;
     }
     case 'r': bad = cli_parse_positive(optarg, &o->ref_step); break;

@@ -34,6 +34,15 @@ int cli_parse_size(const char *s, uint32_t *w, uint32_t *h) {
   return 0;
 }
 
+int cli_parse_u32(const char *s, uint32_t max, uint32_t *out) {
+  char *end;
+  unsigned long v = strtoul(s, &end, 10);
+  if (end == s || *end != '\0' || v > max || s[0] == '-')
+    return -1;
+  *out = (uint32_t)v;
+  return 0;
+}
+
 int cli_parse_floats(const char *s, float *out, int n) {
   int i;
   for (i = 0; i < n; i++) {

@@ -14,6 +14,8 @@
 int cli_open_volume(rp_context *ctx, const char *spec, rp_volume **out);
 /* Parses "WxH" (each 1..16384). */
 int cli_parse_size(const char *s, uint32_t *w, uint32_t *h);
+/* Parses a decimal integer in [0, max] (no sign). */
+int cli_parse_u32(const char *s, uint32_t max, uint32_t *out);
 /* Parses n comma-separated floats, refusing values a float cannot hold. */
 int cli_parse_floats(const char *s, float *out, int n);
 /* Parses one float > 0: the library reads 0 as "default", so a 0 typed on

@@ -266,13 +266,7 @@ static int parse_render(int argc, char **argv, render_opts *o) {
     case 'a': bad = cli_parse_positive(optarg, &o->ert_threshold); break;
     case 'b': bad = cli_parse_floats(optarg, o->background, 3); break;
     case 'B': o->backend = optarg; break;
-    case 'D': {
-      char *end;
-      unsigned long v = strtoul(optarg, &end, 10);
-      bad = end == optarg || *end != '\0' || v > 1024;
-      o->device = (uint32_t)v;
-      break;
-    }
+    case 'D': bad = cli_parse_u32(optarg, 1024, &o->device); break;
     case 'x':
       bad = cli_parse_positive(optarg, &o->scale) || o->scale > 1.0f;
       break;

@@ -115,15 +115,6 @@ static void usage(FILE *f) {
       "controllers\n");
 }
 
-static int parse_u32(const char *s, uint32_t max, uint32_t *out) {
-  char *end;
-  unsigned long v = strtoul(s, &end, 10);
-  if (end == s || *end != '\0' || v > max || s[0] == '-')
-    return -1;
-  *out = (uint32_t)v;
-  return 0;
-}
-
 static int parse_opts(int argc, char **argv, replay_opts *o) {
   static const struct option opts[] = {
       {"sequence", required_argument, 0, 'q'},
@@ -173,10 +164,10 @@ static int parse_opts(int argc, char **argv, replay_opts *o) {
     case 'd': bad = cli_parse_positive(optarg, &o->base_step); break;
     case 's': bad = cli_parse_size(optarg, &o->width, &o->height); break;
     case 'B': o->backend = optarg; break;
-    case 'D': bad = parse_u32(optarg, 1024, &o->device); break;
-    case 'S': bad = parse_u32(optarg, 100000, &o->settle); break;
-    case 'n': bad = parse_u32(optarg, 10000000, &o->frames); break;
-    case 'e': bad = parse_u32(optarg, UINT32_MAX, &o->seed); break;
+    case 'D': bad = cli_parse_u32(optarg, 1024, &o->device); break;
+    case 'S': bad = cli_parse_u32(optarg, 100000, &o->settle); break;
+    case 'n': bad = cli_parse_u32(optarg, 10000000, &o->frames); break;
+    case 'e': bad = cli_parse_u32(optarg, UINT32_MAX, &o->seed); break;
     case 'C': o->csv = optarg; break;
     case 'P': o->plot = optarg; break;
     case 'j': o->json = 1; break;
