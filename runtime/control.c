@@ -15,10 +15,6 @@
 #include "internal.h"
 #include "raypace_pace.h"
 
-#define CTL_RHO_MIN 1e-3
-#define CTL_RHO_MAX 1.0
-#define CTL_RAISE (1.0 / 0.8) /* seed 000 §6.1 */
-
 /* VTK (Kitware, https://github.com/Kitware/VTK: vtkFixedPointVolumeRay
  * CastMapper.cxx, ComputeRequiredImageSampleDistance() and Render();
  * vtkVolumeRayCastMapper.cxx, Render()): image sample distances 1 .. 10
@@ -113,13 +109,13 @@ static rp_controller_desc controller_defaults(const rp_controller_desc *in) {
   else
     memset(&d, 0, sizeof d);
   if (d.rho_min == 0)
-    d.rho_min = CTL_RHO_MIN;
+    d.rho_min = RP__RHO_MIN;
   if (d.rho_max == 0)
-    d.rho_max = CTL_RHO_MAX;
+    d.rho_max = RP__RHO_MAX;
   if (d.rho_start == 0)
     d.rho_start = d.rho_max;
   if (d.raise_limit == 0)
-    d.raise_limit = CTL_RAISE;
+    d.raise_limit = RP__RAISE_LIMIT;
   /* vtk_f = 0 stays: VTK's own f depends on each frame's target, so
    * vtk_factor() resolves it per frame. */
   return d;

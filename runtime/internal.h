@@ -75,6 +75,14 @@ int rp__occupancy_check(rp_context *ctx, const char *fn,
                         const rp_occupancy *occ, uint64_t tf_id,
                         uint64_t vol_id);
 
+/* Defaults shared by the tuner and the controllers (rp_tune_desc,
+ * rp_controller_desc): the density range and the largest rise of quality
+ * per frame, 1 / 0.8 after seed 000 section 6.1 (Delta may shrink to
+ * 0.8 Delta per frame). */
+#define RP__RHO_MIN 1e-3
+#define RP__RHO_MAX 1.0
+#define RP__RAISE_LIMIT (1.0 / 0.8)
+
 /* ---- core.c ------------------------------------------------------------ */
 
 void *rp__malloc(rp_context *ctx, size_t size);

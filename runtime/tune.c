@@ -24,9 +24,6 @@
 #include "internal.h"
 #include "raypace_pace.h"
 
-#define TUNE_RHO_MIN 1e-3
-#define TUNE_RHO_MAX 1.0
-#define TUNE_RAISE (1.0 / 0.8) /* seed 000 §6.1: Delta_max = 0.8 Delta */
 #define TUNE_ITERS 8
 #define TUNE_TOL 0.01
 #define TUNE_TIME_US 200.0
@@ -42,11 +39,11 @@
 static rp_tune_desc tune_defaults(const rp_tune_desc *in) {
   rp_tune_desc d = *in;
   if (d.rho_min == 0)
-    d.rho_min = TUNE_RHO_MIN;
+    d.rho_min = RP__RHO_MIN;
   if (d.rho_max == 0)
-    d.rho_max = TUNE_RHO_MAX;
+    d.rho_max = RP__RHO_MAX;
   if (d.raise_limit == 0)
-    d.raise_limit = TUNE_RAISE;
+    d.raise_limit = RP__RAISE_LIMIT;
   if (d.max_iters == 0)
     d.max_iters = TUNE_ITERS;
   if (d.tolerance == 0)
