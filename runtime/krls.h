@@ -172,8 +172,9 @@ void rp__krls_reset(rp__krls *m);
 
 /* Learns (x, y), x of dim features. Returns 0, RP_ENOTFINITE (NaN or inf
  * in x[i] or y; the message names it) or RP_ERANGE (y < 0 unless
- * signed_y: timings and costs are >= 0). On error the model is unchanged. O(m^2) and no
- * allocation; O(m^3) when the inverse is rebuilt. */
+ * signed_y: timings and costs are >= 0). On error the model is
+ * unchanged. O(m^2) and no allocation; O(m^3) when the inverse is
+ * rebuilt. */
 int rp__krls_update(rp__krls *m, const double *x, double y);
 /* f(x); 0 before the first sample. x is not checked: NaN in, NaN out.
  * O(m * dim). */
