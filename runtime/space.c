@@ -63,34 +63,27 @@ void rp_space_map(const rp_space_desc *in, double rho, float *step,
   h = !(rho < 1.0) ? 0.0 : rho > 0.0 ? -log(rho) : INFINITY;
   if (h > ray_max + image_max)
     h = ray_max + image_max;
-  if (d.space == RP_SPACE_RAY) {
-    ray = h;
-    image = 0.0;
-  } else if (d.space == RP_SPACE_IMAGE) {
-    ray = 0.0;
-    image = h;
-  } else {
-    ray = 0.5 * h;
-    image = 0.5 * h;
-    if (ray > ray_max) {
-      image += ray - ray_max;
-      ray = ray_max;
-    } else if (image > image_max) {
-      ray += image - image_max;
-      image = image_max;
-    }
+  /* One rule for every space: a pure space has no room in the other
+   * factor (reductions() gives it 0), so the even split hands it all to
+   * the factor that has. */
+  ray = 0.5 * h;
+  image = 0.5 * h;
+  if (ray > ray_max) {
+    image += ray - ray_max;
+    ray = ray_max;
+  } else if (image > image_max) {
+    ray += image - image_max;
+    image = image_max;
   }
   /* The bounds hold exactly, not just up to exp/log rounding. */
-  *step = (float)((double)d.base_step * exp(ray));
-  if (*step > d.max_step || ray >= ray_max)
-    *step = ray > 0.0 ? d.max_step : d.base_step;
-  if (ray <= 0.0)
-    *step = d.base_step;
-  *scale = (float)exp(-0.5 * image);
-  if (*scale < d.min_scale || image >= image_max)
-    *scale = image > 0.0 ? d.min_scale : 1.0f;
-  if (*scale > 1.0f || image <= 0.0)
-    *scale = 1.0f;
+  *step = ray <= 0.0         ? d.base_step
+          : ray >= ray_max   ? d.max_step
+                             : fminf((float)((double)d.base_step * exp(ray)),
+                                     d.max_step);
+  *scale = image <= 0.0        ? 1.0f
+           : image >= image_max ? d.min_scale
+                                : fmaxf((float)exp(-0.5 * image),
+                                        d.min_scale);
 }
 
 static const char *const space_names[] = {"ray", "image", "hybrid"};
