@@ -242,8 +242,9 @@ typedef struct rp_cost_estimate {
   double sample_ratio;   /* kappa: learned S_measured / S' */
   double fetches;        /* k */
   double sigma_ns;       /* predicted cost per fetch */
-  double c0_ms;          /* per-frame fixed cost */
-  double ms;             /* t' = sigma * k * kappa * S' + c0 */
+  double launch_ms;      /* the raycast's own fixed cost, a */
+  double c0_ms;          /* per-frame fixed cost outside the raycast */
+  double ms;             /* t' = a + sigma * k * kappa * S' + c0 */
   double features[RP_COST_FEATURES]; /* in [0, 1] */
 } rp_cost_estimate;
 

@@ -74,7 +74,8 @@ void rp__ert_grid(uint32_t width, uint32_t height, uint32_t *gw,
 
 static float ert_ray(const rp__raygen *rg, const rp__ray *ray,
                      const uint8_t *grid, const uint8_t *alpha_hist,
-                     const uint32_t blocks[3], double ratio,
+                     const float *bin_alpha, const uint32_t blocks[3],
+                     double ratio,
                      double threshold, rp__taus *rng) {
   uint64_t j, n;
   double A = 0.0;
@@ -85,14 +86,15 @@ static float ert_ray(const rp__raygen *rg, const rp__ray *ray,
   for (j = 0; j < n; j++) {
     double t = ray->s + (double)j * RP_ERT_COARSE_STEP, p[3], a;
     uint32_t b;
-    int axis;
+    int axis, k;
     for (axis = 0; axis < 3; axis++)
       p[axis] = ray->p0[axis] + t * ray->dp[axis];
     b = rp__block_of(p, blocks);
     if (!grid[b])
       continue;
-    a = rp__ert_bin_alpha(rp__ert_pick_bin(
-        alpha_hist + (size_t)b * RP_OPACITY_BINS, rp__taus_next(rng)));
+    k = rp__ert_pick_bin(alpha_hist + (size_t)b * RP_OPACITY_BINS,
+                         rp__taus_next(rng));
+    a = bin_alpha != NULL ? (double)bin_alpha[k] : rp__ert_bin_alpha(k);
     a = -expm1(ratio * log1p(-a));
     A += (1.0 - A) * a;
     if (A >= threshold)
@@ -103,8 +105,9 @@ static float ert_ray(const rp__raygen *rg, const rp__ray *ray,
 
 float rp__ert_prepass_ray(const rp__raygen *rg, uint32_t cx, uint32_t cy,
                           const uint8_t *grid, const uint8_t *alpha_hist,
-                          const uint32_t blocks[3], float ref_step,
-                          float threshold, uint32_t seed, uint32_t frame) {
+                          const float *bin_alpha, const uint32_t blocks[3],
+                          float ref_step, float threshold, uint32_t seed,
+                          uint32_t frame) {
   uint32_t gw, gh;
   rp__ray ray;
   rp__taus rng;
@@ -113,7 +116,7 @@ float rp__ert_prepass_ray(const rp__raygen *rg, uint32_t cx, uint32_t cy,
   rp__raygen_ray_at(rg, (double)(RP_ERT_RAY_STRIDE * cx) + 2.0,
                     (double)(RP_ERT_RAY_STRIDE * cy) + 2.0, &ray);
   rp__taus_seed(&rng, seed, frame, cy * gw + cx);
-  return ert_ray(rg, &ray, grid, alpha_hist, blocks,
+  return ert_ray(rg, &ray, grid, alpha_hist, bin_alpha, blocks,
                  RP_ERT_COARSE_STEP / (double)ref_step, threshold, &rng);
 }
 
@@ -126,6 +129,6 @@ void rp__ert_prepass(const rp__raygen *rg, const uint8_t *grid,
   for (cy = 0; cy < gh; cy++)
     for (cx = 0; cx < gw; cx++)
       d_ert[cy * gw + cx] =
-          rp__ert_prepass_ray(rg, cx, cy, grid, alpha_hist, blocks,
+          rp__ert_prepass_ray(rg, cx, cy, grid, alpha_hist, NULL, blocks,
                               ref_step, threshold, seed, frame);
 }

@@ -59,6 +59,12 @@ struct rp_occupancy {
   const rp_histograms *h; /* not owned; must outlive the occupancy */
   uint64_t tf_id;         /* rp_tf.id of the TF it was last built for */
   uint8_t *alpha_hist;    /* block_count * RP_OPACITY_BINS */
+  /* Mean opacity of the volume's voxels in each opacity bin (bin 0: 0).
+   * The cost model's ERT pre-pass draws these rather than bin centres:
+   * bin 1 spans (0, 1/15], and a nearly transparent TF (alpha 0.004)
+   * drawn at its centre 1/30 ends rays after a fraction of their real
+   * depth. */
+  float bin_alpha[RP_OPACITY_BINS];
   uint8_t *grid;          /* block_count */
   /* Lowest and highest non-empty density bin over each block and its 26
    * neighbours: depends on H only, so it is computed once at build. */

@@ -14,6 +14,7 @@
 #include <string.h>
 
 #include "internal.h"
+#include "passes.h"
 
 /* Per block, the lowest and highest non-empty bin, then a 3x3x3 min/max
  * filter (separable: exact for a box). */
@@ -118,6 +119,9 @@ int rp_occupancy_update(rp_occupancy *occ, const rp_tf *tf) {
   const rp_histograms *h;
   const rp__value_range *r;
   int bin_opacity[RP_DENSITY_BINS];
+  double bin_mean[RP_DENSITY_BINS], weight[RP_OPACITY_BINS] = {0};
+  double alpha_sum[RP_OPACITY_BINS] = {0};
+  uint64_t voxels[RP_DENSITY_BINS] = {0};
   double start[RP_DENSITY_BINS], end[RP_DENSITY_BINS];
   /* reach[l][u]: largest alpha over [start(l), end(u)], u >= l. */
   static const int N = RP_DENSITY_BINS;
@@ -138,7 +142,8 @@ int rp_occupancy_update(rp_occupancy *occ, const rp_tf *tf) {
     end[i] = hi;
     x0 = rp__value_to_x(lo, r->min, r->max);
     x1 = rp__value_to_x(hi >= lo ? hi : lo, r->min, r->max);
-    bin_opacity[i] = opacity_bin(rp__tf_alpha_mean(tf, x0, x1));
+    bin_mean[i] = rp__tf_alpha_mean(tf, x0, x1);
+    bin_opacity[i] = opacity_bin(bin_mean[i]);
   }
   /* end() never decreases with the bin, so extending an interval by one
    * bin only adds [end(u-1), end(u)]. */
@@ -164,6 +169,7 @@ int rp_occupancy_update(rp_occupancy *occ, const rp_tf *tf) {
     for (i = 0; i < N; i++) {
       acc[bin_opacity[i]] += c[i];
       total += c[i];
+      voxels[i] += c[i];
     }
     for (j = 0; j < RP_OPACITY_BINS; j++) {
       uint64_t q = (acc[j] * 510 + total) / (2 * total); /* round(f*255) */
@@ -172,6 +178,16 @@ int rp_occupancy_update(rp_occupancy *occ, const rp_tf *tf) {
     occ->grid[b] = reach[occ->bin_lo[b]][occ->bin_hi[b]] > 0.0f;
     empty += occ->grid[b] == 0;
   }
+  for (i = 0; i < N; i++) {
+    weight[bin_opacity[i]] += (double)voxels[i];
+    alpha_sum[bin_opacity[i]] += (double)voxels[i] * bin_mean[i];
+  }
+  /* A bin no voxel falls in keeps its centre: it is never drawn. */
+  for (j = 0; j < RP_OPACITY_BINS; j++)
+    occ->bin_alpha[j] = j == 0 ? 0.0f
+                        : weight[j] > 0.0
+                            ? (float)(alpha_sum[j] / weight[j])
+                            : (float)rp__ert_bin_alpha(j);
   occ->empty = empty;
   occ->tf_id = tf->id;
   return 0;

@@ -42,12 +42,16 @@ void rp__ert_grid(uint32_t width, uint32_t height, uint32_t *gw,
 
 /* The ERT pre-pass for every pre-pass ray of `rg` (already at the scaled
  * size): d_ert[gw * gh] receives the estimated termination depth or
- * +inf. rp__ert_prepass_ray is one of them, pre-pass ray (cx, cy), for
- * callers that split the grid across threads. */
+ * +inf. It draws each bin's centre opacity, as the device kernels do.
+ * rp__ert_prepass_ray is one of them, pre-pass ray (cx, cy), for callers
+ * that split the grid across threads; with bin_alpha (RP_OPACITY_BINS
+ * values, rp_occupancy's bin_alpha) it draws the mean opacity the
+ * volume's voxels in each bin have instead of the centre. */
 float rp__ert_prepass_ray(const rp__raygen *rg, uint32_t cx, uint32_t cy,
                           const uint8_t *grid, const uint8_t *alpha_hist,
-                          const uint32_t blocks[3], float ref_step,
-                          float threshold, uint32_t seed, uint32_t frame);
+                          const float *bin_alpha, const uint32_t blocks[3],
+                          float ref_step, float threshold, uint32_t seed,
+                          uint32_t frame);
 void rp__ert_prepass(const rp__raygen *rg, const uint8_t *grid,
                      const uint8_t *alpha_hist, const uint32_t blocks[3],
                      float ref_step, float threshold, uint32_t seed,

@@ -1,5 +1,5 @@
 /* The hybrid cost model (DESIGN section 5, seed 000 section 5):
- * t' = sigma * k * S' + c0.
+ * t' = a + sigma * k * kappa * S' + c0.
  *
  * The analytic part. S' comes from a probe of the frame: the depth pass
  * and the ERT pre-pass run on the pre-pass grid of the OUTPUT image (one
@@ -35,16 +35,52 @@
  *
  * The sample estimate's own bias is learned too, as a ratio
  * kappa = S_measured / S' by a second KRLS on the same features, in the
- * same residual-around-a-mean form: t' = sigma k kappa S' + c0. The ERT
- * pre-pass draws a bin's centre opacity, and the first opacity bin
- * (0, 1/15] is coarse: a nearly transparent TF (alpha 0.004) is drawn as
- * 0.033 and its rays are estimated to end after a third of the depth
- * they really take (measured on bonsai: S' 38 % short), while an opaque
- * TF is estimated within 0.1 %. The features (the ERT share among them)
- * tell the two apart, so each keeps its own correction; sigma stays the
- * cost of a real fetch.
+ * same residual-around-a-mean form. Most of that bias was the ERT
+ * pre-pass's: it drew a bin's centre opacity, and the first opacity bin
+ * (0, 1/15] is coarse: a nearly transparent TF (alpha 0.004) was drawn
+ * as 0.033 and its rays estimated to end after a third of the depth
+ * they really take (bonsai: S' 38 % short). The probe now draws the mean
+ * opacity of the volume's voxels in each bin (rp_occupancy's bin_alpha),
+ * and S' is within 0.1 % of the tiles' count for both the transparent
+ * and the opaque TF there; kappa is left with what the probe's 4x4 grid
+ * and the lattice miss.
  *
- * c0, the per-frame fixed cost (launch, depth pass, readback, upscale),
+ * The raycast's own fixed cost a (launch, ray setup, the image write)
+ * is taken out before sigma is learned:
+ *   raycast time = a + sigma * k * S_measured,
+ *   sigma_measured = (raycast time - a) / (k * S_measured).
+ * Without it, sigma carries a / (k S): on bonsai at 256^2, an opaque TF
+ * ends rays after two samples and its frames "cost" 30-100 ns a fetch
+ * against 7-10 ns for a nearly transparent one, so every switch between
+ * the two was a jump sigma had to relearn (measured there: the affine
+ * fit below leaves 32 % log-rms between the two TFs, a cost per fetch
+ * alone 87 %). a is the intercept of a Theil-Sen line (the median of the
+ * pairwise slopes, then the median intercept) through the last
+ * LAUNCH_WINDOW frames' (k S_measured, raycast time): a quarter of them
+ * may be stalls without moving it, where a least-squares line follows
+ * any one. Pairs closer than a factor LAUNCH_SPREAD in k S carry no
+ * slope and are left out; with fewer than LAUNCH_PAIRS pairs left (a
+ * steady scene, where a and sigma cannot be told apart and need not be)
+ * a stays as it was. a is clamped to [0, LAUNCH_SHARE of the cheapest
+ * raycast in the window]: a neighbour on the machine only ever adds time,
+ * so the cheapest frame is the one that bounds a. The spread a pair
+ * needs is wide because the noise is: on the CI machine (frames +-30 %)
+ * an orbit's densities, a factor 2 apart, gave a line whose intercept
+ * was half the frame. When a moves, sigma is learned again from the
+ * window's frames (sigma_relearn). A frame whose fetches take under half
+ * its raycast, or less than SIGMA_CLEAR times the fit's noise, does not
+ * teach sigma at all (sigma_learn): its sigma is a small difference of
+ * noisy times, and its own time hardly depends on sigma.
+ *
+ * Short-term correction q: sigma' = exp(m + f(x)) * q. When the last
+ * RECENT_FRAMES frames all came in dearer than sigma' (or all cheaper),
+ * q is the smallest of those ratios, bounded to [1/2, 2]; otherwise 1.
+ * The shared CI machine runs slow for ten frames at a time by 30 % (its
+ * neighbours); m follows that at a rate of 1/16, q from the third frame.
+ * One stalled frame does not move q, and a view that the model prices
+ * low next to one it prices high (alternating) leaves it at 1.
+ *
+ * c0, the per-frame fixed cost (depth pass, readback, upscale),
  * is measured per frame as frame time - raycast time and averaged the
  * same way, apart for frames at scale 1 and frames upscaled from a
  * smaller image: the upscale is a pass over every output pixel that a
@@ -83,6 +119,33 @@
 #include "passes.h"
 #include "raypace_pace.h"
 
+/* The launch-cost fit (above): frames kept, the spread in k S that makes
+ * a pair, the pairs a fit needs, and a's ceiling against the cheapest
+ * raycast kept. */
+#define LAUNCH_WINDOW 24
+#define LAUNCH_SPREAD 4.0
+#define LAUNCH_PAIRS 8
+#define LAUNCH_SHARE 0.9
+#define LAUNCH_RELEARN 0.1
+/* The least share of a raycast its fetches must take to teach sigma. */
+#define SIGMA_SHARE 0.5
+/* ... and how many times the launch fit's noise it must stand clear of. */
+#define SIGMA_CLEAR 4.0
+
+typedef struct launch_fit {
+  double x[LAUNCH_WINDOW]; /* k * S_measured */
+  double y[LAUNCH_WINDOW]; /* raycast ms */
+  double feat[LAUNCH_WINDOW][RP_COST_FEATURES]; /* to relearn sigma */
+  uint32_t n, next;
+  double a;     /* ms */
+  double noise; /* median |raycast - (a + b k S)| over the window, ms */
+} launch_fit;
+
+/* The short-term correction (above): frames it takes the median of, and
+ * its bound, ln 2. */
+#define RECENT_FRAMES 3
+#define RECENT_BOUND 0.6931471805599453
+
 /* The robust running mean (above): window, clamp start and factor. */
 #define MEAN_WINDOW 16
 #define MEAN_CLAMP_AFTER 4
@@ -103,6 +166,12 @@ struct rp_cost_model {
   robust_mean log_kappa; /* of ln(S_measured / S') */
   robust_mean c0[2];     /* of frame - raycast time, ms: [0] frames at
                             scale 1, [1] upscaled ones */
+  launch_fit launch;
+  /* The short-term correction (header): the last frames' ln(sigma
+   * measured / sigma'), and ln q, their median. */
+  double recent[RECENT_FRAMES];
+  uint32_t n_recent, next_recent;
+  double log_q;
 };
 
 static double now_ms(void) {
@@ -133,6 +202,7 @@ typedef struct probe_job {
   const rp__raygen *rg;
   const uint8_t *grid;       /* occupancy, or NULL */
   const uint8_t *alpha_hist; /* H-alpha, or NULL */
+  const float *bin_alpha;
   const uint32_t *blocks;
   int skip, ert;
   float ref_step, threshold;
@@ -159,8 +229,8 @@ static void probe_rows(uint32_t begin, uint32_t end, void *user) {
       stop = back;
       if (j->ert) {
         double d = rp__ert_prepass_ray(j->rg, cx, cy, j->grid, j->alpha_hist,
-                                       j->blocks, j->ref_step, j->threshold,
-                                       j->seed, j->frame);
+                                       j->bin_alpha, j->blocks, j->ref_step,
+                                       j->threshold, j->seed, j->frame);
         if (d <= stop) {
           stop = d > front ? d : front;
           r.ended++;
@@ -235,6 +305,7 @@ int rp_frame_probe_compute(rp_context *ctx, const rp_volume *vol,
   job.rg = &rg;
   job.grid = occ->grid;
   job.alpha_hist = occ->alpha_hist;
+  job.bin_alpha = occ->bin_alpha;
   job.blocks = occ->h->blocks;
   job.skip = (d.effects & RP_EFFECT_SKIP) != 0;
   job.ert = (d.effects & RP_EFFECT_ERT) != 0;
@@ -304,6 +375,80 @@ static double mean_add(robust_mean *r, double v) {
   return v;
 }
 
+/* The k-th smallest of v[0..n) (0-based), reordering v: Hoare's
+ * selection, expected O(n). */
+static double select_kth(double *v, int n, int k) {
+  int lo = 0, hi = n - 1;
+  while (lo < hi) {
+    double pivot = v[lo + (hi - lo) / 2], t;
+    int i = lo, j = hi;
+    while (i <= j) {
+      while (v[i] < pivot)
+        i++;
+      while (v[j] > pivot)
+        j--;
+      if (i <= j) {
+        t = v[i];
+        v[i++] = v[j];
+        v[j--] = t;
+      }
+    }
+    if (k <= j)
+      hi = j;
+    else if (k >= i)
+      lo = i;
+    else
+      return v[k];
+  }
+  return v[k];
+}
+
+static double median_of(double *v, uint32_t n) {
+  return select_kth(v, (int)n, (int)(n / 2));
+}
+
+static void launch_reset(launch_fit *f) { memset(f, 0, sizeof *f); }
+
+/* Adds a frame and refits a (Theil-Sen, see the header) and the noise
+ * around the line. Returns 1 when a moved by more than LAUNCH_RELEARN of
+ * the median raycast kept: what sigma learned under the old a is then
+ * off by as much. */
+static int launch_add(launch_fit *f, const double *feat, double x,
+                      double y) {
+  double slopes[LAUNCH_WINDOW * (LAUNCH_WINDOW - 1) / 2];
+  double v[LAUNCH_WINDOW], b, a, ymin, old = f->a;
+  uint32_t i, j, np = 0;
+  f->x[f->next] = x;
+  f->y[f->next] = y;
+  memcpy(f->feat[f->next], feat, sizeof f->feat[0]);
+  f->next = (f->next + 1) % LAUNCH_WINDOW;
+  if (f->n < LAUNCH_WINDOW)
+    f->n++;
+  for (i = 0; i < f->n; i++)
+    for (j = i + 1; j < f->n; j++) {
+      double lo = fmin(f->x[i], f->x[j]), hi = fmax(f->x[i], f->x[j]);
+      if (hi > LAUNCH_SPREAD * lo)
+        slopes[np++] = (f->y[j] - f->y[i]) / (f->x[j] - f->x[i]);
+    }
+  if (np < LAUNCH_PAIRS)
+    return 0;
+  b = median_of(slopes, np);
+  if (!(b > 0.0))
+    return 0; /* time not rising with the work: nothing to split */
+  for (i = 0; i < f->n; i++)
+    v[i] = f->y[i] - b * f->x[i];
+  a = median_of(v, f->n);
+  ymin = f->y[0];
+  for (i = 1; i < f->n; i++)
+    ymin = fmin(ymin, f->y[i]);
+  f->a = fmin(fmax(a, 0.0), LAUNCH_SHARE * ymin);
+  for (i = 0; i < f->n; i++)
+    v[i] = fabs(f->y[i] - f->a - b * f->x[i]);
+  f->noise = median_of(v, f->n);
+  for (i = 0; i < f->n; i++)
+    v[i] = f->y[i];
+  return fabs(f->a - old) > LAUNCH_RELEARN * median_of(v, f->n);
+}
 
 static rp_cost_model_desc model_defaults(const rp_cost_model_desc *in) {
   rp_cost_model_desc d = {0};
@@ -383,6 +528,9 @@ void rp_cost_model_reset(rp_cost_model *m) {
   mean_reset(&m->log_sigma, log(m->d.sigma0_ns), 0.02);
   mean_reset(&m->c0[0], 0.0, 0.01);
   mean_reset(&m->c0[1], 0.0, 0.01);
+  launch_reset(&m->launch);
+  m->n_recent = m->next_recent = 0;
+  m->log_q = 0.0;
 }
 
 static double log2_unit(double v, double lo_log2, double hi_log2) {
@@ -437,6 +585,43 @@ static int check_point(rp_context *ctx, const char *fn,
   return 0;
 }
 
+/* ln sigma' at features x, before the short-term correction. The
+ * residual model is trusted within a factor of e^3 = 20 of the mean: a
+ * wild extrapolation must not decide a frame on its own. */
+static double log_sigma_at(const rp_cost_model *m, const double *x) {
+  double r = m->log_sigma.n > 0 ? rp__krls_predict(m->krls, x) : 0.0;
+  if (!isfinite(r))
+    r = 0.0;
+  r = r < -3.0 ? -3.0 : r > 3.0 ? 3.0 : r;
+  return m->log_sigma.mean + r;
+}
+
+/* Files one frame's ln(sigma measured / sigma') and sets ln q: when the
+ * last RECENT_FRAMES all err the same way, the smallest of them (the
+ * bias they agree on), bounded; else 0. One stalled frame then moves
+ * nothing, a machine slowed for a while is followed from its third
+ * frame, and a model that errs one way for one view and the other way
+ * for another (alternating views) is left to KRLS. */
+static void recent_add(rp_cost_model *m, double log_ratio) {
+  double lo = INFINITY, hi = -INFINITY;
+  uint32_t i;
+  m->recent[m->next_recent] = log_ratio;
+  m->next_recent = (m->next_recent + 1) % RECENT_FRAMES;
+  if (m->n_recent < RECENT_FRAMES)
+    m->n_recent++;
+  m->log_q = 0.0;
+  if (m->n_recent < RECENT_FRAMES)
+    return;
+  for (i = 0; i < RECENT_FRAMES; i++) {
+    lo = fmin(lo, m->recent[i]);
+    hi = fmax(hi, m->recent[i]);
+  }
+  if (lo > 0.0)
+    m->log_q = fmin(lo, RECENT_BOUND);
+  else if (hi < 0.0)
+    m->log_q = fmax(hi, -RECENT_BOUND);
+}
+
 int rp_cost_predict(const rp_cost_model *m, const rp_frame_probe *p,
                     float step, float scale, rp_cost_estimate *out) {
   double r;
@@ -450,13 +635,7 @@ int rp_cost_predict(const rp_cost_model *m, const rp_frame_probe *p,
   features(p, step, scale, out->features);
   out->samples = estimate_samples(p, step, scale);
   out->fetches = rp_fetches_per_sample(p->effects);
-  r = m->log_sigma.n > 0 ? rp__krls_predict(m->krls, out->features) : 0.0;
-  /* The residual model is trusted within a factor of e^3 = 20 of the
-   * mean: a wild extrapolation must not decide a frame on its own. */
-  if (!isfinite(r))
-    r = 0.0;
-  r = r < -3.0 ? -3.0 : r > 3.0 ? 3.0 : r;
-  out->sigma_ns = exp(m->log_sigma.mean + r);
+  out->sigma_ns = exp(log_sigma_at(m, out->features) + m->log_q);
   r = m->log_kappa.n > 0 ? rp__krls_predict(m->kappa_krls, out->features)
                          : 0.0;
   if (!isfinite(r))
@@ -467,9 +646,52 @@ int rp_cost_predict(const rp_cost_model *m, const rp_frame_probe *p,
    * guess. */
   up = scale < 1.0f;
   out->c0_ms = m->c0[up].n > 0 ? m->c0[up].mean : m->c0[!up].mean;
-  out->ms = out->sigma_ns * 1e-6 * out->fetches * out->sample_ratio *
+  out->launch_ms = m->launch.a;
+  out->ms = out->launch_ms +
+            out->sigma_ns * 1e-6 * out->fetches * out->sample_ratio *
                 out->samples +
             out->c0_ms;
+  return 0;
+}
+
+/* Learns one frame's cost per fetch: its raycast less the launch cost,
+ * over its fetches. A frame whose fetches are under SIGMA_SHARE of its
+ * raycast is left out: its time is mostly a, and its sigma is a small
+ * difference of two noisy times (an opaque TF on bonsai, two samples a
+ * ray, read 4 ns where the fetches of a transparent one cost 8; learned,
+ * it made the next switch overshoot by half). Such a frame's time does
+ * not depend on sigma much, which is why it need not teach it. KRLS
+ * learns the clamped value too: a stalled frame must not reach the model
+ * through the back door of a huge residual. */
+static int sigma_learn(rp_cost_model *m, const double *x, double fetches,
+                       double raycast_ms, int relearning) {
+  double per_fetch_ms = raycast_ms - m->launch.a, ls;
+  if (per_fetch_ms < SIGMA_SHARE * raycast_ms ||
+      per_fetch_ms < SIGMA_CLEAR * m->launch.noise)
+    return 0;
+  ls = log(per_fetch_ms * 1e6 / fetches);
+  if (!relearning)
+    recent_add(m, ls - log_sigma_at(m, x));
+  ls = mean_add(&m->log_sigma, ls);
+  return rp__krls_update(m->krls, x, ls - m->log_sigma.mean);
+}
+
+/* sigma learned again from the frames the launch fit keeps, oldest
+ * first, under the new a: cheaper than letting KRLS forget a
+ * dictionary's worth of residuals that were all off by the same amount
+ * (tests/test_predict.c: sigma within 0.1 % after 48 frames, where
+ * waiting for the forgetting left it 1.3 % off). */
+static int sigma_relearn(rp_cost_model *m) {
+  const launch_fit *f = &m->launch;
+  uint32_t i, first = f->n < LAUNCH_WINDOW ? 0 : f->next;
+  int err;
+  rp__krls_reset(m->krls);
+  mean_reset(&m->log_sigma, log(m->d.sigma0_ns), 0.02);
+  for (i = 0; i < f->n; i++) {
+    uint32_t k = (first + i) % LAUNCH_WINDOW;
+    if ((err = sigma_learn(m, f->feat[k], f->x[k], f->y[k], 1)) != 0)
+      return err;
+  }
   return 0;
 }
 
@@ -477,7 +699,7 @@ int rp_cost_train(rp_cost_model *m, const rp_frame_probe *p, float step,
                   float scale, uint64_t samples, double raycast_ms,
                   double frame_ms) {
   static const char fn[] = "rp_cost_train";
-  double x[RP_COST_FEATURES], ls, lk, est, r;
+  double x[RP_COST_FEATURES], ls, lk, est, fetches;
   int err;
   if (m == NULL)
     return RP_EINVAL;
@@ -492,11 +714,12 @@ int rp_cost_train(rp_cost_model *m, const rp_frame_probe *p, float step,
   /* A raycast the device could not time (0) costs the whole frame. */
   if (raycast_ms == 0.0 || raycast_ms > frame_ms)
     raycast_ms = frame_ms;
+  fetches = (double)rp_fetches_per_sample(p->effects) * (double)samples;
   /* Everything is checked before anything is learned: a time so large
-   * that its cost per fetch overflows is refused whole. */
+   * that its cost per fetch overflows is refused whole. What sigma_learn
+   * takes the log of lies between SIGMA_SHARE of this and this. */
   ls = samples > 0 && raycast_ms > 0.0
-           ? log(raycast_ms * 1e6 / ((double)rp_fetches_per_sample(
-                                         p->effects) * (double)samples))
+           ? log(SIGMA_SHARE * raycast_ms * 1e6 / fetches)
            : 0.0;
   est = estimate_samples(p, step, scale);
   lk = samples > 0 && est > 0.0 ? log((double)samples / est) : 0.0;
@@ -510,11 +733,10 @@ int rp_cost_train(rp_cost_model *m, const rp_frame_probe *p, float step,
   if (samples == 0 || raycast_ms <= 0.0)
     return 0;
   features(p, step, scale, x);
-  /* KRLS learns the clamped value too: a stalled frame must not reach
-   * the model through the back door of a huge residual. */
-  ls = mean_add(&m->log_sigma, ls);
-  r = ls - m->log_sigma.mean;
-  if ((err = rp__krls_update(m->krls, x, r)) != 0)
+  err = launch_add(&m->launch, x, fetches, raycast_ms)
+            ? sigma_relearn(m)
+            : sigma_learn(m, x, fetches, raycast_ms, 0);
+  if (err != 0)
     return err;
   if (est <= 0.0)
     return 0;

@@ -13,7 +13,9 @@
  *   Illinois rule (Dowell and Jarratt, BIT 11 (1971) 168-174) halves the
  *   stored g of an end that survives two steps in a row, which moves the
  *   interpolant toward it; an interpolant outside the bracket (rounding)
- *   falls back to bisection.
+ *   falls back to bisection. A bracket wider than TUNE_WIDE in rho is
+ *   split at its geometric middle instead (tests/test_tune.c shows one
+ *   where interpolation ends at a third of the answer).
  * The aim is the middle of the accepted band [T (1 - tol), T], so that a
  * prediction landing on it (exactly, for a linear model) is feasible even
  * after rounding; a prediction inside the band ends the search. */
@@ -33,6 +35,8 @@
 /* Densities where the model predicted nothing usable, kept so that later
  * candidates step around them. More than this are not remembered. */
 #define TUNE_MAX_BAD 16
+/* Bracket ends further apart than this factor are split geometrically. */
+#define TUNE_WIDE 4.0
 
 /* The desc with its defaults filled in: the one place that knows them
  * (STYLE rule 3). */
@@ -149,6 +153,13 @@ static double next_candidate(search *s, double r0) {
       return -1;
     /* glo <= 0 < ghi, so the denominator is positive. */
     r = s->lo.r + w * (-s->glo / (s->ghi - s->glo));
+    /* A bracket over a factor of TUNE_WIDE in rho: a straight line from
+     * one end to the other is a poor model of t' there (a time that is
+     * proportional to rho plus a constant bends on that scale), and the
+     * interpolant creeps along the lower end. The geometric middle
+     * halves the bracket's span in log rho at each step instead. */
+    if (s->hi.r > TUNE_WIDE * s->lo.r)
+      r = sqrt(s->lo.r * s->hi.r);
     if (!(r > s->lo.r && r < s->hi.r))
       r = s->lo.r + 0.5 * w;
     return r;

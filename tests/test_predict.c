@@ -4,6 +4,7 @@
  * whose cost is known, and the hard cases (outliers, duplicates, bad
  * timings, unseen views). */
 #include <math.h>
+#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -220,6 +221,39 @@ static void test_probe_ert_opaque(void **state) {
   scene_free(&s);
 }
 
+/* A nearly transparent TF: alpha 0.0165 a voxel in the box, so 40
+ * voxels of depth reach an opacity of 0.49 and an ERT threshold of 0.6
+ * ends no ray. The box's voxels all fall in the first opacity bin,
+ * (0, 1/15]: drawn at the bin's centre (1/30) the pre-pass would end
+ * every ray after about 27 voxels and S' would be a third short. Drawn
+ * at the mean opacity of the voxels in the bin, S' matches the reference
+ * raycaster's count to the lattice's half sample. */
+static void test_probe_nearly_transparent(void **state) {
+  scene s;
+  rp_render_desc d = {0};
+  rp_frame_probe p;
+  rp_cost_model *m;
+  rp_cost_estimate e;
+  uint64_t measured;
+  (void)state;
+  box_scene(&s, "nearly-transparent");
+  d.width = d.height = 64;
+  d.effects = RP_EFFECT_ERT | RP_EFFECT_SKIP;
+  d.ert_threshold = 0.6f;
+  assert_int_equal(rp_frame_probe_compute(s.ctx, s.vol, s.tf, s.occ, &s.cam,
+                                          &d, 1, 0, &p), 0);
+  assert_int_equal(p.rays_hit, 48);
+  assert_int_equal(p.rays_ended, 0);
+  assert_int_equal(rp_cost_model_create(s.ctx, NULL, &m), 0);
+  assert_int_equal(rp_cost_predict(m, &p, 1.0f, 1.0f, &e), 0);
+  d.step = 1.0f;
+  measured = reference_samples(&s, &d);
+  assert_int_equal(measured, 32 * 24 * 41);
+  assert_true(fabs(e.samples - (double)measured) <= measured / 60.0);
+  rp_cost_model_destroy(m);
+  scene_free(&s);
+}
+
 /* All transparent: nothing is occupied, no ray samples anything. */
 static void test_probe_transparent(void **state) {
   scene s;
@@ -326,6 +360,93 @@ static void test_model_learns_plant(void **state) {
   p.effects |= RP_EFFECT_SHADING;
   assert_int_equal(rp_cost_predict(m, &p, 1.0f, 1.0f, &e), 0);
   assert_float_equal(e.fetches, 7.0, 0.0);
+  rp_cost_model_destroy(m);
+  rp_context_destroy(ctx);
+}
+
+/* Trains one frame at `step` of a plant whose raycast costs launch_ms
+ * plus sigma_ns a fetch, times `stall` (1 for an honest frame). */
+static void train_affine(rp_cost_model *m, const rp_frame_probe *p,
+                         float step, double launch_ms, double sigma_ns,
+                         double stall) {
+  rp_cost_estimate e;
+  double ray_ms;
+  assert_int_equal(rp_cost_predict(m, p, step, 1.0f, &e), 0);
+  ray_ms = stall * (launch_ms + sigma_ns * 1e-6 * e.fetches *
+                                    floor(e.samples));
+  assert_int_equal(rp_cost_train(m, p, step, 1.0f, (uint64_t)e.samples,
+                                 ray_ms, ray_ms + 0.5), 0);
+}
+
+/* A raycast of 1.2 ms plus 4 ns a fetch, seen at six steps (S' from
+ * 3.2 M at step 1 to 0.54 M at step 6): the launch cost and sigma are
+ * told apart, and a step never trained is priced by the line. As a cost
+ * per fetch alone this plant would read 4.4 ns at step 1 and 6.2 ns at
+ * step 6. A fifth of the frames stalled tenfold moves the launch cost
+ * by under 2 %. */
+static void test_model_launch_cost(void **state) {
+  static const float steps[] = {1.0f, 1.5f, 2.0f, 3.0f, 4.0f, 6.0f};
+  rp_context *ctx = rp_test_context();
+  rp_cost_model *m;
+  rp_frame_probe p = synthetic_probe(0, 0, -1);
+  rp_cost_estimate e;
+  int i;
+  (void)state;
+  assert_int_equal(rp_cost_model_create(ctx, NULL, &m), 0);
+  for (i = 0; i < 48; i++)
+    train_affine(m, &p, steps[i % 6], 1.2, 4.0, 1.0);
+  assert_int_equal(rp_cost_predict(m, &p, 2.5f, 1.0f, &e), 0);
+  printf("launch %.6f ms, sigma %.6f ns\n", e.launch_ms, e.sigma_ns);
+  assert_float_equal(e.launch_ms, 1.2, 1e-3);
+  assert_float_equal(e.sigma_ns, 4.0, 4e-3);
+  assert_float_equal(e.ms, 1.2 + 4e-6 * e.samples + 0.5, 2e-3);
+  rp_cost_model_reset(m);
+  for (i = 0; i < 48; i++)
+    train_affine(m, &p, steps[i % 6], 1.2, 4.0, i % 5 == 4 ? 10.0 : 1.0);
+  assert_int_equal(rp_cost_predict(m, &p, 2.5f, 1.0f, &e), 0);
+  printf("with stalls: launch %.6f ms\n", e.launch_ms);
+  assert_float_equal(e.launch_ms, 1.2, 0.024);
+  /* One steady setting: a and sigma cannot be told apart, a stays 0. */
+  rp_cost_model_reset(m);
+  for (i = 0; i < 48; i++)
+    train_affine(m, &p, 2.0f, 1.2, 4.0, 1.0);
+  assert_int_equal(rp_cost_predict(m, &p, 2.0f, 1.0f, &e), 0);
+  assert_float_equal(e.launch_ms, 0.0, 0.0);
+  rp_cost_model_destroy(m);
+  rp_context_destroy(ctx);
+}
+
+/* A machine slowed by half for a while (another process on the cores):
+ * the model follows from the burst's third frame, within 10 %, where the
+ * running mean alone would take tens of frames; one stalled frame moves
+ * the prediction by nothing; when the burst ends the model is back
+ * within 10 % after three frames. */
+static void test_model_short_term(void **state) {
+  rp_context *ctx = rp_test_context();
+  rp_cost_model *m;
+  rp_frame_probe p = synthetic_probe(1, 1, 0);
+  double before;
+  int i;
+  (void)state;
+  assert_int_equal(rp_cost_model_create(ctx, NULL, &m), 0);
+  for (i = 0; i < 40; i++)
+    train_plant(m, &p, 4.0, 0.5);
+  before = predicted_sigma(m, &p);
+  assert_float_equal(before, 4.0, 0.04);
+  train_plant(m, &p, 4000.0, 0.5);
+  assert_float_equal(predicted_sigma(m, &p), before, 0.04 * before);
+  train_plant(m, &p, 4.0, 0.5);
+  for (i = 0; i < 2; i++) {
+    train_plant(m, &p, 6.0, 0.5);
+    assert_true(predicted_sigma(m, &p) < 5.0);
+  }
+  train_plant(m, &p, 6.0, 0.5);
+  printf("burst: sigma' %.3f after 3 frames at 6\n", predicted_sigma(m, &p));
+  assert_float_equal(predicted_sigma(m, &p), 6.0, 0.6);
+  for (i = 0; i < 3; i++)
+    train_plant(m, &p, 4.0, 0.5);
+  printf("after: sigma' %.3f after 3 frames at 4\n", predicted_sigma(m, &p));
+  assert_float_equal(predicted_sigma(m, &p), 4.0, 0.4);
   rp_cost_model_destroy(m);
   rp_context_destroy(ctx);
 }
@@ -511,9 +632,12 @@ int main(void) {
       cmocka_unit_test(test_space_closed_forms),
       cmocka_unit_test(test_probe_box_closed_form),
       cmocka_unit_test(test_probe_ert_opaque),
+      cmocka_unit_test(test_probe_nearly_transparent),
       cmocka_unit_test(test_probe_transparent),
       cmocka_unit_test(test_probe_errors),
       cmocka_unit_test(test_model_learns_plant),
+      cmocka_unit_test(test_model_launch_cost),
+      cmocka_unit_test(test_model_short_term),
       cmocka_unit_test(test_model_views_and_unseen),
       cmocka_unit_test(test_model_outlier_and_duplicates),
       cmocka_unit_test(test_model_follows_step),

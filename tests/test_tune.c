@@ -53,6 +53,15 @@ static double m_step(void *u, double rho) {
   return rho < m->edge ? m->lo_t : m->hi_t;
 }
 
+/* Linear under the edge, a flat hi_t from it on: a model that stops
+ * being monotone, as a cost model's sigma learned at one density can
+ * make it. */
+static double m_cliff(void *u, double rho) {
+  model *m = u;
+  m->calls++;
+  return rho < m->edge ? m->a * rho : m->hi_t;
+}
+
 static double m_const(void *u, double rho) {
   model *m = u;
   (void)rho;
@@ -179,6 +188,27 @@ static void tune_step_model(void **state) {
   assert_true(r.rho < 0.37);
   assert_true(r.predicted_ms == 5);
   assert_int_equal(r.iters, 8);
+}
+
+/* t' = 600 rho under 0.04, 30 from there on, target 24 from rho_prev
+ * 0.25 (the largest feasible rho is 0.04 - 0.24 / 600 = 0.0396): the
+ * flat secant sends the search to rho_min (0.6 ms), which leaves a
+ * bracket [0.001, 0.2] two hundred times wide. Split by straight-line
+ * interpolation (Illinois), the 8 predictions end at rho 0.0137, a
+ * third of what the frame could have had (worked by hand: 0.158,
+ * 0.125, 0.082, 0.041 over, then 0.0137 under); split geometrically
+ * while wider than 4x (0.014, 0.053, then interpolation), at 0.0358. */
+static void tune_wide_bracket(void **state) {
+  model m = {0};
+  rp_tune_result r;
+  (void)state;
+  m.a = 600;
+  m.edge = 0.04;
+  m.hi_t = 30;
+  r = tune(24, 0.25, m_cliff, &m);
+  printf("wide bracket: rho %.4f after %d predictions\n", r.rho, r.iters);
+  assert_true(r.rho >= 0.03 && r.rho < 0.04);
+  assert_true(r.predicted_ms <= 24);
 }
 
 static void tune_constant_models(void **state) {
@@ -1004,6 +1034,7 @@ int main(void) {
       cmocka_unit_test(tune_power_law),
       cmocka_unit_test(tune_step_model),
       cmocka_unit_test(tune_constant_models),
+      cmocka_unit_test(tune_wide_bracket),
       cmocka_unit_test(tune_nan_in_places),
       cmocka_unit_test(tune_damping),
       cmocka_unit_test(tune_clamps),

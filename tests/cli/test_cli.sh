@@ -120,6 +120,7 @@ for c in none last-frame two-pass predicted vtk ue5 valve; do
   has "replay json $c" "\"controller\":\"$c\""
 done
 has "replay rmse" '"target_rmse_ms":'
+has "replay switch overshoot" '"switch_overshoot":'
 has "replay sigma" '"sigma_error_after_30":null'
 if [ "$(head -1 "$dir/r.csv" | cut -d, -f1-5)" = \
      "controller,frame,target_ms,measured_ms,predicted_ms" ] &&
