@@ -131,9 +131,9 @@ static void *ref_band_main(void *arg) {
  * tile rows i, i + n, i + 2n, ... (regions must lie on the tile grid).
  * Interleaved, not in bands: samples crowd where the volume is, and on
  * bonsai at 512^2 two halves of the image held 17.0 M and 9.3 M
- * samples, so the slower half set the time. Median wall and process CPU seconds of a frame over `runs`,
- * threads and all; returns the number of threads. Leaves the frame in
- * rgba and tiles. */
+ * samples, so the slower half set the time. Median wall and process
+ * CPU seconds of a frame over `runs`, threads and all; returns the
+ * number of threads. Leaves the frame in rgba and tiles. */
 static int reference_threads(rp_context *ctx, const scene *s,
                              const rp_render_desc *d, int runs,
                              uint8_t *rgba, rp_tile_stats *tiles,
