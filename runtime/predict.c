@@ -168,7 +168,7 @@ struct rp_cost_model {
                             scale 1, [1] upscaled ones */
   launch_fit launch;
   /* The short-term correction (header): the last frames' ln(sigma
-   * measured / sigma'), and ln q, their median. */
+   * measured / sigma'), and ln q (recent_add). */
   double recent[RECENT_FRAMES];
   uint32_t n_recent, next_recent;
   double log_q;
@@ -585,15 +585,22 @@ static int check_point(rp_context *ctx, const char *fn,
   return 0;
 }
 
-/* ln sigma' at features x, before the short-term correction. The
- * residual model is trusted within a factor of e^3 = 20 of the mean: a
- * wild extrapolation must not decide a frame on its own. */
-static double log_sigma_at(const rp_cost_model *m, const double *x) {
-  double r = m->log_sigma.n > 0 ? rp__krls_predict(m->krls, x) : 0.0;
+/* A learned logarithm at features x: the running mean plus the KRLS
+ * residual, as sigma and kappa are both kept. The residual model is
+ * trusted within a factor of e^3 = 20 of the mean: a wild extrapolation
+ * must not decide a frame on its own. */
+static double log_at(const rp__krls *k, const robust_mean *mean,
+                     const double *x) {
+  double r = mean->n > 0 ? rp__krls_predict(k, x) : 0.0;
   if (!isfinite(r))
     r = 0.0;
   r = r < -3.0 ? -3.0 : r > 3.0 ? 3.0 : r;
-  return m->log_sigma.mean + r;
+  return mean->mean + r;
+}
+
+/* ln sigma' at features x, before the short-term correction. */
+static double log_sigma_at(const rp_cost_model *m, const double *x) {
+  return log_at(m->krls, &m->log_sigma, x);
 }
 
 /* Files one frame's ln(sigma measured / sigma') and sets ln q: when the
@@ -624,7 +631,6 @@ static void recent_add(rp_cost_model *m, double log_ratio) {
 
 int rp_cost_predict(const rp_cost_model *m, const rp_frame_probe *p,
                     float step, float scale, rp_cost_estimate *out) {
-  double r;
   int err, up;
   if (m == NULL)
     return RP_EINVAL;
@@ -636,12 +642,8 @@ int rp_cost_predict(const rp_cost_model *m, const rp_frame_probe *p,
   out->samples = estimate_samples(p, step, scale);
   out->fetches = rp_fetches_per_sample(p->effects);
   out->sigma_ns = exp(log_sigma_at(m, out->features) + m->log_q);
-  r = m->log_kappa.n > 0 ? rp__krls_predict(m->kappa_krls, out->features)
-                         : 0.0;
-  if (!isfinite(r))
-    r = 0.0;
-  r = r < -3.0 ? -3.0 : r > 3.0 ? 3.0 : r;
-  out->sample_ratio = exp(m->log_kappa.mean + r);
+  out->sample_ratio =
+      exp(log_at(m->kappa_krls, &m->log_kappa, out->features));
   /* Until frames of its own kind arrive, the other kind's is the best
    * guess. */
   up = scale < 1.0f;
