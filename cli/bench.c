@@ -591,7 +591,9 @@ static void usage_bench(FILE *f) {
              "benchmarks:\n"
              "  quality VOLUME   time against image quality (MSE, PSNR,\n"
              "                   SSIM) over step and image scale\n"
-             "Run 'raypace bench quality --help' for its options.\n");
+             "  overhead VOLUME  what each stage of a runtime frame costs\n"
+             "                   (H build, uploads, probe, predict, ...)\n"
+             "Run 'raypace bench BENCHMARK --help' for its options.\n");
 }
 
 int cli_cmd_bench(int argc, char **argv) {
@@ -605,7 +607,9 @@ int cli_cmd_bench(int argc, char **argv) {
   }
   if (strcmp(argv[1], "quality") == 0)
     return bench_quality(argc - 1, argv + 1);
-  fprintf(stderr, "raypace bench: unknown benchmark '%s' (known: quality)"
-                  "\n", argv[1]);
+  if (strcmp(argv[1], "overhead") == 0)
+    return cli_cmd_bench_overhead(argc - 1, argv + 1);
+  fprintf(stderr, "raypace bench: unknown benchmark '%s' (known: quality, "
+                  "overhead)\n", argv[1]);
   return 2;
 }

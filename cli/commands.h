@@ -8,5 +8,7 @@
 int cli_cmd_replay(int argc, char **argv);
 /* raypace bench quality VOLUME ...: cli/bench.c */
 int cli_cmd_bench(int argc, char **argv);
+/* raypace bench overhead VOLUME ...: cli/bench_overhead.c */
+int cli_cmd_bench_overhead(int argc, char **argv);
 
 #endif

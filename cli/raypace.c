@@ -23,6 +23,8 @@ static void usage_main(FILE *f) {
           "  bench quality VOLUME\n"
           "                  image quality (PSNR, SSIM) against time over\n"
           "                  step and image scale\n"
+          "  bench overhead VOLUME\n"
+          "                  each runtime stage's share of the frame time\n"
           "  version         print the library version\n\n"
           "VOLUME is a file (.nrrd, .nhdr, sidecar .txt, NAME_XxYxZ_TYPE.raw)"
           "\nor a generated volume gen:KIND[:N|:XxYxZ][:u8|u16][:SEED]: KIND"

@@ -403,10 +403,13 @@ static int prepare_frame(rp_device *dev, const char *fn,
 }
 
 /* Whether the device's depth result is the one `p` needs: everything
- * but the ERT stream and the ERT threshold shapes it. */
+ * but the ERT stream, the ERT threshold and the step shapes it (D_front
+ * and D_back are block-grid geometry), so a frame that only retunes its
+ * step reuses the depth pass. */
 static int same_depth_frame(const rp_frame_params *a,
                             const rp_frame_params *b) {
   rp_frame_params x = *a, y = *b;
+  x.step = y.step = 0.0f;
   x.ert_seed = y.ert_seed = 0;
   x.frame = y.frame = 0;
   x.ert_threshold = y.ert_threshold = 0;

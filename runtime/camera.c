@@ -126,6 +126,15 @@ static int check_camera(rp_context *ctx, const rp_camera *cam) {
   return 0;
 }
 
+int rp__camera_check(rp_context *ctx, const rp_camera *cam) {
+  rp_camera c = camera_defaults(cam);
+  int err = check_camera(ctx, &c);
+  if (err == 0 && c.eye[0] == c.center[0] && c.eye[1] == c.center[1] &&
+      c.eye[2] == c.center[2])
+    return rp__fail(ctx, RP_EINVAL, "camera: cam->center equals cam->eye");
+  return err;
+}
+
 int rp__raygen_init(rp_context *ctx, const rp_camera *cam_in,
                     const rp_volume *vol, uint32_t width, uint32_t height,
                     rp__raygen *rg) {

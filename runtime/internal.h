@@ -182,6 +182,11 @@ static inline double rp__value_to_x(double v, double min, double max) {
   return max > min ? (v - min) / (max - min) : 0.0;
 }
 /* The TF at x (clamped to [0, 1]), linear between LUT entries. */
+/* A copy of `src` owned by `ctx`, with an id of its own. */
+int rp__tf_clone(rp_context *ctx, const rp_tf *src, rp_tf **out);
+/* rp__raygen_init's checks of the camera alone (no volume, no
+ * viewport), eye == center included. */
+int rp__camera_check(rp_context *ctx, const rp_camera *cam);
 void rp__tf_sample(const rp_tf *tf, double x, float rgba[4]);
 /* Largest alpha of the interpolated LUT over [x0, x1] (clamped). */
 float rp__tf_alpha_max(const rp_tf *tf, double x0, double x1);

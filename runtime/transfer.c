@@ -204,6 +204,24 @@ int rp_tf_create_preset(rp_context *ctx, const char *name, rp_tf **out) {
                   "mri, ramp, nearly-transparent", name);
 }
 
+int rp__tf_clone(rp_context *ctx, const rp_tf *src, rp_tf **out) {
+  size_t bytes = (size_t)src->lut_size * 4 * sizeof(float);
+  rp_tf *tf = rp__calloc(ctx, 1, sizeof *tf);
+  if (tf != NULL)
+    tf->lut = rp__malloc(ctx, bytes);
+  if (tf == NULL || tf->lut == NULL) {
+    rp__free(ctx, tf);
+    return rp__fail(ctx, RP_ENOMEM, "transfer function: out of memory");
+  }
+  tf->ctx = ctx;
+  tf->id = rp__next_id();
+  tf->lut_size = src->lut_size;
+  tf->reference_step = src->reference_step;
+  memcpy(tf->lut, src->lut, bytes);
+  *out = tf;
+  return 0;
+}
+
 void rp_tf_destroy(rp_tf *tf) {
   if (tf == NULL)
     return;

@@ -194,6 +194,38 @@ static void test_probe_box_closed_form(void **state) {
   scene_free(&s);
 }
 
+/* The same box at 512 x 512: a 128 x 128 pre-pass grid, more than the
+ * probe's 4096 rays, so it traces every second ray per axis. Ray cx sits
+ * at x = (4 cx + 2) / 8 - 32 voxels: inside |x| < 16 for cx = 32..95, 32
+ * of them even; |y| < 12 for cy = 40..87, 24 even. S' keeps the full
+ * grid's estimate and stays within 1/60 of the reference's count. */
+static void test_probe_subgrid(void **state) {
+  scene s;
+  rp_render_desc d = {0};
+  rp_frame_probe p;
+  rp_cost_model *m;
+  rp_cost_estimate e;
+  uint64_t measured;
+  (void)state;
+  box_scene(&s, "ramp");
+  d.width = d.height = 512;
+  assert_int_equal(rp_frame_probe_compute(s.ctx, s.vol, s.tf, s.occ, &s.cam,
+                                          &d, 1, 0, &p), 0);
+  assert_int_equal(p.rays, 64 * 64);
+  assert_int_equal(p.rays_hit, 32 * 24);
+  assert_float_equal(p.depth_sum, 32 * 24 * 40.0, 1e-9);
+  assert_int_equal(rp_cost_model_create(s.ctx, NULL, &m), 0);
+  assert_int_equal(rp_cost_predict(m, &p, 1.0f, 1.0f, &e), 0);
+  assert_float_equal(e.samples, 64.0 * (32 * 24 * 40.0 + 32 * 24 / 2.0),
+                     1e-6);
+  d.step = 1.0f;
+  measured = reference_samples(&s, &d);
+  assert_int_equal(measured, 256 * 192 * 41);
+  assert_true(fabs(e.samples - (double)measured) <= measured / 60.0);
+  rp_cost_model_destroy(m);
+  scene_free(&s);
+}
+
 /* An opaque TF with ERT: the pre-pass ends every ray at its first coarse
  * step, the raycast after its first sample: S' = 16 x 48 x 1 exactly. */
 static void test_probe_ert_opaque(void **state) {
@@ -631,6 +663,7 @@ int main(void) {
   const struct CMUnitTest tests[] = {
       cmocka_unit_test(test_space_closed_forms),
       cmocka_unit_test(test_probe_box_closed_form),
+      cmocka_unit_test(test_probe_subgrid),
       cmocka_unit_test(test_probe_ert_opaque),
       cmocka_unit_test(test_probe_nearly_transparent),
       cmocka_unit_test(test_probe_transparent),

@@ -148,6 +148,20 @@ if command -v gnuplot >/dev/null 2>&1; then
     echo "FAIL: replay plot"; fails=$((fails + 1)); fi
 fi
 
+# bench overhead: a stage runs as often as its event is posted: H per
+# volume load (2), the probe per camera (every frame), predict per frame.
+check "bench overhead" "$rp" bench overhead gen:phantom:32 --frames 12 \
+  --loads 2 --size 64x64 --backend reference
+has "overhead H" 'H build  *volume  *2 '
+has "overhead probe" 'probe (host depth + ERT)  *camera  *12 '
+has "overhead predict" 'predict  *frame  *12 '
+has "overhead share" 'per-frame prediction work'
+check "bench overhead json" "$rp" bench overhead gen:ml:16 --frames 4 \
+  --loads 1 --size 32x32 --backend reference --json
+has "overhead json" '"stage":	"train"'
+refuse "bench overhead loads" "loads" "$rp" bench overhead gen:ml:8 \
+  --frames 2 --loads 3 --backend reference
+
 if [ -n "${RP_SHARED_DATA:-}" ] && [ -f "$RP_SHARED_DATA/bonsai/bonsai.txt" ]
 then
   check "bonsai info" "$rp" info "$RP_SHARED_DATA/bonsai/bonsai.txt" --json

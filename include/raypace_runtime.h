@@ -1,0 +1,237 @@
+/* raypace runtime: the frame pipeline an app embeds (DESIGN section 1).
+ *
+ * An rp_runtime lives on a libuv loop: the app's own (desc.loop), or one
+ * the runtime makes and runs on a thread of its own (desc.loop NULL). The
+ * app posts events -- volume, transfer function, camera, viewport,
+ * target, effects, controller -- from any thread; each marks the derived
+ * data it invalidates and the next frame recomputes only that:
+ *
+ *   volume      -> block histograms H, device upload, then as for a TF
+ *   TF          -> H-alpha + occupancy, device upload, then as for a camera
+ *   camera, viewport, ERT/skip toggled -> the probe (depth pass and ERT
+ *                  pre-pass on the host, the cost model's input)
+ *   target, shading/AO toggled, controller -> nothing derived
+ *
+ * Events between two frames coalesce: the latest value of each kind wins
+ * and each recompute runs at most once per frame. A frame is: recompute
+ * -> predict -> tune -> render on the device's worker thread; completion
+ * comes back to the loop through a uv_async; the loop thread delivers the
+ * frame to the app's callback and then trains the cost model. The loop
+ * thread never waits on a device.
+ *
+ * Thread safety, per function:
+ * - rp_runtime_create: any thread; with desc.loop set, the loop must not
+ *   be running on another thread at the time (libuv handle init is not
+ *   thread-safe).
+ * - rp_runtime_set_*, rp_runtime_request_frame: any thread, concurrently,
+ *   until close or destroy begins; afterwards they return RP_ESTATE. The
+ *   caller must stop calling them before the close callback (or destroy)
+ *   returns: the runtime's memory is gone after that.
+ * - rp_runtime_close: the loop's thread only (an app loop).
+ * - rp_runtime_destroy: any thread but the runtime's loop thread (own
+ *   loop only).
+ * - The frame callback runs on the loop thread. It may call the setters
+ *   and rp_runtime_request_frame, and (app loop) rp_runtime_close.
+ */
+#ifndef RAYPACE_RUNTIME_H
+#define RAYPACE_RUNTIME_H
+
+#include <stdint.h>
+#include <uv.h>
+
+#include "raypace.h"
+#include "raypace_pace.h"
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+typedef struct rp_runtime rp_runtime;
+
+/** Who decides when a frame starts. */
+typedef enum rp_pacing {
+  /* The runtime starts a frame every target_ms (a uv_timer): one period
+   * after the last frame began, or at once when that frame ran late. */
+  RP_PACE_TIMER = 0,
+  /* Each rp_runtime_request_frame starts one frame (VR compositors drive
+   * frames themselves). Requests made while a frame is in flight
+   * coalesce into the next one. */
+  RP_PACE_ON_REQUEST = 1
+} rp_pacing;
+
+#define RP_RUNTIME_MAX_DEVICES 8
+
+/** How many times each pass has run since the runtime was created:
+ *  cumulative, so that the difference between two frames says what a
+ *  frame recomputed. */
+typedef struct rp_runtime_counters {
+  uint64_t events;          /* set_* calls accepted */
+  uint64_t histograms;      /* H builds (volume loaded) */
+  uint64_t volume_uploads;
+  uint64_t occupancies;     /* H-alpha + occupancy builds (TF changed) */
+  uint64_t tf_uploads;
+  uint64_t probes;          /* host depth pass + ERT pre-pass */
+  uint64_t device_depth;    /* device depth passes */
+  uint64_t renders;         /* render passes (two-pass frames count 2) */
+  uint64_t frames;          /* frames delivered, failed ones included */
+} rp_runtime_counters;
+
+/** One device's share of a frame. */
+typedef struct rp_device_frame {
+  char name[168];       /* backend:device */
+  double raycast_ms;    /* device time of the raycast kernel(s) */
+  double depth_ms;      /* device depth pass, wall; 0 when reused */
+  double readback_ms;   /* render call wall minus raycast device time:
+                           enqueue and copying the image back */
+  uint32_t rows;        /* scaled-image rows it rendered */
+} rp_device_frame;
+
+/** What a frame cost and what the runtime expected. Times in ms. */
+typedef struct rp_frame_stats {
+  uint64_t frame;          /* sequence number, from 0 */
+  uint64_t events;         /* events this frame includes: the value of
+                              counters.events when it started */
+  int status;              /* 0, or the RP_E* the frame failed with */
+  char error[256];         /* the message when status != 0 */
+  rp_controller_kind controller;
+  double target_ms;
+  double predicted_ms;     /* the cost model's t' at the density of the
+                              last pass, whatever the controller (only
+                              "predicted" acts on it); NaN when the model
+                              has none */
+  double measured_ms;      /* the frame on the worker, wall: recompute,
+                              probe, decision and every render pass. The
+                              target is held on it; the controller and
+                              the cost model learn from it */
+  double delta;            /* last pass / predicted - 1 (NaN if none) */
+  double rho;              /* sampling density rendered */
+  float step, scale;       /* its step (voxels) and image scale */
+  uint32_t passes;         /* render passes (2 when two-pass re-rendered) */
+  uint32_t effects;        /* RP_EFFECT_* rendered */
+  uint64_t samples;        /* samples the raycast took (tile sums) */
+  /* Per stage. Zero when the stage did not run for this frame. */
+  double histograms_ms;    /* H build */
+  double volume_upload_ms;
+  double occupancy_ms;     /* H-alpha + occupancy */
+  double tf_upload_ms;
+  double probe_ms;         /* host depth pass + ERT pre-pass */
+  double predict_ms;       /* the controller's decision (tune and every
+                              prediction it made) and the prediction
+                              reported above */
+  double upscale_ms;       /* the scaled image to the output size */
+  double train_ms;         /* training on the PREVIOUS frame: it runs
+                              after that frame was delivered. Zero when
+                              that frame taught nothing: it failed, or
+                              was the first with its effect set since the
+                              volume was uploaded (a kernel variant's
+                              build is not what frames cost) */
+  double dispatch_ms;      /* loop -> worker hand-off and worker -> loop
+                              completion, wall */
+  double total_ms;         /* frame start on the loop to delivery */
+  uint32_t device_count;
+  rp_device_frame devices[RP_RUNTIME_MAX_DEVICES];
+  rp_runtime_counters counters; /* as of this frame's delivery */
+} rp_frame_stats;
+
+/** A delivered frame. `rgba` (premultiplied RGBA8, width x height, the
+ *  viewport) and `stats` are valid during the callback only. `rgba` is
+ *  NULL when stats->status != 0. */
+typedef struct rp_frame {
+  const uint8_t *rgba;
+  uint32_t width, height;
+  const rp_frame_stats *stats;
+} rp_frame;
+
+typedef void (*rp_frame_cb)(rp_runtime *rt, const rp_frame *frame,
+                            void *user);
+typedef void (*rp_runtime_closed_cb)(void *user);
+
+/** Zero fields take the defaults. */
+typedef struct rp_runtime_desc {
+  uv_loop_t *loop;        /* the app's loop; NULL: the runtime's own loop
+                             on its own thread */
+  rp_device_desc device;  /* which device renders */
+  rp_pacing pacing;
+  rp_frame_cb on_frame;   /* required */
+  void *user;
+  rp_controller_kind controller; /* 0: RP_CONTROL_NONE; see
+                             rp_runtime_set_controller */
+  double target_ms;       /* 0: 1000 / 60 */
+  uint32_t width, height; /* viewport; 0: 512 x 512 */
+  uint32_t effects;       /* RP_EFFECT_*; 0: none */
+  rp_space_desc space;    /* where quality is traded; zero: ray space
+                             with its defaults */
+  rp_cost_model_desc model; /* zero: defaults */
+  uint32_t ert_seed;      /* ERT pre-pass random stream */
+} rp_runtime_desc;
+
+/** Creates the runtime, opens its device and starts its worker thread
+ *  (and, with desc.loop NULL, its loop thread). The runtime keeps its own
+ *  context, made from `ctx`'s description (allocator, logger, threads):
+ *  `ctx` is only used for this call's error message. Nothing renders until
+ *  a volume, a TF and a camera have been set.
+ *  \returns 0, RP_EINVAL (a NULL argument, no on_frame, a bad field),
+ *  RP_ENOTFINITE, RP_ENODEV (no device), RP_ENOMEM, RP_EDEVICE (a
+ *  libuv call failed). \since 0.1 */
+RP_API int rp_runtime_create(rp_context *ctx, const rp_runtime_desc *desc,
+                             rp_runtime **out);
+
+/** App loop only, on the loop thread: stops pacing, lets a frame in
+ *  flight finish without delivering it, joins the worker, closes the
+ *  handles and frees everything; then calls `closed(user)` (may be NULL)
+ *  from the loop. Calling it twice, or on an own-loop runtime, returns
+ *  RP_ESTATE. \since 0.1 */
+RP_API int rp_runtime_close(rp_runtime *rt, rp_runtime_closed_cb closed,
+                            void *user);
+
+/** Own loop only, from any thread but the runtime's loop thread: as
+ *  rp_runtime_close, then stops the loop thread; returns when all is
+ *  freed. NULL: no-op. Returns RP_ESTATE (and does nothing) on an app
+ *  loop or from the loop thread. \since 0.1 */
+RP_API int rp_runtime_destroy(rp_runtime *rt);
+
+/* ---- Events: any thread. Each returns 0, RP_ESTATE after close began,
+ * or the error named; a refused event changes nothing. ---------------- */
+
+/** The volume to render. On success the runtime owns `vol` (the caller
+ *  must not use or destroy it); on failure the caller keeps it. `vol`
+ *  must come from a context with the same allocator as the runtime's.
+ *  RP_EINVAL otherwise or when NULL. \since 0.1 */
+RP_API int rp_runtime_set_volume(rp_runtime *rt, rp_volume *vol);
+/** The transfer function: copied, the caller keeps `tf`. RP_EINVAL when
+ *  NULL, RP_ENOMEM. \since 0.1 */
+RP_API int rp_runtime_set_tf(rp_runtime *rt, const rp_tf *tf);
+/** Copied. RP_EINVAL when NULL or when rp_render_reference would refuse
+ *  it: a NaN or infinite field, eye == center, fov outside (0, 180), a
+ *  negative ortho_height (the message goes to the context's logger).
+ *  \since 0.1 */
+RP_API int rp_runtime_set_camera(rp_runtime *rt, const rp_camera *cam);
+/** Output size, 1..16384 each (RP_ERANGE otherwise). \since 0.1 */
+RP_API int rp_runtime_set_viewport(rp_runtime *rt, uint32_t width,
+                                   uint32_t height);
+/** Frame-time target, ms, finite and in (0, 60000] (RP_ENOTFINITE,
+ *  RP_ERANGE). In timer pacing it is also the frame period. \since 0.1 */
+RP_API int rp_runtime_set_target(rp_runtime *rt, double target_ms);
+/** RP_EFFECT_* bits (RP_EINVAL for unknown bits; a device that lacks
+ *  one fails the frames that use it, with the reason). \since 0.1 */
+RP_API int rp_runtime_set_effects(rp_runtime *rt, uint32_t effects);
+/** Changes the controller; its history starts afresh, the cost model
+ *  keeps what it learned. RP_EINVAL for an unknown kind. \since 0.1 */
+RP_API int rp_runtime_set_controller(rp_runtime *rt,
+                                     rp_controller_kind kind);
+/** On-request pacing: asks for one frame. RP_ESTATE in timer pacing.
+ *  \since 0.1 */
+RP_API int rp_runtime_request_frame(rp_runtime *rt);
+
+/** The counters as of now (any thread). \since 0.1 */
+RP_API void rp_runtime_get_counters(rp_runtime *rt,
+                                    rp_runtime_counters *out);
+
+/** "timer", "on-request"; RP_EINVAL for an unknown name. \since 0.1 */
+RP_API const char *rp_pacing_name(rp_pacing pacing);
+RP_API int rp_pacing_from_name(const char *name, rp_pacing *out);
+
+#ifdef __cplusplus
+}
+#endif
+#endif /* RAYPACE_RUNTIME_H */

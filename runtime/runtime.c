@@ -1,0 +1,1082 @@
+/* The frame pipeline on a libuv loop (DESIGN section 1).
+ *
+ * Three kinds of thread touch a runtime, each with its own data:
+ * - any app thread posts events: they write `posted` under `lock`, then
+ *   wake the loop (uv_async_send, which coalesces);
+ * - the loop thread paces and schedules: it moves `posted` into the job
+ *   at a frame's start, hands the job to the worker, and when the worker
+ *   is done delivers the frame and trains the cost model;
+ * - the worker thread owns the scene (volume, H, TF, occupancy, device,
+ *   controller, probe) and runs a frame: recompute what is stale, probe,
+ *   predict, tune, render.
+ * One frame is in flight at a time, so the job, the image and the cost
+ * model pass between the loop and the worker without being shared: the
+ * hand-over is `work_lock` (job_ready / job_done), which is also what
+ * orders the memory (the uv_async only wakes the loop; libuv's own
+ * signalling is not something ThreadSanitizer can see). */
+#include <math.h>
+#include <stdio.h>
+#include <string.h>
+#include <time.h>
+
+#include "internal.h"
+#include "passes.h"
+#include "raypace_runtime.h"
+
+/* What an event marks; posted by the setters, consumed per frame. */
+enum {
+  POSTED_VOLUME = 1u << 0,
+  POSTED_TF = 1u << 1,
+  POSTED_CAMERA = 1u << 2, /* camera or viewport */
+  POSTED_EFFECTS = 1u << 3,
+  POSTED_TARGET = 1u << 4,
+  POSTED_CONTROLLER = 1u << 5
+};
+
+/* Derived data that is out of date, on the worker. A stage clears its bit
+ * only when it succeeds, so a frame that fails half-way leaves the rest
+ * for the next frame to retry. */
+enum {
+  STALE_HISTOGRAMS = 1u << 0,
+  STALE_VOLUME_UPLOAD = 1u << 1,
+  STALE_OCCUPANCY = 1u << 2,
+  STALE_TF_UPLOAD = 1u << 3,
+  STALE_PROBE = 1u << 4,
+  STALE_CONTROLLER = 1u << 5
+};
+
+/* The effects the probe depends on: ERT cuts the span, skipping moves
+ * D_front and D_back. Shading and AO only scale k. */
+#define PROBE_EFFECTS (RP_EFFECT_ERT | RP_EFFECT_SKIP)
+#define RP__EFFECTS_ALL                                                     \
+  (RP_EFFECT_SHADING | RP_EFFECT_ERT | RP_EFFECT_SKIP | RP_EFFECT_AO)
+
+/* The latest value of each kind of event. */
+typedef struct posted_state {
+  uint32_t marks;   /* POSTED_* since the last frame started */
+  rp_volume *vol;   /* owned; set only with POSTED_VOLUME */
+  rp_tf *tf;        /* owned copy; set only with POSTED_TF */
+  rp_camera cam;
+  uint32_t width, height;
+  double target_ms;
+  uint32_t effects;
+  rp_controller_kind controller;
+} posted_state;
+
+/* The worker's scene. */
+typedef struct scene {
+  uint32_t stale;
+  rp_volume *vol;
+  rp_histograms *h;
+  rp_tf *tf;
+  rp_occupancy *occ;
+  rp_camera cam;
+  uint32_t width, height, effects;
+  double target_ms;
+  rp_controller_kind controller_kind;
+  rp_controller *controller;
+  rp_frame_probe probe;
+  uint64_t vol_gen, tf_gen; /* bumped per upload: part of depth_key */
+  /* What the device's current depth pass was run for (memset before
+   * filling, so it compares with memcmp). */
+  struct depth_key {
+    rp_camera cam;
+    uint32_t sw, sh, skip;
+    uint64_t vol_gen, tf_gen;
+  } depth_key;
+  int depth_valid;
+  /* Effect sets rendered since the volume was uploaded, bit (1 << set):
+   * a set's first frame builds its kernel variant and allocates, a cost
+   * the model must not learn as if every frame paid it. */
+  uint32_t warm_sets;
+  double pre_ms; /* this frame's work before its first pass */
+} scene;
+
+/* What the cost model trains on after delivery. */
+typedef struct training {
+  int valid;
+  rp_frame_probe probe;
+  float step, scale;
+  uint64_t samples;
+  double raycast_ms, pass_ms;
+} training; /* valid: 0 for a failed frame and a cold one (warm_sets) */
+
+struct rp_runtime {
+  rp_context *ctx; /* the worker's, and the loop's between frames */
+  rp_runtime_desc desc;
+  rp_space_desc space;
+  rp_device *dev;
+  char device_name[168];
+  rp_cost_model *model;
+
+  uv_loop_t *loop;
+  uv_loop_t own_loop;
+  int own;
+  uv_thread_t loop_thread;
+  uv_async_t wake, done;
+  uv_timer_t pace;
+  int handles_open;
+
+  /* Guards posted, requests, closing, counters. */
+  uv_mutex_t lock;
+  posted_state posted;
+  uint64_t requests;
+  int closing;        /* no more events accepted */
+  int close_asked;    /* own loop: rp_runtime_destroy is waiting */
+  int have_vol, have_tf, have_cam; /* ever posted */
+  rp_runtime_counters counters;
+
+  /* Loop thread only. */
+  int in_flight, due, delivering, close_begun;
+  double period_ms;
+  double deadline;     /* timer pacing: when the next frame is due */
+  double frame_start, handoff;
+  double last_train_ms;
+  training train;
+  rp_runtime_closed_cb closed_cb;
+  void *closed_user;
+
+  /* Worker hand-over, guarded by work_lock. */
+  uv_mutex_t work_lock;
+  uv_cond_t work_cv;
+  int job_ready, job_done, quit;
+  uv_thread_t worker;
+  int worker_started;
+
+  /* The job: written by the loop before hand-over, by the worker during
+   * the frame, read by the loop after completion. */
+  posted_state job_in;
+  uint64_t job_events;
+  uint64_t frame_no;
+  double worker_begin, worker_end;
+  rp_frame_stats stats;
+  uint8_t *scaled, *image;
+  size_t scaled_cap, image_cap;
+  rp_tile_stats *tiles;
+  size_t tiles_cap;
+  const uint8_t *out_rgba;
+  uint32_t out_w, out_h;
+  training job_train;
+
+  scene s; /* worker only */
+};
+
+static double now_ms(void) {
+  struct timespec ts;
+  clock_gettime(CLOCK_MONOTONIC, &ts);
+  return (double)ts.tv_sec * 1e3 + (double)ts.tv_nsec * 1e-6;
+}
+
+/* ---- Names --------------------------------------------------------------- */
+
+const char *rp_pacing_name(rp_pacing pacing) {
+  switch (pacing) {
+  case RP_PACE_TIMER: return "timer";
+  case RP_PACE_ON_REQUEST: return "on-request";
+  }
+  return "unknown";
+}
+
+int rp_pacing_from_name(const char *name, rp_pacing *out) {
+  if (name == NULL || out == NULL)
+    return RP_EINVAL;
+  if (strcmp(name, "timer") == 0)
+    *out = RP_PACE_TIMER;
+  else if (strcmp(name, "on-request") == 0)
+    *out = RP_PACE_ON_REQUEST;
+  else
+    return RP_EINVAL;
+  return 0;
+}
+
+/* ---- The worker: one frame ----------------------------------------------- */
+
+static void count(rp_runtime *rt, uint64_t *field) {
+  uv_mutex_lock(&rt->lock);
+  (*field)++;
+  uv_mutex_unlock(&rt->lock);
+}
+
+/* Takes the events the job carries into the scene and marks what they
+ * invalidate. Objects move; nothing here can fail. */
+static void take_events(rp_runtime *rt) {
+  scene *s = &rt->s;
+  posted_state *in = &rt->job_in;
+  if (in->marks & POSTED_VOLUME) {
+    rp_occupancy_destroy(s->occ);
+    rp_histograms_destroy(s->h);
+    rp_volume_destroy(s->vol);
+    s->occ = NULL;
+    s->h = NULL;
+    s->vol = in->vol;
+    in->vol = NULL;
+    s->stale |= STALE_HISTOGRAMS | STALE_VOLUME_UPLOAD | STALE_OCCUPANCY |
+                STALE_TF_UPLOAD | STALE_PROBE;
+  }
+  if (in->marks & POSTED_TF) {
+    rp_tf_destroy(s->tf);
+    s->tf = in->tf;
+    in->tf = NULL;
+    s->stale |= STALE_OCCUPANCY | STALE_TF_UPLOAD | STALE_PROBE;
+  }
+  if (in->marks & POSTED_CAMERA) {
+    s->cam = in->cam;
+    s->width = in->width;
+    s->height = in->height;
+    s->stale |= STALE_PROBE;
+  }
+  if (in->marks & POSTED_EFFECTS) {
+    if ((s->effects ^ in->effects) & PROBE_EFFECTS)
+      s->stale |= STALE_PROBE;
+    s->effects = in->effects;
+  }
+  if (in->marks & POSTED_TARGET)
+    s->target_ms = in->target_ms;
+  if (in->marks & POSTED_CONTROLLER &&
+      in->controller != s->controller_kind) {
+    s->controller_kind = in->controller;
+    s->stale |= STALE_CONTROLLER;
+  }
+  in->marks = 0;
+}
+
+/* Runs the stale stages in dependency order: H, then the volume upload,
+ * then H-alpha + occupancy, the TF upload, and the probe. */
+static int recompute(rp_runtime *rt) {
+  scene *s = &rt->s;
+  rp_frame_stats *st = &rt->stats;
+  double t0;
+  int err;
+  if (s->stale & STALE_HISTOGRAMS) {
+    t0 = now_ms();
+    if ((err = rp_histograms_build(rt->ctx, s->vol, &s->h)) != 0)
+      return err;
+    st->histograms_ms = now_ms() - t0;
+    s->stale &= ~(uint32_t)STALE_HISTOGRAMS;
+    count(rt, &rt->counters.histograms);
+  }
+  if (s->stale & STALE_VOLUME_UPLOAD) {
+    t0 = now_ms();
+    if ((err = rp_device_set_volume(rt->dev, s->vol)) != 0)
+      return err;
+    st->volume_upload_ms = now_ms() - t0;
+    s->vol_gen++;
+    s->warm_sets = 0;
+    s->stale &= ~(uint32_t)STALE_VOLUME_UPLOAD;
+    count(rt, &rt->counters.volume_uploads);
+  }
+  if (s->stale & STALE_OCCUPANCY) {
+    t0 = now_ms();
+    err = s->occ == NULL ? rp_occupancy_build(rt->ctx, s->h, s->tf, &s->occ)
+                         : rp_occupancy_update(s->occ, s->tf);
+    if (err != 0)
+      return err;
+    st->occupancy_ms = now_ms() - t0;
+    s->stale &= ~(uint32_t)STALE_OCCUPANCY;
+    count(rt, &rt->counters.occupancies);
+  }
+  if (s->stale & STALE_TF_UPLOAD) {
+    t0 = now_ms();
+    if ((err = rp_device_set_tf(rt->dev, s->tf, s->occ)) != 0)
+      return err;
+    st->tf_upload_ms = now_ms() - t0;
+    s->tf_gen++;
+    s->stale &= ~(uint32_t)STALE_TF_UPLOAD;
+    count(rt, &rt->counters.tf_uploads);
+  }
+  if (s->stale & STALE_PROBE) {
+    rp_render_desc d = {0};
+    d.width = s->width;
+    d.height = s->height;
+    d.effects = s->effects;
+    if ((err = rp_frame_probe_compute(rt->ctx, s->vol, s->tf, s->occ,
+                                      &s->cam, &d, rt->desc.ert_seed,
+                                      (uint32_t)rt->frame_no,
+                                      &s->probe)) != 0)
+      return err;
+    st->probe_ms = s->probe.probe_ms;
+    s->stale &= ~(uint32_t)STALE_PROBE;
+    count(rt, &rt->counters.probes);
+  }
+  if (s->stale & STALE_CONTROLLER || s->controller == NULL) {
+    rp_controller_desc cd = {0};
+    rp_controller *c = NULL;
+    cd.kind = s->controller_kind;
+    cd.rho_min = rp_space_min_density(&rt->space);
+    cd.rho_max = 1.0;
+    if ((err = rp_controller_create(rt->ctx, &cd, &c)) != 0)
+      return err;
+    rp_controller_destroy(s->controller);
+    s->controller = c;
+    s->stale &= ~(uint32_t)STALE_CONTROLLER;
+  }
+  return 0;
+}
+
+typedef struct predict_ctx {
+  const rp_runtime *rt;
+} predict_ctx;
+
+static double predict_at(void *user, double rho) {
+  const rp_runtime *rt = ((const predict_ctx *)user)->rt;
+  rp_cost_estimate e;
+  float step, scale;
+  rp_space_map(&rt->space, rho, &step, &scale);
+  if (rp_cost_predict(rt->model, &rt->s.probe, step, scale, &e) != 0)
+    return NAN;
+  return e.ms;
+}
+
+/* Grows *buf to hold `bytes`; keeps the old one on failure. */
+static int reserve(rp_runtime *rt, void **buf, size_t *cap, size_t bytes) {
+  void *p;
+  if (bytes <= *cap)
+    return 0;
+  p = rp__malloc(rt->ctx, bytes);
+  if (p == NULL)
+    return rp__fail(rt->ctx, RP_ENOMEM, "runtime: %zu bytes for the frame",
+                    bytes);
+  rp__free(rt->ctx, *buf);
+  *buf = p;
+  *cap = bytes;
+  return 0;
+}
+
+/* One render pass at density rho: the device depth pass when its inputs
+ * changed, the raycast with readback, and the upscale. */
+static int render_pass(rp_runtime *rt, double rho, double *pass_ms) {
+  scene *s = &rt->s;
+  rp_frame_stats *st = &rt->stats;
+  rp_device_frame *df = &st->devices[0];
+  rp_render_desc d = {0};
+  struct depth_key key;
+  uint32_t sw, sh, tx, ty, i;
+  double t0 = now_ms(), t1, t2;
+  int err;
+  rp_space_map(&rt->space, rho, &st->step, &st->scale);
+  d.width = s->width;
+  d.height = s->height;
+  d.step = st->step;
+  d.image_scale = st->scale;
+  d.effects = s->effects;
+  rp_scaled_size(&d, &sw, &sh);
+  rp_tile_grid(sw, sh, &tx, &ty);
+  if ((err = reserve(rt, (void **)&rt->scaled, &rt->scaled_cap,
+                     (size_t)sw * sh * 4)) != 0 ||
+      (err = reserve(rt, (void **)&rt->image, &rt->image_cap,
+                     (size_t)s->width * s->height * 4)) != 0 ||
+      (err = reserve(rt, (void **)&rt->tiles, &rt->tiles_cap,
+                     (size_t)tx * ty * sizeof(rp_tile_stats))) != 0)
+    return err;
+  memset(&key, 0, sizeof key);
+  key.cam = s->cam;
+  key.sw = sw;
+  key.sh = sh;
+  key.skip = (s->effects & RP_EFFECT_SKIP) != 0;
+  key.vol_gen = s->vol_gen;
+  key.tf_gen = s->tf_gen;
+  if (!s->depth_valid || memcmp(&key, &s->depth_key, sizeof key) != 0) {
+    double td = now_ms();
+    s->depth_valid = 0;
+    if ((err = rp_device_depth_pass(rt->dev, &s->cam, &d, NULL)) != 0)
+      return err;
+    s->depth_key = key;
+    s->depth_valid = 1;
+    df->depth_ms += now_ms() - td;
+    count(rt, &rt->counters.device_depth);
+  }
+  t1 = now_ms();
+  if ((err = rp_device_render(rt->dev, &s->cam, &d, NULL, rt->scaled,
+                              rt->tiles)) != 0)
+    return err;
+  t2 = now_ms();
+  count(rt, &rt->counters.renders);
+  df->raycast_ms += (double)rp_device_last_time_ns(rt->dev) * 1e-6;
+  df->readback_ms += (t2 - t1) - (double)rp_device_last_time_ns(rt->dev) *
+                                     1e-6;
+  df->rows += sh;
+  st->samples = 0;
+  for (i = 0; i < tx * ty; i++)
+    st->samples += rt->tiles[i].samples;
+  if (sw != s->width || sh != s->height) {
+    rp_image_upscale(rt->scaled, sw, sh, rt->image, s->width, s->height);
+    rt->out_rgba = rt->image;
+    st->upscale_ms += now_ms() - t2;
+  } else {
+    rt->out_rgba = rt->scaled;
+  }
+  rt->out_w = s->width;
+  rt->out_h = s->height;
+  rt->job_train.valid = (s->warm_sets >> (s->effects & 15u)) & 1u;
+  s->warm_sets |= 1u << (s->effects & 15u);
+  rt->job_train.probe = s->probe;
+  rt->job_train.step = st->step;
+  rt->job_train.scale = st->scale;
+  rt->job_train.samples = st->samples;
+  rt->job_train.raycast_ms = (double)rp_device_last_time_ns(rt->dev) * 1e-6;
+  /* The first pass carries the frame's recompute, probe and decision:
+   * the target is held on all the frame costs, and the model's c0 learns
+   * the part that is not the raycast. */
+  *pass_ms = now_ms() - t0 + s->pre_ms;
+  s->pre_ms = 0.0;
+  rt->job_train.pass_ms = *pass_ms;
+  return 0;
+}
+
+/* Controller, prediction and the render passes of one frame. */
+static int render_frame(rp_runtime *rt) {
+  scene *s = &rt->s;
+  rp_frame_stats *st = &rt->stats;
+  predict_ctx pc;
+  rp_cost_estimate est;
+  double rho, t0, pass_ms = 0.0;
+  int err, again = 1;
+  pc.rt = rt;
+  t0 = now_ms();
+  if ((err = rp_controller_begin_frame(s->controller, s->target_ms,
+                                       predict_at, &pc, &rho)) != 0)
+    return err;
+  st->predict_ms = now_ms() - t0;
+  s->pre_ms = now_ms() - rt->worker_begin;
+  while (again) {
+    float step, scale;
+    rp_space_map(&rt->space, rho, &step, &scale);
+    t0 = now_ms();
+    st->predicted_ms =
+        rp_cost_predict(rt->model, &s->probe, step, scale, &est) == 0
+            ? est.ms
+            : NAN;
+    st->predict_ms += now_ms() - t0;
+    if ((err = render_pass(rt, rho, &pass_ms)) != 0) {
+      /* The controller's frame stays open otherwise; its history goes
+       * with it, which is right after a device failed. */
+      rp_controller_reset(s->controller);
+      return err;
+    }
+    st->rho = rho;
+    st->passes++;
+    st->measured_ms += pass_ms;
+    if ((err = rp_controller_end_pass(s->controller, pass_ms, &again,
+                                      &rho)) != 0) {
+      rp_controller_reset(s->controller);
+      return err;
+    }
+  }
+  st->delta = st->predicted_ms > 0.0 ? pass_ms / st->predicted_ms - 1.0
+                                     : NAN;
+  return 0;
+}
+
+static void run_frame(rp_runtime *rt) {
+  rp_frame_stats *st = &rt->stats;
+  int err;
+  rt->worker_begin = now_ms();
+  memset(st, 0, sizeof *st);
+  st->frame = rt->frame_no;
+  st->events = rt->job_events;
+  st->predicted_ms = st->delta = NAN;
+  st->device_count = 1;
+  snprintf(st->devices[0].name, sizeof st->devices[0].name, "%s",
+           rt->device_name);
+  rt->out_rgba = NULL;
+  rt->job_train.valid = 0;
+  rp__clear_error(rt->ctx);
+  take_events(rt);
+  st->controller = rt->s.controller_kind;
+  st->target_ms = rt->s.target_ms;
+  st->effects = rt->s.effects;
+  if ((err = recompute(rt)) == 0)
+    err = render_frame(rt);
+  if (err != 0) {
+    st->status = err;
+    snprintf(st->error, sizeof st->error, "%s", rp_last_error(rt->ctx));
+    rt->out_rgba = NULL;
+    rt->job_train.valid = 0;
+  }
+  rt->worker_end = now_ms();
+}
+
+static void worker_main(void *arg) {
+  rp_runtime *rt = arg;
+  uv_mutex_lock(&rt->work_lock);
+  for (;;) {
+    while (!rt->job_ready && !rt->quit)
+      uv_cond_wait(&rt->work_cv, &rt->work_lock);
+    if (!rt->job_ready)
+      break;
+    rt->job_ready = 0;
+    uv_mutex_unlock(&rt->work_lock);
+    run_frame(rt);
+    uv_mutex_lock(&rt->work_lock);
+    rt->job_done = 1;
+    uv_async_send(&rt->done);
+  }
+  uv_mutex_unlock(&rt->work_lock);
+}
+
+/* ---- The loop thread ------------------------------------------------------ */
+
+static void begin_close(rp_runtime *rt);
+static void on_pace(uv_timer_t *t);
+
+/* Starts a frame when one is wanted, none is in flight and the scene has
+ * a volume, a TF and a camera. */
+static void try_start(rp_runtime *rt) {
+  int wanted, ready;
+  if (rt->in_flight || rt->close_begun)
+    return;
+  uv_mutex_lock(&rt->lock);
+  wanted = rt->desc.pacing == RP_PACE_TIMER ? rt->due : rt->requests > 0;
+  ready = rt->have_vol && rt->have_tf && rt->have_cam;
+  if (wanted && ready) {
+    rt->job_in = rt->posted;
+    rt->job_events = rt->counters.events;
+    rt->posted.marks = 0;
+    rt->posted.vol = NULL;
+    rt->posted.tf = NULL;
+    rt->requests = 0;
+  }
+  uv_mutex_unlock(&rt->lock);
+  if (!wanted || !ready)
+    return;
+  rt->due = 0;
+  if (rt->job_in.marks & POSTED_TARGET)
+    rt->period_ms = rt->job_in.target_ms;
+  rt->frame_start = now_ms();
+  if (rt->desc.pacing == RP_PACE_TIMER) {
+    /* Deadlines advance by whole periods from the first frame, so the
+     * millisecond rounding of uv timers does not accumulate; a frame that
+     * starts after its successor's deadline moves the schedule, so a late
+     * frame is followed by one frame at once, not by a burst. */
+    double wait;
+    rt->deadline = rt->deadline > 0.0 ? rt->deadline + rt->period_ms
+                                      : rt->frame_start + rt->period_ms;
+    if (rt->deadline < rt->frame_start)
+      rt->deadline = rt->frame_start;
+    wait = ceil(rt->deadline - rt->frame_start);
+    uv_timer_start(&rt->pace, on_pace, (uint64_t)wait, 0);
+  }
+  rt->in_flight = 1;
+  rt->handoff = now_ms();
+  uv_mutex_lock(&rt->work_lock);
+  rt->job_ready = 1;
+  uv_cond_signal(&rt->work_cv);
+  uv_mutex_unlock(&rt->work_lock);
+}
+
+static void on_pace(uv_timer_t *t) {
+  rp_runtime *rt = t->data;
+  rt->due = 1;
+  try_start(rt);
+}
+
+static void on_wake(uv_async_t *a) {
+  rp_runtime *rt = a->data;
+  int close_asked;
+  uv_mutex_lock(&rt->lock);
+  close_asked = rt->close_asked;
+  uv_mutex_unlock(&rt->lock);
+  if (close_asked) {
+    begin_close(rt);
+    return;
+  }
+  try_start(rt);
+}
+
+static void train(rp_runtime *rt) {
+  training *t = &rt->train;
+  double t0 = now_ms();
+  rt->last_train_ms = 0.0;
+  if (!t->valid)
+    return;
+  /* A refused sample (a zero-sample frame, say) teaches nothing; the
+   * model stays as it was, which is the right outcome. */
+  (void)rp_cost_train(rt->model, &t->probe, t->step, t->scale, t->samples,
+                      t->raycast_ms, t->pass_ms);
+  t->valid = 0;
+  rt->last_train_ms = now_ms() - t0;
+}
+
+static void finish_close(rp_runtime *rt);
+
+static void on_done(uv_async_t *a) {
+  rp_runtime *rt = a->data;
+  rp_frame frame;
+  int done;
+  double now;
+  uv_mutex_lock(&rt->work_lock);
+  done = rt->job_done;
+  rt->job_done = 0;
+  uv_mutex_unlock(&rt->work_lock);
+  if (!done)
+    return;
+  rt->in_flight = 0;
+  rt->frame_no++;
+  if (rt->close_begun) {
+    finish_close(rt);
+    return;
+  }
+  now = now_ms();
+  rt->stats.dispatch_ms = (rt->worker_begin - rt->handoff) +
+                          (now - rt->worker_end);
+  rt->stats.train_ms = rt->last_train_ms;
+  rt->stats.total_ms = now - rt->frame_start;
+  uv_mutex_lock(&rt->lock);
+  rt->counters.frames++;
+  rt->stats.counters = rt->counters;
+  uv_mutex_unlock(&rt->lock);
+  frame.rgba = rt->out_rgba;
+  frame.width = rt->out_w;
+  frame.height = rt->out_h;
+  frame.stats = &rt->stats;
+  rt->train = rt->job_train;
+  rt->delivering = 1;
+  rt->desc.on_frame(rt, &frame, rt->desc.user);
+  rt->delivering = 0;
+  if (rt->close_begun) {
+    finish_close(rt);
+    return;
+  }
+  train(rt);
+  try_start(rt);
+}
+
+/* ---- Lifetime ------------------------------------------------------------ */
+
+static void drop_posted(posted_state *p) {
+  rp_volume_destroy(p->vol);
+  rp_tf_destroy(p->tf);
+  p->vol = NULL;
+  p->tf = NULL;
+}
+
+/* Everything but the handles and the loop, which are closed first. */
+static void free_runtime(rp_runtime *rt) {
+  rp_context *ctx = rt->ctx;
+  scene *s = &rt->s;
+  drop_posted(&rt->posted);
+  drop_posted(&rt->job_in);
+  rp_controller_destroy(s->controller);
+  rp_occupancy_destroy(s->occ);
+  rp_histograms_destroy(s->h);
+  rp_tf_destroy(s->tf);
+  rp_volume_destroy(s->vol);
+  rp_cost_model_destroy(rt->model);
+  rp_device_destroy(rt->dev);
+  rp__free(ctx, rt->scaled);
+  rp__free(ctx, rt->image);
+  rp__free(ctx, rt->tiles);
+  uv_mutex_destroy(&rt->lock);
+  uv_mutex_destroy(&rt->work_lock);
+  uv_cond_destroy(&rt->work_cv);
+  rp__free(ctx, rt);
+  rp_context_destroy(ctx);
+}
+
+static void on_handle_closed(uv_handle_t *h) {
+  rp_runtime *rt = h->data;
+  rp_runtime_closed_cb cb;
+  void *user;
+  if (--rt->handles_open > 0 || rt->own)
+    return; /* own loop: rp_runtime_destroy frees after uv_run returns */
+  cb = rt->closed_cb;
+  user = rt->closed_user;
+  free_runtime(rt);
+  if (cb != NULL)
+    cb(user);
+}
+
+/* The worker is idle (no frame in flight): stop it, close the handles. */
+static void finish_close(rp_runtime *rt) {
+  if (rt->in_flight || rt->delivering)
+    return;
+  uv_mutex_lock(&rt->work_lock);
+  rt->quit = 1;
+  uv_cond_signal(&rt->work_cv);
+  uv_mutex_unlock(&rt->work_lock);
+  if (rt->worker_started)
+    uv_thread_join(&rt->worker);
+  rt->worker_started = 0;
+  rt->handles_open = 3;
+  uv_close((uv_handle_t *)&rt->pace, on_handle_closed);
+  uv_close((uv_handle_t *)&rt->wake, on_handle_closed);
+  uv_close((uv_handle_t *)&rt->done, on_handle_closed);
+}
+
+static void begin_close(rp_runtime *rt) {
+  if (rt->close_begun)
+    return;
+  rt->close_begun = 1;
+  uv_mutex_lock(&rt->lock);
+  rt->closing = 1;
+  uv_mutex_unlock(&rt->lock);
+  uv_timer_stop(&rt->pace);
+  finish_close(rt); /* or on_done / after delivery does, later */
+}
+
+int rp_runtime_close(rp_runtime *rt, rp_runtime_closed_cb closed,
+                     void *user) {
+  if (rt == NULL)
+    return RP_EINVAL;
+  if (rt->own || rt->close_begun)
+    return RP_ESTATE;
+  rt->closed_cb = closed;
+  rt->closed_user = user;
+  begin_close(rt);
+  return 0;
+}
+
+int rp_runtime_destroy(rp_runtime *rt) {
+  uv_thread_t self;
+  if (rt == NULL)
+    return 0;
+  self = uv_thread_self();
+  if (!rt->own || uv_thread_equal(&self, &rt->loop_thread))
+    return RP_ESTATE;
+  uv_mutex_lock(&rt->lock);
+  rt->close_asked = 1;
+  rt->closing = 1;
+  uv_async_send(&rt->wake);
+  uv_mutex_unlock(&rt->lock);
+  uv_thread_join(&rt->loop_thread);
+  /* Every handle is closed: uv_run returned because none was left. */
+  uv_loop_close(&rt->own_loop);
+  free_runtime(rt);
+  return 0;
+}
+
+static void loop_main(void *arg) {
+  rp_runtime *rt = arg;
+  uv_run(rt->loop, UV_RUN_DEFAULT);
+}
+
+static int check_desc(rp_context *ctx, const rp_runtime_desc *d) {
+  static const char fn[] = "rp_runtime_create";
+  if (d->on_frame == NULL)
+    return rp__fail(ctx, RP_EINVAL, "%s: desc->on_frame is NULL", fn);
+  if (d->pacing != RP_PACE_TIMER && d->pacing != RP_PACE_ON_REQUEST)
+    return rp__fail(ctx, RP_EINVAL, "%s: desc->pacing is %d", fn,
+                    (int)d->pacing);
+  if ((int)d->controller < 0 || d->controller >= RP_CONTROL_COUNT)
+    return rp__fail(ctx, RP_EINVAL, "%s: desc->controller is %d", fn,
+                    (int)d->controller);
+  if (!isfinite(d->target_ms))
+    return rp__fail(ctx, RP_ENOTFINITE, "%s: desc->target_ms is %g", fn,
+                    d->target_ms);
+  if (d->target_ms < 0.0 || d->target_ms > 60000.0)
+    return rp__fail(ctx, RP_ERANGE, "%s: desc->target_ms is %g; must be "
+                    "in (0, 60000] (0: 1000 / 60)", fn, d->target_ms);
+  if (d->width > 16384 || d->height > 16384)
+    return rp__fail(ctx, RP_ERANGE, "%s: viewport %ux%u; at most 16384 "
+                    "each", fn, d->width, d->height);
+  if (d->effects & ~(uint32_t)RP__EFFECTS_ALL)
+    return rp__fail(ctx, RP_EINVAL, "%s: desc->effects has unknown bits "
+                    "0x%x", fn, d->effects);
+  return 0;
+}
+
+/* An app loop's handles made before a failed create: the last one closed
+ * frees the runtime (the loop still holds them until their callbacks). */
+static void free_on_close(uv_handle_t *h) {
+  rp_runtime *rt = h->data;
+  if (--rt->handles_open == 0)
+    free_runtime(rt);
+}
+
+/* Creates the three handles on rt->loop. On failure, closes those made
+ * and frees the runtime: at once on our own loop, from the close
+ * callbacks on the app's. */
+static int init_handles(rp_runtime *rt) {
+  uv_handle_t *made[2];
+  int n = 0, i;
+  rt->wake.data = rt->done.data = rt->pace.data = rt;
+  uv_timer_init(rt->loop, &rt->pace); /* cannot fail */
+  made[n++] = (uv_handle_t *)&rt->pace;
+  if (uv_async_init(rt->loop, &rt->wake, on_wake) == 0) {
+    made[n++] = (uv_handle_t *)&rt->wake;
+    if (uv_async_init(rt->loop, &rt->done, on_done) == 0)
+      return 0;
+  }
+  rt->handles_open = n;
+  for (i = 0; i < n; i++)
+    uv_close(made[i], rt->own ? NULL : free_on_close);
+  if (rt->own) {
+    uv_run(rt->loop, UV_RUN_NOWAIT);
+    uv_loop_close(rt->loop);
+    free_runtime(rt);
+  }
+  return RP_EDEVICE;
+}
+
+int rp_runtime_create(rp_context *ctx, const rp_runtime_desc *desc,
+                      rp_runtime **out) {
+  static const char fn[] = "rp_runtime_create";
+  rp_context *own_ctx = NULL;
+  rp_runtime *rt;
+  rp_caps caps;
+  int err;
+  if (ctx == NULL)
+    return RP_EINVAL;
+  if (desc == NULL || out == NULL)
+    return rp__fail(ctx, RP_EINVAL, "%s: desc and out are required", fn);
+  if ((err = check_desc(ctx, desc)) != 0)
+    return err;
+  if ((err = rp_context_create(&ctx->desc, &own_ctx)) != 0)
+    return rp__fail(ctx, err, "%s: the runtime's context", fn);
+  rt = rp__calloc(own_ctx, 1, sizeof *rt);
+  if (rt == NULL) {
+    rp_context_destroy(own_ctx);
+    return rp__fail(ctx, RP_ENOMEM, "%s: out of memory", fn);
+  }
+  rt->ctx = own_ctx;
+  rt->desc = *desc;
+  rt->space = desc->space;
+  if (rt->desc.target_ms == 0.0)
+    rt->desc.target_ms = 1000.0 / 60.0;
+  if (rt->desc.width == 0)
+    rt->desc.width = 512;
+  if (rt->desc.height == 0)
+    rt->desc.height = 512;
+  rt->posted.target_ms = rt->s.target_ms = rt->period_ms =
+      rt->desc.target_ms;
+  rt->posted.width = rt->s.width = rt->desc.width;
+  rt->posted.height = rt->s.height = rt->desc.height;
+  rt->posted.effects = rt->s.effects = rt->desc.effects;
+  rt->posted.controller = rt->s.controller_kind = rt->desc.controller;
+  rt->due = 1;
+  if (uv_mutex_init(&rt->lock) != 0) {
+    rp__free(own_ctx, rt);
+    rp_context_destroy(own_ctx);
+    return rp__fail(ctx, RP_EDEVICE, "%s: uv_mutex_init failed", fn);
+  }
+  if (uv_mutex_init(&rt->work_lock) != 0) {
+    uv_mutex_destroy(&rt->lock);
+    rp__free(own_ctx, rt);
+    rp_context_destroy(own_ctx);
+    return rp__fail(ctx, RP_EDEVICE, "%s: uv_mutex_init failed", fn);
+  }
+  if (uv_cond_init(&rt->work_cv) != 0) {
+    uv_mutex_destroy(&rt->work_lock);
+    uv_mutex_destroy(&rt->lock);
+    rp__free(own_ctx, rt);
+    rp_context_destroy(own_ctx);
+    return rp__fail(ctx, RP_EDEVICE, "%s: uv_cond_init failed", fn);
+  }
+  /* From here on free_runtime undoes everything made so far. */
+  if ((err = rp_device_create(own_ctx, &desc->device, &rt->dev)) != 0 ||
+      (err = rp_cost_model_create(own_ctx, &desc->model, &rt->model)) !=
+          0) {
+    rp__fail(ctx, err, "%s: %s", fn, rp_last_error(own_ctx));
+    free_runtime(rt);
+    return err;
+  }
+  rp_device_get_caps(rt->dev, &caps);
+  snprintf(rt->device_name, sizeof rt->device_name, "%s:%s", caps.backend,
+           caps.device);
+  rt->own = desc->loop == NULL;
+  if (rt->own) {
+    if (uv_loop_init(&rt->own_loop) != 0) {
+      free_runtime(rt);
+      return rp__fail(ctx, RP_EDEVICE, "%s: uv_loop_init failed", fn);
+    }
+    rt->loop = &rt->own_loop;
+  } else {
+    rt->loop = desc->loop;
+  }
+  if ((err = init_handles(rt)) != 0)
+    return rp__fail(ctx, err, "%s: libuv handle init failed", fn);
+  if (uv_thread_create(&rt->worker, worker_main, rt) != 0) {
+    err = RP_EDEVICE;
+  } else {
+    rt->worker_started = 1;
+    if (rt->own && uv_thread_create(&rt->loop_thread, loop_main, rt) != 0)
+      err = RP_EDEVICE;
+  }
+  if (err != 0) {
+    /* Close as if the app had: the worker stops, handles close. */
+    if (rt->own) {
+      begin_close(rt);
+      uv_run(rt->loop, UV_RUN_DEFAULT);
+      uv_loop_close(rt->loop);
+      free_runtime(rt);
+    } else {
+      begin_close(rt); /* frees from the handles' close callbacks */
+    }
+    return rp__fail(ctx, err, "%s: thread creation failed", fn);
+  }
+  *out = rt;
+  return 0;
+}
+
+/* ---- Events --------------------------------------------------------------- */
+
+/* Runs `apply` on the posted state under the lock unless the runtime is
+ * closing, counts the event and wakes the loop. The wake-up is sent under
+ * the lock so that close, which takes the lock to set `closing`, can
+ * never race a send on a handle it is about to close. `apply` runs under
+ * the lock too: it may only move values and free what it replaces. */
+typedef void (*apply_fn)(rp_runtime *rt, const void *arg);
+
+static int post(rp_runtime *rt, apply_fn apply, const void *arg,
+                int request) {
+  uv_mutex_lock(&rt->lock);
+  if (rt->closing) {
+    uv_mutex_unlock(&rt->lock);
+    return RP_ESTATE;
+  }
+  if (apply != NULL) {
+    apply(rt, arg);
+    rt->counters.events++;
+  }
+  if (request)
+    rt->requests++;
+  uv_async_send(&rt->wake);
+  uv_mutex_unlock(&rt->lock);
+  return 0;
+}
+
+/* A stack context carrying the runtime's allocator and logger: the
+ * setters' messages go to the app's log without touching the worker's
+ * context. */
+static void scratch_context(const rp_runtime *rt, rp_context *c) {
+  memset(c, 0, sizeof *c);
+  c->desc = rt->ctx->desc;
+}
+
+static void apply_volume(rp_runtime *rt, const void *arg) {
+  rp_volume *vol = (rp_volume *)arg, *old = rt->posted.vol;
+  /* The runtime's context frees it from now on (same allocator). */
+  vol->ctx = rt->ctx;
+  rt->posted.vol = vol;
+  rt->posted.marks |= POSTED_VOLUME;
+  rt->have_vol = 1;
+  /* A volume posted and replaced before any frame took it: nobody else
+   * has it, the caller gave it up. */
+  rp_volume_destroy(old);
+}
+
+int rp_runtime_set_volume(rp_runtime *rt, rp_volume *vol) {
+  rp_context scratch;
+  if (rt == NULL || vol == NULL)
+    return RP_EINVAL;
+  scratch_context(rt, &scratch);
+  if (memcmp(&vol->ctx->desc.allocator, &rt->ctx->desc.allocator,
+             sizeof(rp_allocator)) != 0)
+    return rp__fail(&scratch, RP_EINVAL, "rp_runtime_set_volume: the "
+                    "volume's context has another allocator");
+  return post(rt, apply_volume, vol, 0);
+}
+
+static void apply_tf(rp_runtime *rt, const void *arg) {
+  rp_tf *old = rt->posted.tf;
+  rt->posted.tf = (rp_tf *)arg;
+  rt->posted.marks |= POSTED_TF;
+  rt->have_tf = 1;
+  rp_tf_destroy(old);
+}
+
+int rp_runtime_set_tf(rp_runtime *rt, const rp_tf *tf) {
+  rp_context scratch;
+  rp_tf *copy = NULL;
+  int err;
+  if (rt == NULL || tf == NULL)
+    return RP_EINVAL;
+  /* Copied on the caller's thread: the allocator is malloc or the app's,
+   * which must then be callable from the threads that post. */
+  scratch_context(rt, &scratch);
+  if ((err = rp__tf_clone(&scratch, tf, &copy)) != 0)
+    return err;
+  copy->ctx = rt->ctx;
+  if ((err = post(rt, apply_tf, copy, 0)) != 0)
+    rp_tf_destroy(copy);
+  return err;
+}
+
+static void apply_camera(rp_runtime *rt, const void *arg) {
+  rt->posted.cam = *(const rp_camera *)arg;
+  rt->posted.marks |= POSTED_CAMERA;
+  rt->have_cam = 1;
+}
+
+int rp_runtime_set_camera(rp_runtime *rt, const rp_camera *cam) {
+  rp_context scratch;
+  int err;
+  if (rt == NULL || cam == NULL)
+    return RP_EINVAL;
+  scratch_context(rt, &scratch);
+  if ((err = rp__camera_check(&scratch, cam)) != 0)
+    return err;
+  return post(rt, apply_camera, cam, 0);
+}
+
+static void apply_viewport(rp_runtime *rt, const void *arg) {
+  const uint32_t *wh = arg;
+  rt->posted.width = wh[0];
+  rt->posted.height = wh[1];
+  rt->posted.marks |= POSTED_CAMERA;
+}
+
+int rp_runtime_set_viewport(rp_runtime *rt, uint32_t width,
+                            uint32_t height) {
+  uint32_t wh[2];
+  if (rt == NULL)
+    return RP_EINVAL;
+  if (width < 1 || height < 1 || width > 16384 || height > 16384)
+    return RP_ERANGE;
+  wh[0] = width;
+  wh[1] = height;
+  return post(rt, apply_viewport, wh, 0);
+}
+
+static void apply_target(rp_runtime *rt, const void *arg) {
+  rt->posted.target_ms = *(const double *)arg;
+  rt->posted.marks |= POSTED_TARGET;
+}
+
+int rp_runtime_set_target(rp_runtime *rt, double target_ms) {
+  if (rt == NULL)
+    return RP_EINVAL;
+  if (!isfinite(target_ms))
+    return RP_ENOTFINITE;
+  if (!(target_ms > 0.0) || target_ms > 60000.0)
+    return RP_ERANGE;
+  return post(rt, apply_target, &target_ms, 0);
+}
+
+static void apply_effects(rp_runtime *rt, const void *arg) {
+  rt->posted.effects = *(const uint32_t *)arg;
+  rt->posted.marks |= POSTED_EFFECTS;
+}
+
+int rp_runtime_set_effects(rp_runtime *rt, uint32_t effects) {
+  if (rt == NULL || effects & ~(uint32_t)RP__EFFECTS_ALL)
+    return RP_EINVAL;
+  return post(rt, apply_effects, &effects, 0);
+}
+
+static void apply_controller(rp_runtime *rt, const void *arg) {
+  rt->posted.controller = *(const rp_controller_kind *)arg;
+  rt->posted.marks |= POSTED_CONTROLLER;
+}
+
+int rp_runtime_set_controller(rp_runtime *rt, rp_controller_kind kind) {
+  if (rt == NULL || (int)kind < 0 || kind >= RP_CONTROL_COUNT)
+    return RP_EINVAL;
+  return post(rt, apply_controller, &kind, 0);
+}
+
+int rp_runtime_request_frame(rp_runtime *rt) {
+  if (rt == NULL)
+    return RP_EINVAL;
+  if (rt->desc.pacing != RP_PACE_ON_REQUEST)
+    return RP_ESTATE;
+  return post(rt, NULL, NULL, 1);
+}
+
+void rp_runtime_get_counters(rp_runtime *rt, rp_runtime_counters *out) {
+  if (rt == NULL || out == NULL)
+    return;
+  uv_mutex_lock(&rt->lock);
+  *out = rt->counters;
+  uv_mutex_unlock(&rt->lock);
+}

@@ -1,0 +1,263 @@
+/* Embedding the raypace runtime in an app that owns its libuv loop.
+ *
+ *   sample_embed_uv [VOLUME_FILE] [--frames N] [--target-ms T]
+ *                   [--size WxH] [--backend NAME]
+ *
+ * The app makes a loop, creates an rp_runtime on it and hands it a volume
+ * (a generated CT-like phantom without a file). The runtime then renders
+ * a frame every target_ms on its own, holding that frame time with the
+ * predicted controller, and calls on_frame on the loop thread for each.
+ * The app drives the camera, transfer function, effects and target from
+ * a uv_timer of its own, playing the built-in "mixed" sequence: as a UI
+ * would, at its own rate; events between two frames coalesce. At the end
+ * of the sequence (or after --frames N frames) it closes the runtime and
+ * its timer, and uv_run returns because nothing is left on the loop. */
+#include <getopt.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <uv.h>
+
+#include "raypace.h"
+#include "raypace_runtime.h"
+#include "raypace_sequence.h"
+
+#define TICK_MS 33 /* the app's input rate: 30 Hz */
+
+typedef struct app {
+  uv_loop_t loop;
+  uv_timer_t tick;
+  rp_runtime *rt;
+  rp_sequence *seq;
+  rp_tf **tfs;         /* one per sequence TF; the runtime copies them */
+  int tf_count;
+  rp_camera *cams;     /* one per sequence frame */
+  uint32_t next;       /* the sequence state the next tick posts */
+  uint32_t max_frames; /* 0: until the sequence ends */
+  double target_ms, fraction0;
+  int closing, status;
+} app;
+
+/* Prints a failed call; ctx NULL for calls that leave no message. */
+static int check(rp_context *ctx, int err, const char *what) {
+  if (err != 0)
+    fprintf(stderr, "%s: %s%s%s\n", what, rp_strerror(err),
+            ctx != NULL ? ": " : "", ctx != NULL ? rp_last_error(ctx) : "");
+  return err;
+}
+
+static void on_closed(void *user) {
+  app *a = user;
+  a->rt = NULL; /* its memory is gone */
+}
+
+/* Loop thread only. Nothing else on the loop once both handles close. */
+static void stop(app *a, int status) {
+  if (status != 0)
+    a->status = status;
+  if (a->closing)
+    return;
+  a->closing = 1;
+  uv_close((uv_handle_t *)&a->tick, NULL);
+  if (a->rt != NULL)
+    rp_runtime_close(a->rt, on_closed, a);
+}
+
+/* The sequence states targets as a fraction of the frame time without
+ * adaptation, which this app does not measure: its first target becomes
+ * --target-ms and later ones keep their ratio to it. */
+static double state_target(const app *a, const rp_sequence_state *st) {
+  if (st->target_ms > 0)
+    return st->target_ms;
+  return a->target_ms * st->target_fraction / a->fraction0;
+}
+
+/* Posts what changed in the next state of the sequence. */
+static void on_tick(uv_timer_t *t) {
+  app *a = t->data;
+  rp_sequence_state st;
+  int err = 0;
+  if (a->next >= rp_sequence_frames(a->seq)) {
+    stop(a, 0);
+    return;
+  }
+  rp_sequence_frame(a->seq, a->next, &st);
+  if (st.camera_changed)
+    err = rp_runtime_set_camera(a->rt, &a->cams[a->next]);
+  if (err == 0 && st.tf_changed)
+    err = rp_runtime_set_tf(a->rt, a->tfs[st.tf]);
+  if (err == 0 && st.effects_changed)
+    err = rp_runtime_set_effects(a->rt, st.effects);
+  if (err == 0 && st.target_changed)
+    err = rp_runtime_set_target(a->rt, state_target(a, &st));
+  if (err != 0) {
+    fprintf(stderr, "state %u: %s\n", a->next, rp_strerror(err));
+    stop(a, 1);
+  }
+  a->next++;
+}
+
+/* One line per frame. The stats are valid during the call only. */
+static void on_frame(rp_runtime *rt, const rp_frame *f, void *user) {
+  app *a = user;
+  const rp_frame_stats *s = f->stats;
+  (void)rt;
+  if (a->closing)
+    return;
+  if (s->status != 0) {
+    fprintf(stderr, "frame %llu: %s: %s\n", (unsigned long long)s->frame,
+            rp_strerror(s->status), s->error);
+    stop(a, 1);
+    return;
+  }
+  printf("%5llu %6.1f %6.2f %6.2f %+6.1f%% %5.3f %5.2f %5.3f "
+         "%6.2f %7.3f %6.3f %6.3f %6llu %4llu\n",
+         (unsigned long long)s->frame, s->target_ms, s->predicted_ms,
+         s->measured_ms, 100 * s->delta, s->rho, s->step, s->scale,
+         s->probe_ms, s->predict_ms, s->train_ms, s->dispatch_ms,
+         (unsigned long long)s->counters.probes,
+         (unsigned long long)s->counters.occupancies);
+  if (a->max_frames > 0 && s->frame + 1 >= a->max_frames)
+    stop(a, 0);
+  else if (s->frame == 0) /* the sequence plays on from here */
+    uv_timer_start(&a->tick, on_tick, TICK_MS, TICK_MS);
+}
+
+static int parse(int argc, char **argv, rp_runtime_desc *d, app *a,
+                 const char **volume) {
+  static const struct option opts[] = {
+      {"frames", required_argument, 0, 'f'},
+      {"target-ms", required_argument, 0, 't'},
+      {"size", required_argument, 0, 's'},
+      {"backend", required_argument, 0, 'b'},
+      {0, 0, 0, 0}};
+  int c, li = 0;
+  while ((c = getopt_long(argc, argv, "", opts, &li)) != -1) {
+    char *end = optarg;
+    switch (c) {
+    case 'f': a->max_frames = (uint32_t)strtoul(optarg, &end, 10); break;
+    case 't': a->target_ms = strtod(optarg, &end); break;
+    case 's':
+      d->width = (uint32_t)strtoul(optarg, &end, 10);
+      if (*end == 'x')
+        d->height = (uint32_t)strtoul(end + 1, &end, 10);
+      break;
+    case 'b': d->device.backend = optarg; continue;
+    default: return 1;
+    }
+    if (end == optarg || *end != '\0' || !(a->target_ms > 0) ||
+        (c == 's' && (d->width == 0 || d->height == 0))) {
+      fprintf(stderr, "bad value '%s' for --%s\n", optarg, opts[li].name);
+      return 1;
+    }
+  }
+  *volume = optind < argc ? argv[optind] : NULL;
+  return optind + 1 < argc;
+}
+
+/* The sequence, its transfer functions and every frame's camera: made
+ * before the volume is handed over, after which it is the runtime's. */
+static int prepare(app *a, rp_context *ctx, const rp_volume *vol) {
+  rp_sequence_state st;
+  uint32_t i;
+  int err;
+  if ((err = check(ctx, rp_sequence_load(ctx, "mixed", &a->seq),
+                   "sequence")) != 0)
+    return err;
+  a->tf_count = rp_sequence_tf_count(a->seq);
+  a->tfs = calloc((size_t)a->tf_count, sizeof *a->tfs);
+  a->cams = calloc(rp_sequence_frames(a->seq), sizeof *a->cams);
+  if (a->tfs == NULL || a->cams == NULL)
+    return check(NULL, RP_ENOMEM, "sequence");
+  for (i = 0; i < (uint32_t)a->tf_count; i++)
+    if ((err = check(ctx, rp_sequence_tf_create(ctx, a->seq, (int)i,
+                                                &a->tfs[i]), "tf")) != 0)
+      return err;
+  for (i = 0; i < rp_sequence_frames(a->seq); i++) {
+    rp_sequence_frame(a->seq, i, &st);
+    rp_sequence_camera(&st, vol, &a->cams[i]);
+    if (i == 0)
+      a->fraction0 = st.target_fraction > 0 ? st.target_fraction : 1;
+  }
+  return 0;
+}
+
+/* Creates the runtime on our loop, hands it the volume and runs the loop
+ * until the runtime and the timer have closed. */
+static int run(app *a, rp_context *ctx, rp_runtime_desc *d,
+               rp_volume **vol) {
+  int err = uv_loop_init(&a->loop);
+  if (err != 0) {
+    fprintf(stderr, "uv_loop_init: %s\n", uv_strerror(err));
+    return err;
+  }
+  uv_timer_init(&a->loop, &a->tick);
+  a->tick.data = a;
+  d->loop = &a->loop;
+  d->pacing = RP_PACE_TIMER;
+  d->controller = RP_CONTROL_PREDICTED;
+  d->target_ms = a->target_ms;
+  d->space.space = RP_SPACE_HYBRID;
+  d->on_frame = on_frame;
+  d->user = a;
+  err = check(ctx, rp_runtime_create(ctx, d, &a->rt), "runtime");
+  if (err == 0 &&
+      (err = check(NULL, rp_runtime_set_volume(a->rt, *vol), "volume")) == 0)
+    *vol = NULL; /* the runtime's now */
+  if (err == 0) {
+    printf("%5s %6s %6s %6s %7s %5s %5s %5s %6s %7s %6s %6s %6s %4s\n",
+           "frame", "target", "pred", "meas", "delta", "rho", "step",
+           "scale", "probe", "predict", "train", "disp", "probes", "occ");
+    /* The first frame builds the device's kernels, which can take
+     * seconds: the first tick posts state 0 and the rest wait for it. */
+    uv_timer_start(&a->tick, on_tick, 0, 0);
+  } else {
+    stop(a, 1);
+  }
+  uv_run(&a->loop, UV_RUN_DEFAULT);
+  /* UV_EBUSY here would mean a handle was left open on the loop. */
+  if (uv_loop_close(&a->loop) != 0 || a->rt != NULL) {
+    fprintf(stderr, "the loop did not close cleanly\n");
+    a->status = 1;
+  }
+  return err;
+}
+
+int main(int argc, char **argv) {
+  app a;
+  rp_runtime_desc d = {0};
+  rp_context *ctx = NULL;
+  rp_volume *vol = NULL;
+  const char *path;
+  int i, err;
+
+  memset(&a, 0, sizeof a);
+  a.target_ms = 30;
+  if (parse(argc, argv, &d, &a, &path) != 0) {
+    fprintf(stderr, "usage: %s [VOLUME_FILE] [--frames N] [--target-ms T]"
+                    " [--size WxH] [--backend NAME]\n", argv[0]);
+    return 1;
+  }
+  if (rp_context_create(NULL, &ctx) != 0)
+    return 1;
+  if (path != NULL) {
+    err = check(ctx, rp_volume_load(ctx, path, &vol), path);
+  } else {
+    rp_generate_desc g = {0};
+    g.kind = RP_GEN_PHANTOM;
+    g.dims[0] = g.dims[1] = g.dims[2] = 128;
+    err = check(ctx, rp_volume_generate(ctx, &g, &vol), "generate");
+  }
+  if (err == 0)
+    err = prepare(&a, ctx, vol);
+  if (err == 0)
+    err = run(&a, ctx, &d, &vol);
+  for (i = 0; a.tfs != NULL && i < a.tf_count; i++)
+    rp_tf_destroy(a.tfs[i]);
+  free(a.tfs);
+  free(a.cams);
+  rp_sequence_destroy(a.seq);
+  rp_volume_destroy(vol);
+  rp_context_destroy(ctx);
+  return err == 0 && a.status == 0 ? 0 : 1;
+}

@@ -1,0 +1,638 @@
+/* The libuv runtime (runtime/runtime.c): which passes each kind of event
+ * runs, coalescing, both pacing modes, events from another thread, close
+ * and destroy with a frame in flight, and refused input.
+ *
+ * Frames render on the reference device with the "none" controller, so a
+ * frame is the full-quality image: each one is checked against
+ * rp_render_reference for the camera and TF the test posted last, an
+ * oracle outside the runtime. */
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <time.h>
+#include <uv.h>
+
+#include "raypace_runtime.h"
+#include "test_util.h"
+
+#define W 40
+#define H 32
+#define EFFECTS (RP_EFFECT_ERT | RP_EFFECT_SKIP)
+
+/* What the frame callback saw; guarded by `lock` for the tests whose
+ * runtime delivers on its own loop thread. */
+typedef struct seen {
+  uv_mutex_t lock;
+  int frames, failed;
+  rp_frame_stats last;
+  uint8_t image[W * H * 4];
+  int has_image;
+  int close_in_callback; /* app loop: close from inside the callback */
+  int closed;
+  rp_runtime *rt;
+} seen;
+
+static void on_closed(void *user) { ((seen *)user)->closed = 1; }
+
+static void on_frame(rp_runtime *rt, const rp_frame *f, void *user) {
+  seen *s = user;
+  uv_mutex_lock(&s->lock);
+  s->frames++;
+  s->last = *f->stats;
+  s->has_image = f->rgba != NULL;
+  if (f->stats->status != 0)
+    s->failed++;
+  if (f->rgba != NULL) {
+    assert_int_equal(f->width, W);
+    assert_int_equal(f->height, H);
+    memcpy(s->image, f->rgba, sizeof s->image);
+  }
+  uv_mutex_unlock(&s->lock);
+  if (s->close_in_callback)
+    assert_int_equal(rp_runtime_close(rt, on_closed, s), 0);
+}
+
+static rp_volume *make_volume(rp_context *ctx, uint32_t n, uint32_t seed) {
+  rp_generate_desc g = {0};
+  rp_volume *vol = NULL;
+  g.kind = RP_GEN_PHANTOM;
+  g.dims[0] = g.dims[1] = g.dims[2] = n;
+  g.seed = seed;
+  assert_int_equal(rp_volume_generate(ctx, &g, &vol), 0);
+  return vol;
+}
+
+static rp_camera orbit(const rp_volume *vol, float az) {
+  rp_camera cam = {0};
+  rp_camera_orbit(&cam, vol, az, 20.0f, 2.2f);
+  return cam;
+}
+
+/* Posts a volume (the runtime takes it), a TF preset and a camera: the
+ * least a frame needs. Returns the TF, which stays the caller's. */
+static rp_tf *post_scene(rp_runtime *rt, rp_context *ctx, rp_volume *vol,
+                         const char *tf_name, const rp_camera *cam) {
+  rp_tf *tf = NULL;
+  assert_int_equal(rp_tf_create_preset(ctx, tf_name, &tf), 0);
+  assert_int_equal(rp_runtime_set_volume(rt, vol), 0);
+  assert_int_equal(rp_runtime_set_tf(rt, tf), 0);
+  assert_int_equal(rp_runtime_set_camera(rt, cam), 0);
+  return tf;
+}
+
+/* The oracle: the reference raycaster at full quality. */
+static void expect_reference(rp_context *ctx, const rp_volume *vol,
+                             const rp_tf *tf, const rp_camera *cam,
+                             const uint8_t *got) {
+  rp_histograms *h = NULL;
+  rp_occupancy *occ = NULL;
+  rp_render_desc rd = {0};
+  uint8_t *want = malloc(W * H * 4);
+  assert_non_null(want);
+  assert_int_equal(rp_histograms_build(ctx, vol, &h), 0);
+  assert_int_equal(rp_occupancy_build(ctx, h, tf, &occ), 0);
+  rd.width = W;
+  rd.height = H;
+  rd.effects = EFFECTS;
+  assert_int_equal(
+      rp_render_reference(ctx, vol, tf, occ, cam, &rd, want, NULL), 0);
+  assert_memory_equal(got, want, W * H * 4);
+  free(want);
+  rp_occupancy_destroy(occ);
+  rp_histograms_destroy(h);
+}
+
+/* ---- App loop, on-request pacing --------------------------------------- */
+
+typedef struct app {
+  rp_context *ctx;
+  uv_loop_t loop;
+  rp_runtime *rt;
+  seen s;
+} app;
+
+static void app_open(app *a) {
+  rp_runtime_desc d = {0};
+  memset(a, 0, sizeof *a);
+  a->ctx = rp_test_context();
+  assert_int_equal(uv_mutex_init(&a->s.lock), 0);
+  assert_int_equal(uv_loop_init(&a->loop), 0);
+  d.loop = &a->loop;
+  d.device.backend = "reference";
+  d.pacing = RP_PACE_ON_REQUEST;
+  d.on_frame = on_frame;
+  d.user = &a->s;
+  d.width = W;
+  d.height = H;
+  d.effects = EFFECTS;
+  d.target_ms = 1000.0;
+  assert_int_equal(rp_runtime_create(a->ctx, &d, &a->rt), 0);
+  a->s.rt = a->rt;
+}
+
+static void app_close(app *a) {
+  assert_int_equal(rp_runtime_close(a->rt, on_closed, &a->s), 0);
+  while (!a->s.closed && uv_run(&a->loop, UV_RUN_ONCE) != 0)
+    ;
+  assert_true(a->s.closed);
+  /* Nothing of the runtime is left on the loop. */
+  assert_int_equal(uv_run(&a->loop, UV_RUN_NOWAIT), 0);
+  assert_int_equal(uv_loop_close(&a->loop), 0);
+  uv_mutex_destroy(&a->s.lock);
+}
+
+/* Requests one frame and runs the loop until it is delivered; returns
+ * the counters' change over that frame. */
+static rp_runtime_counters frame(app *a) {
+  rp_runtime_counters before, d;
+  int n = a->s.frames;
+  uint64_t included = a->s.last.events;
+  rp_runtime_get_counters(a->rt, &before);
+  assert_int_equal(rp_runtime_request_frame(a->rt), 0);
+  while (a->s.frames == n)
+    uv_run(&a->loop, UV_RUN_ONCE);
+  assert_int_equal(a->s.frames, n + 1);
+  d = a->s.last.counters;
+  /* Events are counted when posted, before `before`: what a frame
+   * includes is the difference of stats.events. */
+  d.events = a->s.last.events - included;
+#define SUB(f) d.f -= before.f
+  SUB(histograms); SUB(volume_uploads); SUB(occupancies);
+  SUB(tf_uploads); SUB(probes); SUB(device_depth); SUB(renders);
+  SUB(frames);
+#undef SUB
+  return d;
+}
+
+#define expect_passes(d, hist, occ_, probe)                                  \
+  do {                                                                       \
+    assert_int_equal((d).histograms, (hist));                                \
+    assert_int_equal((d).volume_uploads, (hist));                            \
+    assert_int_equal((d).occupancies, (occ_));                               \
+    assert_int_equal((d).tf_uploads, (occ_));                                \
+    assert_int_equal((d).probes, (probe));                                   \
+    assert_int_equal((d).renders, 1);                                        \
+    assert_int_equal((d).frames, 1);                                         \
+  } while (0)
+
+static void test_passes_per_event(void **state) {
+  app a;
+  rp_volume *vol, *vol2;
+  rp_tf *bone = NULL, *soft = NULL;
+  rp_runtime_counters d;
+  rp_camera cam;
+  int i;
+  (void)state;
+  app_open(&a);
+  vol = make_volume(a.ctx, 32, 1);
+  /* The runtime takes `vol`; the oracle needs one of its own. */
+  vol2 = make_volume(a.ctx, 32, 1);
+  assert_int_equal(rp_tf_create_preset(a.ctx, "ct-bone", &bone), 0);
+  assert_int_equal(rp_tf_create_preset(a.ctx, "ct-soft", &soft), 0);
+  cam = orbit(vol2, 30.0f);
+  assert_int_equal(rp_runtime_set_volume(a.rt, vol), 0);
+  assert_int_equal(rp_runtime_set_tf(a.rt, bone), 0);
+  assert_int_equal(rp_runtime_set_camera(a.rt, &cam), 0);
+
+  d = frame(&a); /* first frame: everything */
+  expect_passes(d, 1, 1, 1);
+  assert_int_equal(d.device_depth, 1);
+  assert_int_equal(a.s.last.status, 0);
+  expect_reference(a.ctx, vol2, bone, &cam, a.s.image);
+
+  d = frame(&a); /* nothing changed: nothing recomputed, depth reused */
+  expect_passes(d, 0, 0, 0);
+  assert_int_equal(d.device_depth, 0);
+
+  assert_int_equal(rp_runtime_set_tf(a.rt, soft), 0); /* TF only */
+  d = frame(&a);
+  expect_passes(d, 0, 1, 1); /* the probe reads H-alpha and occupancy */
+  assert_int_equal(d.device_depth, 1); /* D_front follows occupancy */
+  expect_reference(a.ctx, vol2, soft, &cam, a.s.image);
+
+  cam = orbit(vol2, 75.0f); /* camera only */
+  assert_int_equal(rp_runtime_set_camera(a.rt, &cam), 0);
+  d = frame(&a);
+  expect_passes(d, 0, 0, 1);
+  assert_int_equal(d.device_depth, 1);
+  expect_reference(a.ctx, vol2, soft, &cam, a.s.image);
+
+  cam = orbit(vol2, 120.0f); /* both */
+  assert_int_equal(rp_runtime_set_camera(a.rt, &cam), 0);
+  assert_int_equal(rp_runtime_set_tf(a.rt, bone), 0);
+  d = frame(&a);
+  expect_passes(d, 0, 1, 1);
+  expect_reference(a.ctx, vol2, bone, &cam, a.s.image);
+
+  /* A burst of 1000 events of each kind between two frames: one
+   * recompute each, and the frame shows the last of each. */
+  for (i = 0; i < 1000; i++) {
+    cam = orbit(vol2, (float)i * 0.37f);
+    assert_int_equal(rp_runtime_set_camera(a.rt, &cam), 0);
+    assert_int_equal(rp_runtime_set_tf(a.rt, i % 2 ? soft : bone), 0);
+  }
+  d = frame(&a);
+  expect_passes(d, 0, 1, 1);
+  assert_int_equal(d.events, 2000);
+  assert_int_equal(d.device_depth, 1);
+  expect_reference(a.ctx, vol2, soft, &cam, a.s.image);
+
+  /* Target and shading change no derived data; ERT does the probe. */
+  assert_int_equal(rp_runtime_set_target(a.rt, 500.0), 0);
+  assert_int_equal(rp_runtime_set_effects(a.rt, EFFECTS |
+                                          RP_EFFECT_SHADING), 0);
+  d = frame(&a);
+  expect_passes(d, 0, 0, 0);
+  assert_int_equal(a.s.last.target_ms, 500.0);
+  assert_int_equal(a.s.last.effects, EFFECTS | RP_EFFECT_SHADING);
+  assert_int_equal(rp_runtime_set_effects(a.rt, RP_EFFECT_SKIP), 0);
+  d = frame(&a);
+  expect_passes(d, 0, 0, 1);
+  assert_int_equal(rp_runtime_set_effects(a.rt, EFFECTS), 0);
+  d = frame(&a);
+  expect_passes(d, 0, 0, 1);
+  expect_reference(a.ctx, vol2, soft, &cam, a.s.image);
+
+  /* A new volume: everything once. */
+  vol = make_volume(a.ctx, 32, 1);
+  assert_int_equal(rp_runtime_set_volume(a.rt, vol), 0);
+  d = frame(&a);
+  expect_passes(d, 1, 1, 1);
+  expect_reference(a.ctx, vol2, soft, &cam, a.s.image);
+  assert_int_equal(a.s.failed, 0);
+
+  app_close(&a);
+  rp_tf_destroy(bone);
+  rp_tf_destroy(soft);
+  rp_volume_destroy(vol2);
+  rp_context_destroy(a.ctx);
+}
+
+/* Requests made while nothing can render wait for the scene; requests
+ * made before a frame starts coalesce into one frame. */
+static void test_requests(void **state) {
+  app a;
+  rp_volume *vol;
+  rp_tf *tf = NULL;
+  rp_camera cam;
+  (void)state;
+  app_open(&a);
+  assert_int_equal(rp_runtime_request_frame(a.rt), 0);
+  uv_run(&a.loop, UV_RUN_NOWAIT);
+  assert_int_equal(a.s.frames, 0); /* no scene yet */
+  vol = make_volume(a.ctx, 24, 3);
+  cam = orbit(vol, 10.0f);
+  tf = post_scene(a.rt, a.ctx, vol, "ct-bone", &cam);
+  assert_int_equal(rp_runtime_request_frame(a.rt), 0);
+  assert_int_equal(rp_runtime_request_frame(a.rt), 0);
+  while (a.s.frames == 0)
+    uv_run(&a.loop, UV_RUN_ONCE);
+  /* Three requests, one frame: nothing else starts. */
+  uv_run(&a.loop, UV_RUN_NOWAIT);
+  uv_run(&a.loop, UV_RUN_NOWAIT);
+  {
+    rp_runtime_counters c;
+    rp_runtime_get_counters(a.rt, &c);
+    assert_int_equal(c.renders, 1);
+  }
+  assert_int_equal(a.s.frames, 1);
+  assert_int_equal(a.s.last.events, 3);
+  app_close(&a);
+  rp_tf_destroy(tf);
+  rp_context_destroy(a.ctx);
+}
+
+/* Refused events change nothing and leave the caller's data alone; a
+ * frame the device cannot render is delivered as an error, and the next
+ * good frame renders. */
+static void test_bad_input(void **state) {
+  app a;
+  rp_volume *vol;
+  rp_tf *tf = NULL;
+  rp_camera cam, bad;
+  rp_runtime_counters c;
+  (void)state;
+  app_open(&a);
+  vol = make_volume(a.ctx, 24, 2);
+  cam = orbit(vol, 40.0f);
+  assert_int_equal(rp_runtime_set_volume(a.rt, NULL), RP_EINVAL);
+  assert_int_equal(rp_runtime_set_tf(a.rt, NULL), RP_EINVAL);
+  assert_int_equal(rp_runtime_set_camera(a.rt, NULL), RP_EINVAL);
+  bad = cam;
+  bad.eye[1] = NAN;
+  assert_int_equal(rp_runtime_set_camera(a.rt, &bad), RP_EINVAL);
+  bad = cam;
+  memcpy(bad.center, bad.eye, sizeof bad.eye);
+  assert_int_equal(rp_runtime_set_camera(a.rt, &bad), RP_EINVAL);
+  bad = cam;
+  bad.fov_y_deg = 180.0f;
+  assert_int_equal(rp_runtime_set_camera(a.rt, &bad), RP_EINVAL);
+  assert_int_equal(rp_runtime_set_target(a.rt, NAN), RP_ENOTFINITE);
+  assert_int_equal(rp_runtime_set_target(a.rt, INFINITY), RP_ENOTFINITE);
+  assert_int_equal(rp_runtime_set_target(a.rt, 0.0), RP_ERANGE);
+  assert_int_equal(rp_runtime_set_target(a.rt, -5.0), RP_ERANGE);
+  assert_int_equal(rp_runtime_set_viewport(a.rt, 0, 10), RP_ERANGE);
+  assert_int_equal(rp_runtime_set_viewport(a.rt, 10, 16385), RP_ERANGE);
+  assert_int_equal(rp_runtime_set_effects(a.rt, 1u << 9), RP_EINVAL);
+  assert_int_equal(rp_runtime_set_controller(a.rt, RP_CONTROL_COUNT),
+                   RP_EINVAL);
+  assert_int_equal(rp_runtime_set_controller(a.rt, (rp_controller_kind)-1),
+                   RP_EINVAL);
+  rp_runtime_get_counters(a.rt, &c);
+  assert_int_equal(c.events, 0);
+
+  /* AO is not something the reference device renders: the frame comes
+   * back as an error with the reason, no image. */
+  tf = post_scene(a.rt, a.ctx, vol, "ct-bone", &cam);
+  assert_int_equal(rp_runtime_set_effects(a.rt, EFFECTS | RP_EFFECT_AO),
+                   0);
+  (void)frame(&a);
+  assert_int_equal(a.s.last.status, RP_EUNSUPPORTED);
+  assert_non_null(strstr(a.s.last.error, "effects"));
+  assert_false(a.s.has_image);
+  assert_int_equal(rp_runtime_set_effects(a.rt, EFFECTS), 0);
+  (void)frame(&a);
+  assert_int_equal(a.s.last.status, 0);
+  assert_true(a.s.has_image);
+  app_close(&a);
+  rp_tf_destroy(tf);
+  rp_context_destroy(a.ctx);
+}
+
+static void *other_alloc(size_t size, void *user) {
+  (void)user;
+  return malloc(size);
+}
+
+static void other_free(void *ptr, void *user) {
+  (void)user;
+  free(ptr);
+}
+
+static void test_volume_other_allocator(void **state) {
+  app a;
+  rp_context *other;
+  rp_context_desc cd = {0};
+  rp_generate_desc g = {0};
+  rp_volume *vol = NULL;
+  (void)state;
+  app_open(&a);
+  cd.allocator.alloc = other_alloc;
+  cd.allocator.free = other_free;
+  assert_int_equal(rp_context_create(&cd, &other), 0);
+  g.kind = RP_GEN_PHANTOM;
+  g.dims[0] = g.dims[1] = g.dims[2] = 8;
+  assert_int_equal(rp_volume_generate(other, &g, &vol), 0);
+  assert_int_equal(rp_runtime_set_volume(a.rt, vol), RP_EINVAL);
+  rp_volume_destroy(vol); /* still ours */
+  rp_context_destroy(other);
+  app_close(&a);
+  rp_context_destroy(a.ctx);
+}
+
+/* Close while the worker renders: the frame is not delivered, nothing
+ * leaks (ASan), the loop is left empty (app_close checks). And close
+ * from inside the frame callback. */
+static void test_close_in_flight(void **state) {
+  app a;
+  rp_volume *vol;
+  rp_tf *tf = NULL;
+  rp_camera cam;
+  (void)state;
+  app_open(&a);
+  vol = make_volume(a.ctx, 64, 4);
+  cam = orbit(vol, 30.0f);
+  tf = post_scene(a.rt, a.ctx, vol, "ct-soft", &cam);
+  assert_int_equal(rp_runtime_request_frame(a.rt), 0);
+  uv_run(&a.loop, UV_RUN_NOWAIT); /* the frame starts on the worker */
+  for (;;) { /* wait until the worker is inside the frame */
+    rp_runtime_counters c;
+    rp_runtime_get_counters(a.rt, &c);
+    if (c.histograms == 1)
+      break;
+    uv_sleep(1);
+  }
+  app_close(&a); /* delivered or not, the frame is never shown */
+  assert_int_equal(a.s.frames, 0);
+  rp_tf_destroy(tf);
+  rp_context_destroy(a.ctx);
+
+  app_open(&a);
+  vol = make_volume(a.ctx, 16, 4);
+  cam = orbit(vol, 30.0f);
+  tf = post_scene(a.rt, a.ctx, vol, "ct-soft", &cam);
+  a.s.close_in_callback = 1;
+  assert_int_equal(rp_runtime_request_frame(a.rt), 0);
+  while (!a.s.closed && uv_run(&a.loop, UV_RUN_ONCE) != 0)
+    ;
+  assert_true(a.s.closed);
+  assert_int_equal(a.s.frames, 1);
+  assert_int_equal(uv_loop_close(&a.loop), 0);
+  uv_mutex_destroy(&a.s.lock);
+  rp_tf_destroy(tf);
+  rp_context_destroy(a.ctx);
+}
+
+/* ---- Own loop, timer pacing -------------------------------------------- */
+
+static double now_ms(void) {
+  struct timespec ts;
+  clock_gettime(CLOCK_MONOTONIC, &ts);
+  return (double)ts.tv_sec * 1e3 + (double)ts.tv_nsec * 1e-6;
+}
+
+static int frames_of(seen *s, rp_frame_stats *last) {
+  int n;
+  uv_mutex_lock(&s->lock);
+  n = s->frames;
+  if (last != NULL)
+    *last = s->last;
+  uv_mutex_unlock(&s->lock);
+  return n;
+}
+
+static rp_runtime *own_runtime(rp_context *ctx, seen *s, double target) {
+  rp_runtime_desc d = {0};
+  rp_runtime *rt = NULL;
+  d.device.backend = "reference";
+  d.pacing = RP_PACE_TIMER;
+  d.on_frame = on_frame;
+  d.user = s;
+  d.width = W;
+  d.height = H;
+  d.effects = EFFECTS;
+  d.target_ms = target;
+  assert_int_equal(rp_runtime_create(ctx, &d, &rt), 0);
+  return rt;
+}
+
+/* The timer never starts frames faster than the target period: after T
+ * ms at most T / period + 1 frames (the first starts at once). */
+static void test_timer_pacing(void **state) {
+  rp_context *ctx = rp_test_context();
+  seen s;
+  rp_runtime *rt;
+  rp_volume *vol;
+  rp_tf *tf = NULL;
+  rp_camera cam;
+  double t0, elapsed, period = 25.0;
+  int n;
+  (void)state;
+  memset(&s, 0, sizeof s);
+  assert_int_equal(uv_mutex_init(&s.lock), 0);
+  rt = own_runtime(ctx, &s, period);
+  assert_int_equal(rp_runtime_close(rt, NULL, NULL), RP_ESTATE);
+  assert_int_equal(rp_runtime_request_frame(rt), RP_ESTATE);
+  vol = make_volume(ctx, 16, 5);
+  cam = orbit(vol, 0.0f);
+  t0 = now_ms();
+  tf = post_scene(rt, ctx, vol, "ct-bone", &cam);
+  while (frames_of(&s, NULL) < 6 && now_ms() - t0 < 20000.0)
+    uv_sleep(5);
+  n = frames_of(&s, NULL);
+  elapsed = now_ms() - t0;
+  assert_int_equal(rp_runtime_destroy(rt), 0);
+  assert_true(n >= 6);
+  assert_true(n <= (int)(elapsed / period) + 2);
+  assert_int_equal(s.failed, 0);
+  assert_int_equal(s.last.target_ms, period);
+  uv_mutex_destroy(&s.lock);
+  rp_tf_destroy(tf);
+  rp_context_destroy(ctx);
+}
+
+/* Destroy with a frame in flight on the runtime's own loop. */
+static void test_destroy_in_flight(void **state) {
+  rp_context *ctx = rp_test_context();
+  seen s;
+  rp_runtime *rt;
+  rp_volume *vol;
+  rp_tf *tf = NULL;
+  rp_camera cam;
+  (void)state;
+  memset(&s, 0, sizeof s);
+  assert_int_equal(uv_mutex_init(&s.lock), 0);
+  rt = own_runtime(ctx, &s, 10.0);
+  vol = make_volume(ctx, 48, 6);
+  cam = orbit(vol, 0.0f);
+  tf = post_scene(rt, ctx, vol, "ct-soft", &cam);
+  uv_sleep(2);
+  assert_int_equal(rp_runtime_destroy(rt), 0);
+  assert_int_equal(rp_runtime_destroy(NULL), 0);
+  uv_mutex_destroy(&s.lock);
+  rp_tf_destroy(tf);
+  rp_context_destroy(ctx);
+}
+
+/* A second thread posts a camera every millisecond while the runtime
+ * renders on its own loop. The first frame that includes the last event
+ * (stats.events) shows exactly the last camera. */
+typedef struct poster {
+  rp_runtime *rt;
+  const rp_volume *vol;
+  int count;
+  rp_camera last;
+} poster;
+
+static void post_cameras(void *arg) {
+  poster *p = arg;
+  int i;
+  for (i = 0; i < p->count; i++) {
+    p->last = orbit(p->vol, (float)i * 1.7f);
+    assert_int_equal(rp_runtime_set_camera(p->rt, &p->last), 0);
+    uv_sleep(1);
+  }
+}
+
+static void test_camera_thread_1khz(void **state) {
+  rp_context *ctx = rp_test_context();
+  seen s;
+  rp_runtime *rt;
+  rp_volume *vol, *vol2;
+  rp_tf *tf = NULL;
+  rp_frame_stats last;
+  uv_thread_t thread;
+  poster p;
+  double t0;
+  uint64_t total;
+  (void)state;
+  memset(&s, 0, sizeof s);
+  assert_int_equal(uv_mutex_init(&s.lock), 0);
+  rt = own_runtime(ctx, &s, 5.0);
+  vol = make_volume(ctx, 32, 7);
+  vol2 = make_volume(ctx, 32, 7);
+  assert_int_equal(rp_tf_create_preset(ctx, "ct-bone", &tf), 0);
+  assert_int_equal(rp_runtime_set_volume(rt, vol), 0);
+  assert_int_equal(rp_runtime_set_tf(rt, tf), 0);
+  p.rt = rt;
+  p.vol = vol2;
+  p.count = 300;
+  assert_int_equal(uv_thread_create(&thread, post_cameras, &p), 0);
+  assert_int_equal(uv_thread_join(&thread), 0);
+  total = 2 + (uint64_t)p.count; /* volume, TF, cameras */
+  t0 = now_ms();
+  for (;;) {
+    frames_of(&s, &last);
+    if (last.events == total || now_ms() - t0 > 30000.0)
+      break;
+    uv_sleep(2);
+  }
+  assert_int_equal(rp_runtime_destroy(rt), 0);
+  assert_int_equal(last.events, total);
+  assert_int_equal(last.status, 0);
+  /* Frames rendered while the thread posted: fewer than the events,
+   * every one coalesced. */
+  assert_true(s.frames >= 1 && (uint64_t)s.frames < total);
+  expect_reference(ctx, vol2, tf, &p.last, s.image);
+  uv_mutex_destroy(&s.lock);
+  rp_tf_destroy(tf);
+  rp_volume_destroy(vol2);
+  rp_context_destroy(ctx);
+}
+
+static void test_names(void **state) {
+  rp_pacing p;
+  (void)state;
+  assert_string_equal(rp_pacing_name(RP_PACE_TIMER), "timer");
+  assert_string_equal(rp_pacing_name(RP_PACE_ON_REQUEST), "on-request");
+  assert_int_equal(rp_pacing_from_name("on-request", &p), 0);
+  assert_int_equal(p, RP_PACE_ON_REQUEST);
+  assert_int_equal(rp_pacing_from_name("vsync", &p), RP_EINVAL);
+}
+
+static void test_create_refuses(void **state) {
+  rp_context *ctx = rp_test_context();
+  rp_runtime_desc d = {0};
+  rp_runtime *rt = NULL;
+  (void)state;
+  d.device.backend = "reference";
+  assert_int_equal(rp_runtime_create(ctx, &d, &rt), RP_EINVAL); /* cb */
+  assert_non_null(strstr(rp_last_error(ctx), "on_frame"));
+  d.on_frame = on_frame;
+  d.target_ms = NAN;
+  assert_int_equal(rp_runtime_create(ctx, &d, &rt), RP_ENOTFINITE);
+  d.target_ms = -1.0;
+  assert_int_equal(rp_runtime_create(ctx, &d, &rt), RP_ERANGE);
+  d.target_ms = 0.0;
+  d.device.backend = "no-such-backend";
+  assert_true(rp_runtime_create(ctx, &d, &rt) < 0);
+  assert_null(rt);
+  rp_context_destroy(ctx);
+}
+
+int main(void) {
+  const struct CMUnitTest tests[] = {
+      cmocka_unit_test(test_names),
+      cmocka_unit_test(test_create_refuses),
+      cmocka_unit_test(test_passes_per_event),
+      cmocka_unit_test(test_requests),
+      cmocka_unit_test(test_bad_input),
+      cmocka_unit_test(test_volume_other_allocator),
+      cmocka_unit_test(test_close_in_flight),
+      cmocka_unit_test(test_timer_pacing),
+      cmocka_unit_test(test_destroy_in_flight),
+      cmocka_unit_test(test_camera_thread_1khz),
+  };
+  return cmocka_run_group_tests(tests, NULL, NULL);
+}
