@@ -95,15 +95,20 @@ typedef struct rp_frame_stats {
   char error[256];         /* the message when status != 0 */
   rp_controller_kind controller;
   double target_ms;
-  double predicted_ms;     /* the cost model's t' at the density of the
-                              last pass, whatever the controller (only
-                              "predicted" acts on it); NaN when the model
-                              has none */
+  double predicted_ms;     /* what the frame was expected to take: the
+                              time it had spent when the controller
+                              decided (recompute, probe), earlier passes,
+                              and the cost model's t' for its last pass
+                              whatever the controller (only "predicted"
+                              acts on it); NaN when the model has none */
   double measured_ms;      /* the frame on the worker, wall: recompute,
                               probe, decision and every render pass. The
-                              target is held on it; the controller and
-                              the cost model learn from it */
-  double delta;            /* last pass / predicted - 1 (NaN if none) */
+                              target is held on it: the render passes get
+                              the target minus what the frame had spent
+                              before them (at least a quarter of it), and
+                              the controller and the cost model learn
+                              the passes alone */
+  double delta;            /* measured / predicted - 1 (NaN if none) */
   double rho;              /* sampling density rendered */
   float step, scale;       /* its step (voxels) and image scale */
   uint32_t passes;         /* render passes (2 when two-pass re-rendered) */

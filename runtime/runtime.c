@@ -89,7 +89,6 @@ typedef struct scene {
    * a set's first frame builds its kernel variant and allocates, a cost
    * the model must not learn as if every frame paid it. */
   uint32_t warm_sets;
-  double pre_ms; /* this frame's work before its first pass */
 } scene;
 
 /* What the cost model trains on after delivery. */
@@ -414,30 +413,39 @@ static int render_pass(rp_runtime *rt, double rho, double *pass_ms) {
   rt->job_train.scale = st->scale;
   rt->job_train.samples = st->samples;
   rt->job_train.raycast_ms = (double)rp_device_last_time_ns(rt->dev) * 1e-6;
-  /* The first pass carries the frame's recompute, probe and decision:
-   * the target is held on all the frame costs, and the model's c0 learns
-   * the part that is not the raycast. */
-  *pass_ms = now_ms() - t0 + s->pre_ms;
-  s->pre_ms = 0.0;
+  *pass_ms = now_ms() - t0;
   rt->job_train.pass_ms = *pass_ms;
   return 0;
 }
 
-/* Controller, prediction and the render passes of one frame. */
+/* The least share of the target a frame's render passes are given when
+ * its recompute and probe already used more: the budget stays positive,
+ * and one slow recompute (a volume load) does not drop the density. */
+#define MIN_RENDER_SHARE 0.25
+
+/* Controller, prediction and the render passes of one frame. The time the
+ * frame already spent (recompute, probe) is known exactly when the
+ * controller decides: it is taken off the target, and only the render
+ * passes are predicted and learned. Frames with and without a probe then
+ * cost the same in total, where a model that learned the probe as part of
+ * an average c0 was wrong both ways. */
 static int render_frame(rp_runtime *rt) {
   scene *s = &rt->s;
   rp_frame_stats *st = &rt->stats;
   predict_ctx pc;
   rp_cost_estimate est;
-  double rho, t0, pass_ms = 0.0;
+  double rho, t0, pass_ms = 0.0, budget;
+  double spent = now_ms() - rt->worker_begin;
   int err, again = 1;
   pc.rt = rt;
+  budget = s->target_ms - spent;
+  if (budget < MIN_RENDER_SHARE * s->target_ms)
+    budget = MIN_RENDER_SHARE * s->target_ms;
   t0 = now_ms();
-  if ((err = rp_controller_begin_frame(s->controller, s->target_ms,
-                                       predict_at, &pc, &rho)) != 0)
+  if ((err = rp_controller_begin_frame(s->controller, budget, predict_at,
+                                       &pc, &rho)) != 0)
     return err;
   st->predict_ms = now_ms() - t0;
-  s->pre_ms = now_ms() - rt->worker_begin;
   while (again) {
     float step, scale;
     rp_space_map(&rt->space, rho, &step, &scale);
@@ -455,15 +463,17 @@ static int render_frame(rp_runtime *rt) {
     }
     st->rho = rho;
     st->passes++;
-    st->measured_ms += pass_ms;
     if ((err = rp_controller_end_pass(s->controller, pass_ms, &again,
                                       &rho)) != 0) {
       rp_controller_reset(s->controller);
       return err;
     }
   }
-  st->delta = st->predicted_ms > 0.0 ? pass_ms / st->predicted_ms - 1.0
-                                     : NAN;
+  st->measured_ms = now_ms() - rt->worker_begin;
+  st->predicted_ms += st->measured_ms - pass_ms; /* what was known */
+  st->delta = st->predicted_ms > 0.0
+                  ? st->measured_ms / st->predicted_ms - 1.0
+                  : NAN;
   return 0;
 }
 
