@@ -57,6 +57,10 @@ void rp__ert_prepass(const rp__raygen *rg, const uint8_t *grid,
                      float ref_step, float threshold, uint32_t seed,
                      uint32_t frame, float *d_ert);
 
+/* Every RP_EFFECT_* bit: anything else in an effects field is refused. */
+#define RP__KNOWN_EFFECTS                                                     \
+  (RP_EFFECT_SHADING | RP_EFFECT_ERT | RP_EFFECT_SKIP | RP_EFFECT_AO)
+
 /* The render desc with its zero fields replaced by defaults (the one
  * place that knows them), and its validation (message prefixed by fn). */
 rp_render_desc rp__render_desc_defaults(const rp_render_desc *in);

@@ -33,8 +33,6 @@
 
 #define RP__DEFAULT_STEP 1.0f
 #define RP__DEFAULT_ERT 0.99f
-#define RP__KNOWN_EFFECTS                                                     \
-  (RP_EFFECT_SHADING | RP_EFFECT_ERT | RP_EFFECT_SKIP | RP_EFFECT_AO)
 /* Below this gradient magnitude (relative to the data range per world
  * unit) the normal is noise, so the sample is lit as if facing the light
  * rather than by a random direction. */

@@ -48,8 +48,7 @@ enum {
 /* The effects the probe depends on: ERT cuts the span, skipping moves
  * D_front and D_back. Shading and AO only scale k. */
 #define PROBE_EFFECTS (RP_EFFECT_ERT | RP_EFFECT_SKIP)
-#define RP__EFFECTS_ALL                                                     \
-  (RP_EFFECT_SHADING | RP_EFFECT_ERT | RP_EFFECT_SKIP | RP_EFFECT_AO)
+#define MAX_VIEWPORT 16384u /* per axis, as the header states */
 
 /* The latest value of each kind of event. */
 typedef struct posted_state {
@@ -312,12 +311,9 @@ static int recompute(rp_runtime *rt) {
   return 0;
 }
 
-typedef struct predict_ctx {
-  const rp_runtime *rt;
-} predict_ctx;
-
+/* The controller's model of the frame: `user` is the runtime. */
 static double predict_at(void *user, double rho) {
-  const rp_runtime *rt = ((const predict_ctx *)user)->rt;
+  const rp_runtime *rt = user;
   rp_cost_estimate e;
   float step, scale;
   rp_space_map(&rt->space, rho, &step, &scale);
@@ -432,18 +428,16 @@ static int render_pass(rp_runtime *rt, double rho, double *pass_ms) {
 static int render_frame(rp_runtime *rt) {
   scene *s = &rt->s;
   rp_frame_stats *st = &rt->stats;
-  predict_ctx pc;
   rp_cost_estimate est;
   double rho, t0, pass_ms = 0.0, budget;
   double spent = now_ms() - rt->worker_begin;
   int err, again = 1;
-  pc.rt = rt;
   budget = s->target_ms - spent;
   if (budget < MIN_RENDER_SHARE * s->target_ms)
     budget = MIN_RENDER_SHARE * s->target_ms;
   t0 = now_ms();
   if ((err = rp_controller_begin_frame(s->controller, budget, predict_at,
-                                       &pc, &rho)) != 0)
+                                       rt, &rho)) != 0)
     return err;
   st->predict_ms = now_ms() - t0;
   while (again) {
@@ -776,10 +770,10 @@ static int check_desc(rp_context *ctx, const rp_runtime_desc *d) {
   if (d->target_ms < 0.0 || d->target_ms > 60000.0)
     return rp__fail(ctx, RP_ERANGE, "%s: desc->target_ms is %g; must be "
                     "in (0, 60000] (0: 1000 / 60)", fn, d->target_ms);
-  if (d->width > 16384 || d->height > 16384)
-    return rp__fail(ctx, RP_ERANGE, "%s: viewport %ux%u; at most 16384 "
-                    "each", fn, d->width, d->height);
-  if (d->effects & ~(uint32_t)RP__EFFECTS_ALL)
+  if (d->width > MAX_VIEWPORT || d->height > MAX_VIEWPORT)
+    return rp__fail(ctx, RP_ERANGE, "%s: viewport %ux%u; at most %u "
+                    "each", fn, d->width, d->height, MAX_VIEWPORT);
+  if (d->effects & ~(uint32_t)RP__KNOWN_EFFECTS)
     return rp__fail(ctx, RP_EINVAL, "%s: desc->effects has unknown bits "
                     "0x%x", fn, d->effects);
   return 0;
@@ -1031,7 +1025,8 @@ int rp_runtime_set_viewport(rp_runtime *rt, uint32_t width,
   uint32_t wh[2];
   if (rt == NULL)
     return RP_EINVAL;
-  if (width < 1 || height < 1 || width > 16384 || height > 16384)
+  if (width < 1 || height < 1 || width > MAX_VIEWPORT ||
+      height > MAX_VIEWPORT)
     return RP_ERANGE;
   wh[0] = width;
   wh[1] = height;
@@ -1059,7 +1054,7 @@ static void apply_effects(rp_runtime *rt, const void *arg) {
 }
 
 int rp_runtime_set_effects(rp_runtime *rt, uint32_t effects) {
-  if (rt == NULL || effects & ~(uint32_t)RP__EFFECTS_ALL)
+  if (rt == NULL || effects & ~(uint32_t)RP__KNOWN_EFFECTS)
     return RP_EINVAL;
   return post(rt, apply_effects, &effects, 0);
 }
