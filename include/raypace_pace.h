@@ -188,13 +188,13 @@ RP_API int rp_controller_end_pass(rp_controller *c, double pass_ms,
  *  one probe per camera / transfer function / effect set serves every
  *  density the tuner tries. Probe rays are the ERT pre-pass grid of the
  *  output image (one ray per 4x4 output pixels), subsampled to at most
- *  4096 rays (a 256x256 output traces them all). */
+ *  1024 rays (a 128x128 output traces them all). */
 typedef struct rp_frame_probe {
   uint32_t width, height;  /* output size */
   uint32_t effects;        /* RP_EFFECT_* the frame renders with */
   uint32_t rays;           /* probe rays traced: the ERT pre-pass grid,
-                              or, past 4096 rays, the regular subgrid of
-                              every n-th ray per axis that fits 4096 */
+                              or, past 1024 rays, the regular subgrid of
+                              every n-th ray per axis that fits 1024 */
   uint32_t rays_hit;       /* probe rays with a non-empty sampled span */
   uint32_t rays_ended;     /* of those, rays the ERT pre-pass ends */
   double depth_sum;        /* sum over probe rays of the sampled span L,

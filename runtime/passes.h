@@ -44,14 +44,18 @@ void rp__ert_grid(uint32_t width, uint32_t height, uint32_t *gw,
  * size): d_ert[gw * gh] receives the estimated termination depth or
  * +inf. It draws each bin's centre opacity, as the device kernels do.
  * rp__ert_prepass_ray is one of them, pre-pass ray (cx, cy), for callers
- * that split the grid across threads; with bin_alpha (RP_OPACITY_BINS
- * values, rp_occupancy's bin_alpha) it draws the mean opacity the
- * volume's voxels in each bin have instead of the centre. */
+ * that split the grid across threads, with the bins' opacities corrected
+ * to the coarse step by rp__ert_corrected: from bin_alpha
+ * (RP_OPACITY_BINS values, rp_occupancy's bin_alpha, the mean opacity the
+ * volume's voxels in each bin have) or, when it is NULL, the bin
+ * centres. */
+void rp__ert_corrected(const float *bin_alpha, float ref_step,
+                       double corr[RP_OPACITY_BINS]);
 float rp__ert_prepass_ray(const rp__raygen *rg, uint32_t cx, uint32_t cy,
                           const uint8_t *grid, const uint8_t *alpha_hist,
-                          const float *bin_alpha, const uint32_t blocks[3],
-                          float ref_step, float threshold, uint32_t seed,
-                          uint32_t frame);
+                          const double corr[RP_OPACITY_BINS],
+                          const uint32_t blocks[3], float threshold,
+                          uint32_t seed, uint32_t frame);
 void rp__ert_prepass(const rp__raygen *rg, const uint8_t *grid,
                      const uint8_t *alpha_hist, const uint32_t blocks[3],
                      float ref_step, float threshold, uint32_t seed,

@@ -202,17 +202,21 @@ typedef struct probe_job {
   const rp__raygen *rg;
   const uint8_t *grid;       /* occupancy, or NULL */
   const uint8_t *alpha_hist; /* H-alpha, or NULL */
-  const float *bin_alpha;
+  double corr[RP_OPACITY_BINS]; /* bin opacities at the coarse step */
   const uint32_t *blocks;
   int skip, ert;
-  float ref_step, threshold;
+  float threshold;
   uint32_t seed, frame, gw;
   uint32_t sub; /* trace every sub-th pre-pass ray along each axis */
   probe_row *rows;
 } probe_job;
 
-/* The most pre-pass rays a probe traces. */
-#define PROBE_MAX_RAYS 4096u
+/* The most pre-pass rays a probe traces. Measured on bonsai at 512 x 512
+ * (36 views, three TFs, ERT and skipping on): the mean span of a 1024-ray
+ * subgrid is within 1.3 % of the whole 16384-ray grid's (4096 rays: 0.45
+ * %, 256 rays: 2.6 %), well inside a frame's own noise (+-10 %) and
+ * corrected by kappa, at a quarter of 4096 rays' time. */
+#define PROBE_MAX_RAYS 1024u
 
 /* Rays in the subgrid of every sub-th ray of a gw x gh grid. */
 static uint32_t probe_rays(uint32_t gw, uint32_t gh, uint32_t sub) {
@@ -242,8 +246,8 @@ static void probe_rows(uint32_t begin, uint32_t end, void *user) {
       stop = back;
       if (j->ert) {
         double d = rp__ert_prepass_ray(j->rg, cx, cy, j->grid, j->alpha_hist,
-                                       j->bin_alpha, j->blocks, j->ref_step,
-                                       j->threshold, j->seed, j->frame);
+                                       j->corr, j->blocks, j->threshold,
+                                       j->seed, j->frame);
         if (d <= stop) {
           stop = d > front ? d : front;
           r.ended++;
@@ -318,11 +322,10 @@ int rp_frame_probe_compute(rp_context *ctx, const rp_volume *vol,
   job.rg = &rg;
   job.grid = occ->grid;
   job.alpha_hist = occ->alpha_hist;
-  job.bin_alpha = occ->bin_alpha;
+  rp__ert_corrected(occ->bin_alpha, tf->reference_step, job.corr);
   job.blocks = occ->h->blocks;
   job.skip = (d.effects & RP_EFFECT_SKIP) != 0;
   job.ert = (d.effects & RP_EFFECT_ERT) != 0;
-  job.ref_step = tf->reference_step;
   job.threshold = d.ert_threshold;
   job.seed = seed;
   job.frame = frame;

@@ -195,10 +195,11 @@ static void test_probe_box_closed_form(void **state) {
 }
 
 /* The same box at 512 x 512: a 128 x 128 pre-pass grid, more than the
- * probe's 4096 rays, so it traces every second ray per axis. Ray cx sits
- * at x = (4 cx + 2) / 8 - 32 voxels: inside |x| < 16 for cx = 32..95, 32
- * of them even; |y| < 12 for cy = 40..87, 24 even. S' keeps the full
- * grid's estimate and stays within 1/60 of the reference's count. */
+ * probe's 1024 rays, so it traces every fourth ray per axis. Ray cx sits
+ * at x = (4 cx + 2) / 8 - 32 voxels: inside |x| < 16 for cx = 32..95, 16
+ * of them multiples of 4; |y| < 12 for cy = 40..87, 12 of them. S' keeps
+ * the full grid's estimate and stays within 1/60 of the reference's
+ * count. */
 static void test_probe_subgrid(void **state) {
   scene s;
   rp_render_desc d = {0};
@@ -211,12 +212,12 @@ static void test_probe_subgrid(void **state) {
   d.width = d.height = 512;
   assert_int_equal(rp_frame_probe_compute(s.ctx, s.vol, s.tf, s.occ, &s.cam,
                                           &d, 1, 0, &p), 0);
-  assert_int_equal(p.rays, 64 * 64);
-  assert_int_equal(p.rays_hit, 32 * 24);
-  assert_float_equal(p.depth_sum, 32 * 24 * 40.0, 1e-9);
+  assert_int_equal(p.rays, 32 * 32);
+  assert_int_equal(p.rays_hit, 16 * 12);
+  assert_float_equal(p.depth_sum, 16 * 12 * 40.0, 1e-9);
   assert_int_equal(rp_cost_model_create(s.ctx, NULL, &m), 0);
   assert_int_equal(rp_cost_predict(m, &p, 1.0f, 1.0f, &e), 0);
-  assert_float_equal(e.samples, 64.0 * (32 * 24 * 40.0 + 32 * 24 / 2.0),
+  assert_float_equal(e.samples, 256.0 * (16 * 12 * 40.0 + 16 * 12 / 2.0),
                      1e-6);
   d.step = 1.0f;
   measured = reference_samples(&s, &d);
