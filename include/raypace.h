@@ -367,6 +367,17 @@ typedef struct rp_device_desc {
    * ("reference" only when named: it is the slow scalar oracle). */
   const char *backend;
   uint32_t index;            /* device within the backend */
+  /* Testing heterogeneous devices: every depth pass, ERT pre-pass and
+   * render takes `slowdown` times as long. The front end waits
+   * (slowdown - 1) times the operation's device time after it and
+   * reports the stretched time, so a real backend becomes a device that
+   * much slower, reproducibly. 0 or 1: none; otherwise finite and in
+   * (1, 10000]. */
+  double slowdown;
+  /* Testing device loss: the fail_at_render-th render (counting from 1)
+   * and every one after it fail with RP_EDEVICE, as a device that is
+   * lost mid-session does. 0: never. */
+  uint32_t fail_at_render;
 } rp_device_desc;
 
 /** The compiled-in backends, NULL-terminated. */

@@ -53,6 +53,9 @@ struct rp_device {
   int depth_valid;
   rp_frame_params depth_params;
   uint64_t last_ns;
+  /* rp_device_desc's testing knobs, and renders so far. */
+  double slowdown;
+  uint32_t fail_at_render, renders;
 };
 
 const char *const *rp_backend_names(void) {
@@ -147,6 +150,10 @@ int rp_device_create(rp_context *ctx, const rp_device_desc *desc,
     return rp__fail(ctx, RP_EINVAL, "rp_device_create: out is required");
   if (desc != NULL)
     d = *desc;
+  if (!(d.slowdown == 0.0 || (d.slowdown >= 1.0 && d.slowdown <= 1e4)))
+    return rp__fail(ctx, isfinite(d.slowdown) ? RP_ERANGE : RP_ENOTFINITE,
+                    "rp_device_create: slowdown %g is not 0 or in "
+                    "[1, 10000]", d.slowdown);
   name = d.backend;
   if (name == NULL || name[0] == '\0') {
     name = getenv("RP_BACKEND");
@@ -157,6 +164,8 @@ int rp_device_create(rp_context *ctx, const rp_device_desc *desc,
   if (dev == NULL)
     return rp__fail(ctx, RP_ENOMEM, "rp_device_create: out of memory");
   dev->ctx = ctx;
+  dev->slowdown = d.slowdown;
+  dev->fail_at_render = d.fail_at_render;
   if (name != NULL && strcmp(name, REFERENCE) == 0) {
     if (d.index != 0) {
       rp__free(ctx, dev);
@@ -223,9 +232,25 @@ static uint64_t now_ns(void) {
   return (uint64_t)ts.tv_sec * 1000000000u + (uint64_t)ts.tv_nsec;
 }
 
+static void sleep_ns(uint64_t ns) {
+  struct timespec ts;
+  ts.tv_sec = (time_t)(ns / 1000000000u);
+  ts.tv_nsec = (long)(ns % 1000000000u);
+  while (nanosleep(&ts, &ts) != 0)
+    ; /* interrupted by a signal: sleep the rest */
+}
+
+/* The last operation's device time; a slowed device (rp_device_desc's
+ * slowdown) then waits the difference, so wall time and reported time
+ * both stretch as a slower device's would. */
 static void record_time(rp_device *dev, uint64_t start) {
   dev->last_ns = dev->ops != NULL ? dev->ops->last_time_ns(dev->impl)
                                   : now_ns() - start;
+  if (dev->slowdown > 1.0) {
+    double extra = (dev->slowdown - 1.0) * (double)dev->last_ns;
+    sleep_ns((uint64_t)extra);
+    dev->last_ns += (uint64_t)extra;
+  }
 }
 
 int rp_device_set_volume(rp_device *dev, const rp_volume *vol) {
@@ -530,6 +555,10 @@ int rp__device_render(rp_device *dev, const rp_camera *cam,
     region = &all;
   else if ((err = check_region(dev->ctx, region, rg.width, rg.height)) != 0)
     return err;
+  if (dev->fail_at_render != 0 && ++dev->renders >= dev->fail_at_render)
+    return rp__fail(dev->ctx, RP_EDEVICE, "rp_device_render: device '%s' "
+                    "(%s) failed (injected at render %u)", dev->caps.device,
+                    dev->caps.backend, dev->fail_at_render);
   t0 = now_ns();
   if (dev->ops == NULL) {
     if (fetches != NULL)

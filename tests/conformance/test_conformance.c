@@ -14,6 +14,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <time.h>
 
 #include "passes.h"
 #include "raypace_backend.h"
@@ -475,9 +476,98 @@ static void front_end_validates(void **state) {
   rp_device_destroy(NULL);
 }
 
+/* rp_device_desc's testing knobs, on this backend. A device slowed 1000x
+ * sleeps 999x its device time after each operation and reports 1000x
+ * it: its renders report at least 10x the median of the same renders on
+ * the plain device (a margin of 100 against noise), and each one's wall
+ * time is at least 999/1000 of what it reports (less 1 ns for the
+ * rounding to whole ns), however fast or loaded the machine is. Either
+ * bound fails if its half of the slowdown is missing. A device set to
+ * fail at its second render renders once, the same image as the plain
+ * device, then fails every render with RP_EDEVICE and leaves the
+ * caller's image as it was. */
+static int cmp_double(const void *a, const void *b) {
+  double x = *(const double *)a, y = *(const double *)b;
+  return (x > y) - (x < y);
+}
+
+static void slowed_and_failing_devices(void **state) {
+  scene s = make_scene("phantom 24^3", RP_GEN_PHANTOM, 24, 24, 24, RP_U8);
+  rp_tf *tf = NULL;
+  rp_occupancy *occ = NULL;
+  rp_camera cam = camera(s.vol, 0);
+  rp_render_desc d = {0};
+  rp_device_desc dd = {0};
+  rp_device *slow = NULL, *lost = NULL, *plain = NULL;
+  uint8_t first[8 * 8 * 4], img[8 * 8 * 4], keep[8 * 8 * 4];
+  struct timespec a, b;
+  double wall_ns, reported_ns, plain_ns[3];
+  int i;
+  (void)state;
+  assert_int_equal(rp_tf_create_preset(ctx, "ct-bone", &tf), 0);
+  assert_int_equal(rp_occupancy_build(ctx, s.h, tf, &occ), 0);
+  d.width = d.height = 8;
+  d.effects = RP_EFFECT_ERT | RP_EFFECT_SKIP;
+  dd.backend = backend_name();
+  dd.slowdown = 0.5;
+  assert_int_equal(rp_device_create(ctx, &dd, &slow), RP_ERANGE);
+  assert_non_null(strstr(rp_last_error(ctx), "slowdown"));
+  dd.slowdown = NAN;
+  assert_int_equal(rp_device_create(ctx, &dd, &slow), RP_ENOTFINITE);
+  dd.slowdown = 20001.0;
+  assert_int_equal(rp_device_create(ctx, &dd, &slow), RP_ERANGE);
+  assert_null(slow);
+  dd.slowdown = 0.0;
+  assert_int_equal(rp_device_create(ctx, &dd, &plain), 0);
+  assert_int_equal(rp_device_set_volume(plain, s.vol), 0);
+  assert_int_equal(rp_device_set_tf(plain, tf, occ), 0);
+  for (i = 0; i < 3; i++) {
+    assert_int_equal(rp_device_render(plain, &cam, &d, NULL, img, NULL), 0);
+    plain_ns[i] = (double)rp_device_last_time_ns(plain);
+  }
+  qsort(plain_ns, 3, sizeof plain_ns[0], cmp_double);
+  dd.slowdown = 1000.0;
+  assert_int_equal(rp_device_create(ctx, &dd, &slow), 0);
+  assert_int_equal(rp_device_set_volume(slow, s.vol), 0);
+  assert_int_equal(rp_device_set_tf(slow, tf, occ), 0);
+  for (i = 0; i < 2; i++) {
+    clock_gettime(CLOCK_MONOTONIC, &a);
+    assert_int_equal(rp_device_render(slow, &cam, &d, NULL, first, NULL), 0);
+    clock_gettime(CLOCK_MONOTONIC, &b);
+    wall_ns = (double)(b.tv_sec - a.tv_sec) * 1e9 +
+              (double)(b.tv_nsec - a.tv_nsec);
+    reported_ns = (double)rp_device_last_time_ns(slow);
+    assert_true(reported_ns >= 10.0 * plain_ns[1]);
+    assert_true(wall_ns + 1.0 >= reported_ns * 999.0 / 1000.0);
+  }
+  assert_memory_equal(first, img, sizeof img);
+  dd.slowdown = 0.0;
+  dd.fail_at_render = 2;
+  assert_int_equal(rp_device_create(ctx, &dd, &lost), 0);
+  assert_int_equal(rp_device_set_volume(lost, s.vol), 0);
+  assert_int_equal(rp_device_set_tf(lost, tf, occ), 0);
+  assert_int_equal(rp_device_render(lost, &cam, &d, NULL, first, NULL), 0);
+  assert_memory_equal(first, img, sizeof img);
+  for (i = 0; i < 2; i++) {
+    memset(keep, 0x5a, sizeof keep);
+    assert_int_equal(rp_device_render(lost, &cam, &d, NULL, keep, NULL),
+                     RP_EDEVICE);
+    assert_non_null(strstr(rp_last_error(ctx), "injected"));
+    for (size_t j = 0; j < sizeof keep; j++)
+      assert_int_equal(keep[j], 0x5a);
+  }
+  rp_device_destroy(lost);
+  rp_device_destroy(slow);
+  rp_device_destroy(plain);
+  rp_occupancy_destroy(occ);
+  rp_tf_destroy(tf);
+  drop_scene(&s);
+}
+
 int main(void) {
   const struct CMUnitTest tests[] = {
       cmocka_unit_test(front_end_validates),
+      cmocka_unit_test(slowed_and_failing_devices),
       cmocka_unit_test(regions_compose),
       cmocka_unit_test(depth_and_ert_passes),
       cmocka_unit_test(odd_viewports_and_scales),
