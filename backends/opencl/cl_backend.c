@@ -22,6 +22,7 @@
 #include <string.h>
 
 #include "cl_internal.h"
+#include "passes.h"
 
 #include "common_cl.h"
 #include "depth_cl.h"
@@ -373,23 +374,20 @@ static int cl_depth_pass(void *p, const rp_frame_params *fp,
 static int cl_ert_prepass(void *p, const rp_frame_params *fp,
                           float *d_ert) {
   rp_cl_impl *impl = p;
-  size_t gw = fp->width / RP_ERT_RAY_STRIDE +
-              (fp->width % RP_ERT_RAY_STRIDE != 0);
-  size_t gh = fp->height / RP_ERT_RAY_STRIDE +
-              (fp->height % RP_ERT_RAY_STRIDE != 0);
+  uint32_t gw, gh;
   cl_float16 alpha;
   cl_kernel k;
   int rc, b;
-  /* The 16 bins' opacities at the coarse step, once, in double: bin b
-   * stands for opacity (b - 0.5) / 15 over the reference step. */
-  alpha.s[0] = 0.0f;
-  for (b = 1; b < RP_OPACITY_BINS; b++) {
-    double a = (b - 0.5) / 15.0;
-    double r = (double)RP_ERT_COARSE_STEP / (double)fp->ref_step;
-    alpha.s[b] = (float)-expm1(r * log1p(-a));
-  }
+  double corr[RP_OPACITY_BINS];
+  rp__ert_grid(fp->width, fp->height, &gw, &gh);
+  /* The 16 bins' centre opacities at the coarse step, once, in double,
+   * as the C pre-pass corrects them. */
+  rp__ert_corrected(NULL, fp->ref_step, corr);
+  for (b = 0; b < RP_OPACITY_BINS; b++)
+    alpha.s[b] = (float)corr[b];
   if ((rc = rp_cl__kernel(impl, RP_CL_ERT, 0, &k)) != 0 ||
-      (rc = ensure_buffer(impl, &impl->d_ert, gw * gh * sizeof(float),
+      (rc = ensure_buffer(impl, &impl->d_ert,
+                          (size_t)gw * gh * sizeof(float),
                           CL_MEM_WRITE_ONLY, "the ERT pre-pass")) != 0)
     return rc;
   if ((rc = set_arg(impl, k, 0, sizeof *fp, fp, "rp_cl_ert")) != 0 ||
@@ -401,8 +399,8 @@ static int cl_ert_prepass(void *p, const rp_frame_params *fp,
     return rc;
   if (d_ert == NULL)
     return 0;
-  return read_back(impl, &impl->d_ert, d_ert, gw * gh * sizeof(float),
-                   "the ERT pre-pass");
+  return read_back(impl, &impl->d_ert, d_ert,
+                   (size_t)gw * gh * sizeof(float), "the ERT pre-pass");
 }
 
 static uint32_t raycast_key(const rp_cl_impl *impl, uint32_t effects,

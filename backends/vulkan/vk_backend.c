@@ -797,7 +797,7 @@ static int vk_upload_occupancy(void *p, const uint8_t *grid,
 static void set_params(rp_vk_impl *impl, const rp_frame_params *p) {
   rp_vk_params *u = impl->params.map;
   double range = (double)p->value_max - (double)p->value_min;
-  double coarse = RP_ERT_COARSE_STEP / (double)p->ref_step;
+  double coarse[RP_OPACITY_BINS];
   uint32_t gw, gh;
   int a, k;
   memset(u, 0, sizeof *u);
@@ -823,8 +823,9 @@ static void set_params(rp_vk_impl *impl, const rp_frame_params *p) {
   u->vrange[3] = (float)((double)p->step / (double)p->ref_step);
   /* The pre-pass's 16 bin opacities depend on the frame only, so they are
    * corrected here once, in double as the reference does. */
+  rp__ert_corrected(NULL, p->ref_step, coarse);
   for (k = 0; k < RP_OPACITY_BINS; k++)
-    u->ert_a[k] = (float)-expm1(coarse * log1p(-rp__ert_bin_alpha(k)));
+    u->ert_a[k] = (float)coarse[k];
   rp__ert_grid(p->width, p->height, &gw, &gh);
   u->idims[3] = p->lut_size;
   u->blocks[3] = p->width;
