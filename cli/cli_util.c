@@ -145,6 +145,120 @@ int cli_open_device(rp_context *ctx, const char *option, const char *backend,
   return err != 0 ? cli_error(ctx, option, err) : 0;
 }
 
+/* One SPEC of a device list, [s, e). */
+static int parse_device(const char *option, const char *s, size_t len,
+                        rp_device_desc *d) {
+  static const char *const names[] = {"opencl", "vulkan", "reference"};
+  char buf[128], *tok, *save = NULL;
+  int field = 0, have_cu = 0, have_slow = 0, have_fail = 0;
+  size_t i;
+  memset(d, 0, sizeof(*d));
+  if (len == 0) {
+    fprintf(stderr, "raypace: %s: empty device in the list\n", option);
+    return RP_EINVAL;
+  }
+  if (len >= sizeof(buf)) {
+    fprintf(stderr, "raypace: %s: device '%.*s...' is too long\n", option,
+            32, s);
+    return RP_EINVAL;
+  }
+  memcpy(buf, s, len);
+  buf[len] = '\0';
+  /* strtok_r would fold "::" into one separator; empty fields are
+   * errors, so split by hand. */
+  for (tok = buf; tok != NULL; tok = save, field++) {
+    char *colon = strchr(tok, ':');
+    char *eq;
+    save = NULL;
+    if (colon != NULL) {
+      *colon = '\0';
+      save = colon + 1;
+    }
+    eq = strchr(tok, '=');
+    if (field == 0) {
+      for (i = 0; i < sizeof(names) / sizeof(names[0]); i++)
+        if (strcmp(tok, names[i]) == 0)
+          d->backend = names[i];
+      if (d->backend == NULL) {
+        fprintf(stderr, "raypace: %s: backend '%s' in '%.*s' is not opencl, "
+                        "vulkan or reference\n", option, tok, (int)len, s);
+        return RP_EINVAL;
+      }
+    } else if (eq == NULL && field == 1) {
+      if (cli_parse_u32(tok, 1024, &d->index) != 0) {
+        fprintf(stderr, "raypace: %s: device index '%s' in '%.*s' is not a "
+                        "number in 0..1024\n", option, tok, (int)len, s);
+        return RP_EINVAL;
+      }
+    } else if (eq != NULL && strncmp(tok, "cu=", 3) == 0 && !have_cu) {
+      have_cu = 1;
+      if (cli_parse_u32(eq + 1, 65536, &d->compute_units) != 0 ||
+          d->compute_units == 0) {
+        fprintf(stderr, "raypace: %s: '%s' in '%.*s': compute units must "
+                        "be a number in 1..65536\n", option, tok, (int)len,
+                s);
+        return RP_EINVAL;
+      }
+    } else if (eq != NULL && strncmp(tok, "slow=", 5) == 0 && !have_slow) {
+      char *end;
+      double v = strtod(eq + 1, &end);
+      have_slow = 1;
+      if (end == eq + 1 || *end != '\0' || !(v >= 1.0 && v <= 10000.0)) {
+        fprintf(stderr, "raypace: %s: '%s' in '%.*s': slowdown must be a "
+                        "number in [1, 10000]\n", option, tok, (int)len, s);
+        return RP_EINVAL;
+      }
+      d->slowdown = v;
+    } else if (eq != NULL && strncmp(tok, "fail=", 5) == 0 && !have_fail) {
+      have_fail = 1;
+      if (cli_parse_u32(eq + 1, UINT32_MAX, &d->fail_at_render) != 0) {
+        fprintf(stderr, "raypace: %s: '%s' in '%.*s': fail must be the "
+                        "render (from 1) to fail at, or 0\n", option, tok,
+                (int)len, s);
+        return RP_EINVAL;
+      }
+    } else if (eq != NULL && (strncmp(tok, "cu=", 3) == 0 ||
+                              strncmp(tok, "slow=", 5) == 0 ||
+                              strncmp(tok, "fail=", 5) == 0)) {
+      fprintf(stderr, "raypace: %s: '%.*s' is given twice in '%.*s'\n",
+              option, (int)(eq - tok), tok, (int)len, s);
+      return RP_EINVAL;
+    } else {
+      fprintf(stderr, "raypace: %s: field '%s' in '%.*s' is not %s"
+                      "cu=N, slow=S or fail=F\n", option, tok, (int)len, s,
+              field == 1 ? "an index, " : "");
+      return RP_EINVAL;
+    }
+  }
+  return 0;
+}
+
+int cli_parse_devices(const char *option, const char *spec,
+                      rp_device_desc *out, uint32_t max, uint32_t *n) {
+  uint32_t count = 0;
+  const char *s = spec;
+  if (spec == NULL || out == NULL || n == NULL)
+    return RP_EINVAL;
+  for (;;) {
+    const char *comma = strchr(s, ',');
+    size_t len = comma != NULL ? (size_t)(comma - s) : strlen(s);
+    rp_device_desc d;
+    int err = parse_device(option, s, len, &d);
+    if (err != 0)
+      return err;
+    if (count == max) {
+      fprintf(stderr, "raypace: %s: at most %u devices\n", option, max);
+      return RP_EINVAL;
+    }
+    out[count++] = d;
+    if (comma == NULL)
+      break;
+    s = comma + 1;
+  }
+  *n = count;
+  return 0;
+}
+
 static int cmp_double(const void *a, const void *b) {
   double x = *(const double *)a, y = *(const double *)b;
   return x < y ? -1 : x > y;

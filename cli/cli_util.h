@@ -27,6 +27,19 @@ int cli_parse_positive(const char *s, float *out);
  * the command-line option in the error. Returns 0 or 1 (error printed). */
 int cli_open_device(rp_context *ctx, const char *option, const char *backend,
                     uint32_t index, rp_device **dev);
+/* Parses a device list "SPEC[,SPEC...]",
+ * SPEC = BACKEND[:INDEX][:cu=N][:slow=S][:fail=F] (BACKEND opencl, vulkan
+ * or reference; INDEX default 0; cu = compute units of a sub-device,
+ * rp_device_desc.compute_units; slow = rp_device_desc.slowdown; fail =
+ * rp_device_desc.fail_at_render) into out[0..*n). At most `max`. On a bad
+ * spec prints "OPTION: ..." naming the bad part to stderr and returns
+ * RP_EINVAL. INDEX, if given, comes right after BACKEND; the key=value
+ * fields follow in any order, each at most once (cu in 1..65536, slow in
+ * [1, 10000], fail >= 0 where 0 is never). The message reads
+ * "raypace: OPTION: ...", as cli_error's do. out[i].backend points to a
+ * static string. */
+int cli_parse_devices(const char *option, const char *spec,
+                      rp_device_desc *out, uint32_t max, uint32_t *n);
 /* Median of n > 0 values; sorts them in place. */
 double cli_median(double *v, int n);
 /* Writes s as a gnuplot single-quoted literal ('' is a quote), so that a

@@ -4,6 +4,7 @@
  * fields are only ever added. */
 #include <cjson/cJSON.h>
 #include <getopt.h>
+#include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -11,6 +12,8 @@
 #include "cli_util.h"
 #include "commands.h"
 #include "raypace.h"
+#include "raypace_group.h"
+#include "raypace_pace.h"
 
 static void usage_main(FILE *f) {
   fprintf(f,
@@ -68,6 +71,26 @@ static void usage_render(FILE *f) {
           "0)\n"
           "  --scale S             image scale in (0, 1]: rays per output\n"
           "                        pixel per axis (default 1)\n"
+          "  --devices LIST        render on several devices at once, the\n"
+          "                        image split by predicted cost (not with\n"
+          "                        --backend/--device); LIST is SPEC[,SPEC.."
+          ".],\n"
+          "                        SPEC BACKEND[:INDEX][:cu=N][:slow=S]"
+          "[:fail=F]:\n"
+          "                        cu a sub-device of N compute units, slow "
+          "a\n"
+          "                        device S times slower, fail the render "
+          "it\n"
+          "                        fails at (testing device loss)\n"
+          "  --overlay-split       with --devices: tint each device's region"
+          "\n"
+          "                        in its own colour, 1-pixel borders\n"
+          "  --warmup N            render N frames first (with --devices: "
+          "the\n"
+          "                        devices' costs are learned from them, so"
+          "\n"
+          "                        the shares follow their speeds; default "
+          "0)\n"
           "  --json                print a JSON summary on stdout\n\n"
           "presets:");
   for (p = rp_tf_preset_names(); *p != NULL; p++)
@@ -223,6 +246,11 @@ typedef struct render_opts {
   uint32_t device;
   uint32_t width, height;
   int ortho, shading, ert, skip, json;
+  int device_given, overlay;
+  uint32_t warmup;
+  const char *devices_spec;
+  rp_device_desc devices[RP_GROUP_MAX_DEVICES];
+  uint32_t ndevices;
 } render_opts;
 
 static int parse_render(int argc, char **argv, render_opts *o) {
@@ -241,6 +269,9 @@ static int parse_render(int argc, char **argv, render_opts *o) {
       {"backend", required_argument, 0, 'B'},
       {"device", required_argument, 0, 'D'},
       {"scale", required_argument, 0, 'x'},
+      {"devices", required_argument, 0, 'L'},
+      {"overlay-split", no_argument, 0, 'V'},
+      {"warmup", required_argument, 0, 'w'},
       {"json", no_argument, 0, 'j'},
       {"output", required_argument, 0, 'o'},
       {"help", no_argument, 0, 'h'},
@@ -267,11 +298,26 @@ static int parse_render(int argc, char **argv, render_opts *o) {
     case 'K': o->skip = 0; break;
     case 'a': bad = cli_parse_positive(optarg, &o->ert_threshold); break;
     case 'b': bad = cli_parse_floats(optarg, o->background, 3); break;
-    case 'B': o->backend = optarg; break;
-    case 'D': bad = cli_parse_u32(optarg, 1024, &o->device); break;
+    case 'B':
+      o->backend = optarg;
+      o->device_given = 1;
+      break;
+    case 'D':
+      bad = cli_parse_u32(optarg, 1024, &o->device);
+      o->device_given = 1;
+      break;
     case 'x':
       bad = cli_parse_positive(optarg, &o->scale) || o->scale > 1.0f;
       break;
+    case 'L':
+      /* The parser names the bad part itself. */
+      if (cli_parse_devices("--devices", optarg, o->devices,
+                            RP_GROUP_MAX_DEVICES, &o->ndevices) != 0)
+        return 2;
+      o->devices_spec = optarg;
+      break;
+    case 'V': o->overlay = 1; break;
+    case 'w': bad = cli_parse_u32(optarg, 10000, &o->warmup); break;
     case 'j': o->json = 1; break;
     case 'o': o->out = optarg; break;
     case 'h': usage_render(stdout); return 1;
@@ -283,12 +329,281 @@ static int parse_render(int argc, char **argv, render_opts *o) {
       return 2;
     }
   }
+  if (o->devices_spec != NULL && o->device_given) {
+    fprintf(stderr, "raypace render: --devices excludes --backend and "
+                    "--device\n");
+    return 2;
+  }
+  if (o->overlay && o->devices_spec == NULL) {
+    fprintf(stderr, "raypace render: --overlay-split needs --devices\n");
+    return 2;
+  }
   if (optind + 1 != argc || o->out == NULL) {
     usage_render(stderr);
     return 2;
   }
   o->volume = argv[optind];
   return 0;
+}
+
+/* ---- render --devices ---------------------------------------------------- */
+
+/* One colour per device (RGB), as distinct as eight can be. */
+static const uint8_t device_colours[RP_GROUP_MAX_DEVICES][3] = {
+    {230, 25, 75},  {60, 180, 75},  {0, 130, 200}, {255, 225, 25},
+    {240, 50, 230}, {70, 240, 240}, {245, 130, 48}, {145, 30, 180}};
+
+/* A region of the scaled image (sw x sh) in output pixels (w x h): each
+ * edge mapped by the same monotone function, so that regions that were
+ * disjoint and covered the scaled image still do in the output. */
+static rp_region region_to_output(const rp_region *r, uint32_t sw,
+                                  uint32_t sh, uint32_t w, uint32_t h) {
+  rp_region o;
+  o.x0 = (uint32_t)((uint64_t)r->x0 * w / sw);
+  o.x1 = (uint32_t)((uint64_t)r->x1 * w / sw);
+  o.y0 = (uint32_t)((uint64_t)r->y0 * h / sh);
+  o.y1 = (uint32_t)((uint64_t)r->y1 * h / sh);
+  return o;
+}
+
+/* Tints region r of a premultiplied RGBA image 40 % toward `rgb` (as it
+ * will be seen composited over the background: colour and alpha move
+ * together) and draws its 1-pixel border in `rgb`. A region that was
+ * lost (re-rendered by the other devices) is hatched as well. */
+static void overlay_region(uint8_t *img, uint32_t w, const rp_region *r,
+                           const uint8_t rgb[3], int lost) {
+  uint32_t x, y;
+  for (y = r->y0; y < r->y1; y++) {
+    for (x = r->x0; x < r->x1; x++) {
+      uint8_t *p = img + ((size_t)y * w + x) * 4;
+      int edge = x == r->x0 || y == r->y0 || x + 1 == r->x1 ||
+                 y + 1 == r->y1;
+      int hatch = lost && (x + y) % 6 == 0;
+      int c;
+      for (c = 0; c < 3; c++)
+        p[c] = edge || hatch ? rgb[c]
+                             : (uint8_t)((3 * p[c] + 2 * rgb[c] + 2) / 5);
+      p[3] = edge || hatch ? 255 : (uint8_t)((3 * p[3] + 2 * 255 + 2) / 5);
+    }
+  }
+}
+
+/* What became of each device over every frame the command rendered. */
+typedef struct device_fate {
+  int status, late;
+  char why[256];
+} device_fate;
+
+static cJSON *json_region(const rp_region *r) {
+  uint32_t v[4];
+  v[0] = r->x0, v[1] = r->y0, v[2] = r->x1, v[3] = r->y1;
+  return json_u32s(v, 4);
+}
+
+static void json_ms(cJSON *o, const char *name, double v) {
+  if (isfinite(v))
+    cJSON_AddNumberToObject(o, name, v);
+  else
+    cJSON_AddNullToObject(o, name);
+}
+
+static cJSON *json_group(const render_opts *o, const rp_group_report *rep,
+                         const device_fate *fate, uint32_t sw,
+                         uint32_t sh) {
+  cJSON *a = cJSON_CreateArray();
+  uint32_t i;
+  for (i = 0; i < rep->count; i++) {
+    const rp_group_device *d = &rep->devices[i];
+    cJSON *e = cJSON_CreateObject();
+    rp_region out = region_to_output(&d->region, sw, sh, o->width,
+                                     o->height);
+    cJSON_AddStringToObject(e, "name", d->name);
+    cJSON_AddStringToObject(e, "backend", o->devices[i].backend);
+    cJSON_AddNumberToObject(e, "index", o->devices[i].index);
+    cJSON_AddNumberToObject(e, "share", d->share);
+    cJSON_AddNumberToObject(e, "cost_share", d->cost_share);
+    cJSON_AddItemToObject(e, "region", json_region(&d->region));
+    cJSON_AddItemToObject(e, "output_region", json_region(&out));
+    json_ms(e, "predicted_ms", d->predicted_ms);
+    cJSON_AddNumberToObject(e, "depth_ms", d->depth_ms);
+    cJSON_AddNumberToObject(e, "raycast_ms", d->raycast_ms);
+    cJSON_AddNumberToObject(e, "busy_ms", d->busy_ms);
+    cJSON_AddNumberToObject(e, "samples", (double)d->samples);
+    cJSON_AddStringToObject(e, "status",
+                            fate[i].status ? rp_err_name(fate[i].status)
+                                           : "ok");
+    cJSON_AddBoolToObject(e, "lost", fate[i].status != 0);
+    cJSON_AddBoolToObject(e, "late", fate[i].late);
+    if (fate[i].status != 0)
+      cJSON_AddStringToObject(e, "error", fate[i].why);
+    cJSON_AddItemToArray(a, e);
+  }
+  return a;
+}
+
+static void print_group(const render_opts *o, const rp_group_report *rep,
+                        const device_fate *fate) {
+  uint32_t i;
+  for (i = 0; i < rep->count; i++) {
+    const rp_group_device *d = &rep->devices[i];
+    printf("  device %u %s: share %.3f", i, d->name, d->share);
+    if (d->region.x0 < d->region.x1 && d->region.y0 < d->region.y1)
+      printf(", region %u,%u-%u,%u", d->region.x0, d->region.y0,
+             d->region.x1, d->region.y1);
+    else
+      printf(", no region");
+    printf(", raycast %.2f ms, busy %.2f ms, %llu samples, ", d->raycast_ms,
+           d->busy_ms, (unsigned long long)d->samples);
+    if (fate[i].status == 0)
+      printf("ok\n");
+    else
+      printf("LOST (%s%s%s%s); the others re-rendered its region\n",
+             rp_err_name(fate[i].status), fate[i].late ? ", late" : "",
+             fate[i].why[0] ? ": " : "", fate[i].why);
+  }
+  printf("  imbalance %.3f, %u of %u devices alive", rep->imbalance,
+         rep->alive, rep->count);
+  if (rep->lost > 0)
+    printf(", re-render %.2f ms", rep->rerender_ms);
+  printf("%s\n", o->overlay ? ", regions tinted (--overlay-split)" : "");
+}
+
+/* Renders `rd` through a device group into `out` (output size): the
+ * probe first (its tile costs guide the split), --warmup frames each
+ * followed by training, then the frame kept. */
+static int render_group(rp_context *ctx, const render_opts *o,
+                        const rp_volume *vol, const rp_tf *tf,
+                        const rp_occupancy *occ, const rp_camera *cam,
+                        const rp_render_desc *rd) {
+  rp_group_desc gd = {0};
+  rp_device_group *g = NULL;
+  rp_frame_probe *probe = NULL;
+  rp_group_report rep;
+  device_fate fate[RP_GROUP_MAX_DEVICES];
+  uint8_t *rgba = NULL, *out = NULL;
+  rp_tile_stats *tiles = NULL;
+  uint32_t sw, sh, tx, ty, t, i, frame;
+  uint64_t samples = 0, rays = 0;
+  double t0, t_render = 0, depth_sum = 0;
+  float step = rd->step > 0 ? rd->step : 1.0f;
+  float scale = rd->image_scale > 0 ? rd->image_scale : 1.0f;
+  int err, rc = 1;
+  memset(fate, 0, sizeof fate);
+  gd.devices = o->devices;
+  gd.count = o->ndevices;
+  if ((err = rp_device_group_create(ctx, &gd, &g)) != 0)
+    return cli_error(ctx, "--devices", err);
+  if ((err = rp_device_group_set_volume(g, vol)) != 0 ||
+      (err = rp_device_group_set_tf(g, tf, occ)) != 0) {
+    cli_error(ctx, "upload", err);
+    goto out;
+  }
+  rp_scaled_size(rd, &sw, &sh);
+  rp_tile_grid(sw, sh, &tx, &ty);
+  rgba = malloc((size_t)sw * sh * 4);
+  out = malloc((size_t)o->width * o->height * 4);
+  tiles = malloc((size_t)tx * ty * sizeof *tiles);
+  probe = malloc(sizeof *probe);
+  if (rgba == NULL || out == NULL || tiles == NULL || probe == NULL) {
+    fprintf(stderr, "raypace render: out of memory\n");
+    goto out;
+  }
+  if ((err = rp_frame_probe_compute(ctx, vol, tf, occ, cam, rd, 1, 0,
+                                    probe)) != 0) {
+    cli_error(ctx, "probe", err);
+    goto out;
+  }
+  for (frame = 0; frame <= o->warmup; frame++) {
+    t0 = cli_now();
+    err = rp_device_group_render(g, cam, rd, probe, rgba, tiles, &rep);
+    if (err == 0)
+      rp_image_upscale(rgba, sw, sh, out, o->width, o->height);
+    t_render = cli_now() - t0;
+    if (err != 0) {
+      cli_error(ctx, "render", err);
+      goto out;
+    }
+    for (i = 0; i < rep.count; i++) {
+      const rp_group_device *d = &rep.devices[i];
+      if (d->status == 0 || fate[i].status != 0)
+        continue;
+      fate[i].status = d->status;
+      fate[i].late = d->late;
+      /* The group's context holds the message of the last device lost
+       * this frame; with several lost, each has only its code. */
+      if (rep.lost == 1)
+        snprintf(fate[i].why, sizeof fate[i].why, "%s", rp_last_error(ctx));
+    }
+    if (frame < o->warmup &&
+        (err = rp_device_group_train(g, probe, step, scale,
+                                     t_render * 1e3)) != 0) {
+      cli_error(ctx, "train", err);
+      goto out;
+    }
+  }
+  if (o->overlay)
+    for (i = 0; i < rep.count; i++) {
+      rp_region r = region_to_output(&rep.devices[i].region, sw, sh,
+                                     o->width, o->height);
+      overlay_region(out, o->width, &r, device_colours[i],
+                     rep.devices[i].status != 0);
+    }
+  if ((err = rp_write_png(ctx, o->out, out, o->width, o->height,
+                          o->background)) != 0) {
+    cli_error(ctx, o->out, err);
+    goto out;
+  }
+  for (t = 0; t < tx * ty; t++) {
+    samples += tiles[t].samples;
+    rays += tiles[t].rays_hit;
+    depth_sum += (double)tiles[t].mean_depth * tiles[t].rays_hit;
+  }
+  if (o->json) {
+    cJSON *root = cJSON_CreateObject();
+    double device_ms = 0;
+    for (i = 0; i < rep.count; i++)
+      device_ms = fmax(device_ms, rep.devices[i].raycast_ms);
+    cJSON_AddStringToObject(root, "output", o->out);
+    cJSON_AddStringToObject(root, "backend", "group");
+    cJSON_AddStringToObject(root, "device", o->devices_spec);
+    cJSON_AddNumberToObject(root, "width", o->width);
+    cJSON_AddNumberToObject(root, "height", o->height);
+    cJSON_AddNumberToObject(root, "scaled_width", sw);
+    cJSON_AddNumberToObject(root, "scaled_height", sh);
+    cJSON_AddStringToObject(root, "tf", o->tf);
+    cJSON_AddNumberToObject(root, "samples", (double)samples);
+    cJSON_AddNumberToObject(root, "rays_hit", (double)rays);
+    cJSON_AddNumberToObject(root, "mean_depth",
+                            rays ? depth_sum / rays : 0.0);
+    cJSON_AddNumberToObject(root, "render_ms", t_render * 1e3);
+    cJSON_AddNumberToObject(root, "device_ms", device_ms);
+    cJSON_AddNumberToObject(root, "samples_per_s",
+                            t_render > 0 ? samples / t_render : 0.0);
+    cJSON_AddNumberToObject(root, "warmup", o->warmup);
+    cJSON_AddNumberToObject(root, "probe_ms", probe->probe_ms);
+    cJSON_AddNumberToObject(root, "group_render_ms", rep.render_ms);
+    cJSON_AddNumberToObject(root, "rerender_ms", rep.rerender_ms);
+    cJSON_AddNumberToObject(root, "imbalance", rep.imbalance);
+    cJSON_AddNumberToObject(root, "devices_alive", rep.alive);
+    cJSON_AddBoolToObject(root, "overlay_split", o->overlay);
+    cJSON_AddItemToObject(root, "devices",
+                          json_group(o, &rep, fate, sw, sh));
+    rc = print_json(root);
+  } else {
+    printf("wrote %s (%ux%u on %u devices, %llu samples, %.1f ms, %.2f M "
+           "samples/s)\n", o->out, o->width, o->height, rep.count,
+           (unsigned long long)samples, t_render * 1e3,
+           t_render > 0 ? samples / t_render / 1e6 : 0.0);
+    print_group(o, &rep, fate);
+    rc = 0;
+  }
+out:
+  free(probe);
+  free(rgba);
+  free(out);
+  free(tiles);
+  rp_device_group_destroy(g);
+  return rc;
 }
 
 static int cmd_render(int argc, char **argv) {
@@ -324,14 +639,6 @@ static int cmd_render(int argc, char **argv) {
     cli_error(ctx, "occupancy", err);
     goto out;
   }
-  if (cli_open_device(ctx, "--backend", o.backend, o.device, &dev) != 0)
-    goto out;
-  rp_device_get_caps(dev, &caps);
-  if ((err = rp_device_set_volume(dev, vol)) != 0 ||
-      (err = rp_device_set_tf(dev, tf, occ)) != 0) {
-    cli_error(ctx, "upload", err);
-    goto out;
-  }
   cam.projection = o.ortho ? RP_ORTHOGRAPHIC : RP_PERSPECTIVE;
   cam.fov_y_deg = o.fov;
   rp_camera_orbit(&cam, vol, o.orbit[0], o.orbit[1], o.orbit[2]);
@@ -342,6 +649,18 @@ static int cmd_render(int argc, char **argv) {
   rd.image_scale = o.scale;
   rd.effects = (o.shading ? RP_EFFECT_SHADING : 0) |
                (o.ert ? RP_EFFECT_ERT : 0) | (o.skip ? RP_EFFECT_SKIP : 0);
+  if (o.ndevices > 0) {
+    rc = render_group(ctx, &o, vol, tf, occ, &cam, &rd);
+    goto out;
+  }
+  if (cli_open_device(ctx, "--backend", o.backend, o.device, &dev) != 0)
+    goto out;
+  rp_device_get_caps(dev, &caps);
+  if ((err = rp_device_set_volume(dev, vol)) != 0 ||
+      (err = rp_device_set_tf(dev, tf, occ)) != 0) {
+    cli_error(ctx, "upload", err);
+    goto out;
+  }
   rp_scaled_size(&rd, &sw, &sh);
   rp_tile_grid(sw, sh, &tx, &ty);
   rgba = malloc((size_t)sw * sh * 4);
@@ -351,6 +670,11 @@ static int cmd_render(int argc, char **argv) {
     fprintf(stderr, "raypace render: out of memory\n");
     goto out;
   }
+  for (t = 0; t < o.warmup; t++)
+    if ((err = rp_device_render(dev, &cam, &rd, NULL, rgba, tiles)) != 0) {
+      cli_error(ctx, "render", err);
+      goto out;
+    }
   t0 = cli_now();
   err = rp_device_render(dev, &cam, &rd, NULL, rgba, tiles);
   t_render = cli_now() - t0;

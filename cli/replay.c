@@ -13,7 +13,16 @@
  * Frame time is the wall time of the frame's render passes (device
  * render with readback, plus the upscale when the image scale is below
  * 1). The probe (depth pass + ERT pre-pass on the host) and the
- * prediction run before the frame and are reported apart as overhead. */
+ * prediction run before the frame and are reported apart as overhead.
+ *
+ * With --devices every frame renders through a device group instead
+ * (DESIGN section 7): the probe's tile costs guide the split, the
+ * group's per-device models predict (rp_device_group_predict) and learn
+ * (rp_device_group_train) in place of the single cost model, and the
+ * rows gain each device's share, times and samples and the frame's
+ * imbalance. Each controller gets a group of its own, opened and warmed
+ * like the first, so that none inherits what another's frames taught
+ * the devices' models. */
 #include <cjson/cJSON.h>
 #include <getopt.h>
 #include <math.h>
@@ -25,6 +34,7 @@
 #include "cli_util.h"
 #include "commands.h"
 #include "raypace.h"
+#include "raypace_group.h"
 #include "raypace_pace.h"
 #include "raypace_sequence.h"
 
@@ -35,7 +45,17 @@ typedef struct replay_opts {
   float base_step;
   rp_space space;
   int json, list, quiet;
+  int device_given;
+  const char *devices_spec;
+  rp_device_desc devices[RP_GROUP_MAX_DEVICES];
+  uint32_t ndevices; /* 0: one device, no group */
 } replay_opts;
+
+/* One device's part of a frame's last pass (--devices). */
+typedef struct device_row {
+  double share, busy_ms, raycast_ms;
+  uint64_t samples;
+} device_row;
 
 /* One recorded frame of one controller. */
 typedef struct frame_row {
@@ -48,6 +68,8 @@ typedef struct frame_row {
   double samples_est;
   uint64_t samples;
   double sigma_pred_ns, sigma_ns;
+  double imbalance; /* --devices: the last pass's */
+  device_row dev[RP_GROUP_MAX_DEVICES];
 } frame_row;
 
 typedef struct summary {
@@ -58,6 +80,8 @@ typedef struct summary {
   double switch_over;  /* max overshoot on a TF switch and SWITCH_AFTER
                           frames after it; 0 without switches */
   double pred_rmse_ms, sigma_err_30, overhead_ms, mean_ms, mean_target;
+  double mean_imbalance; /* --devices */
+  uint32_t devices_alive; /* --devices: at the end of the run */
 } summary;
 
 typedef struct replay {
@@ -69,6 +93,9 @@ typedef struct replay {
   rp_tf **tfs;
   int tf_count, tf_active;
   rp_device *dev;
+  rp_device_group *group; /* --devices, instead of dev */
+  int group_used;         /* its models have learned from a controller */
+  rp_group_report rep;    /* the last group pass's */
   rp_sequence *seq;
   uint32_t frames;
   rp_space_desc space;
@@ -101,6 +128,14 @@ static void usage(FILE *f) {
       "  --size WxH            output size (default 384x384)\n"
       "  --backend NAME        opencl, vulkan or reference\n"
       "  --device N            device index within the backend\n"
+      "  --devices LIST        render every frame on several devices at "
+      "once\n"
+      "                        (a device group; not with --backend/"
+      "--device):\n"
+      "                        SPEC[,SPEC...], SPEC BACKEND[:INDEX]"
+      "[:cu=N]\n"
+      "                        [:slow=S][:fail=F] as in 'raypace render'"
+      "\n"
       "  --settle N            unrecorded frames before the sequence "
       "(default 10)\n"
       "  --frames N            play only the first N frames\n"
@@ -108,7 +143,9 @@ static void usage(FILE *f) {
       "  --csv FILE            per-frame rows of every controller\n"
       "  --plot FILE.png       frame times and densities against the "
       "target\n"
-      "                        (gnuplot)\n"
+      "                        (gnuplot); with 2+ --devices also "
+      "FILE-devices.png,\n"
+      "                        per-device busy times and stacked shares\n"
       "  --json                one JSON summary object per controller, "
       "one\n"
       "                        per line\n"
@@ -128,6 +165,7 @@ static int parse_opts(int argc, char **argv, replay_opts *o) {
       {"size", required_argument, 0, 's'},
       {"backend", required_argument, 0, 'B'},
       {"device", required_argument, 0, 'D'},
+      {"devices", required_argument, 0, 'L'},
       {"settle", required_argument, 0, 'S'},
       {"frames", required_argument, 0, 'n'},
       {"seed", required_argument, 0, 'e'},
@@ -165,8 +203,21 @@ static int parse_opts(int argc, char **argv, replay_opts *o) {
     case 'p': bad = rp_space_from_name(optarg, &o->space) != 0; break;
     case 'd': bad = cli_parse_positive(optarg, &o->base_step); break;
     case 's': bad = cli_parse_size(optarg, &o->width, &o->height); break;
-    case 'B': o->backend = optarg; break;
-    case 'D': bad = cli_parse_u32(optarg, 1024, &o->device); break;
+    case 'B':
+      o->backend = optarg;
+      o->device_given = 1;
+      break;
+    case 'D':
+      bad = cli_parse_u32(optarg, 1024, &o->device);
+      o->device_given = 1;
+      break;
+    case 'L':
+      /* The parser names the bad part itself. */
+      if (cli_parse_devices("--devices", optarg, o->devices,
+                            RP_GROUP_MAX_DEVICES, &o->ndevices) != 0)
+        return 2;
+      o->devices_spec = optarg;
+      break;
     case 'S': bad = cli_parse_u32(optarg, 100000, &o->settle); break;
     case 'n': bad = cli_parse_u32(optarg, 10000000, &o->frames); break;
     case 'e': bad = cli_parse_u32(optarg, UINT32_MAX, &o->seed); break;
@@ -187,6 +238,11 @@ static int parse_opts(int argc, char **argv, replay_opts *o) {
   if (o->target_ms > 0 && o->target_fraction > 0) {
     fprintf(stderr, "raypace replay: --target-ms and --target-fraction "
                     "exclude each other\n");
+    return 2;
+  }
+  if (o->devices_spec != NULL && o->device_given) {
+    fprintf(stderr, "raypace replay: --devices excludes --backend and "
+                    "--device\n");
     return 2;
   }
   if (o->list)
@@ -220,8 +276,28 @@ typedef struct pass_result {
   float step, scale;
 } pass_result;
 
+/* A group's raycast time for the frame, as one device's would be: the
+ * fastest device's rate (its raycast time over its samples) times the
+ * frame's samples. With the fastest device's predicted sigma
+ * (rp_device_group_predict) it gives the rows' measured sigma. */
+static double group_raycast_ms(const rp_group_report *rep,
+                               uint64_t samples) {
+  double best = INFINITY;
+  uint32_t i;
+  for (i = 0; i < rep->count; i++) {
+    const rp_group_device *d = &rep->devices[i];
+    if (d->samples > 0 && d->raycast_ms > 0 &&
+        d->raycast_ms / (double)d->samples < best)
+      best = d->raycast_ms / (double)d->samples;
+  }
+  return isfinite(best) ? best * (double)samples : 0.0;
+}
+
+/* One pass at density rho. `probe` (for this camera and effects; may be
+ * NULL) guides a group's split. */
 static int render_pass(replay *r, const rp_camera *cam, uint32_t effects,
-                       double rho, pass_result *out) {
+                       double rho, const rp_frame_probe *probe,
+                       pass_result *out) {
   rp_render_desc d = {0};
   uint32_t sw, sh, tx, ty, i;
   double t0;
@@ -235,16 +311,27 @@ static int render_pass(replay *r, const rp_camera *cam, uint32_t effects,
   rp_scaled_size(&d, &sw, &sh);
   rp_tile_grid(sw, sh, &tx, &ty);
   t0 = cli_now();
-  err = rp_device_render(r->dev, cam, &d, NULL, r->scaled, r->tiles);
+  if (r->group != NULL)
+    err = rp_device_group_render(r->group, cam, &d, probe, r->scaled,
+                                 r->tiles, &r->rep);
+  else
+    err = rp_device_render(r->dev, cam, &d, NULL, r->scaled, r->tiles);
   if (err != 0)
     return cli_error(r->ctx, "render", err);
   if (sw != d.width || sh != d.height)
     rp_image_upscale(r->scaled, sw, sh, r->image, d.width, d.height);
   out->ms = (cli_now() - t0) * 1e3;
-  out->raycast_ms = rp_device_last_time_ns(r->dev) * 1e-6;
   out->samples = 0;
   for (i = 0; i < tx * ty; i++)
     out->samples += r->tiles[i].samples;
+  if (r->group != NULL) {
+    out->raycast_ms = group_raycast_ms(&r->rep, out->samples);
+    if (r->rep.lost > 0 && !r->o.quiet)
+      fprintf(stderr, "replay: %u device(s) lost, %u left: %s\n",
+              r->rep.lost, r->rep.alive, rp_last_error(r->ctx));
+  } else {
+    out->raycast_ms = rp_device_last_time_ns(r->dev) * 1e-6;
+  }
   return 0;
 }
 
@@ -254,7 +341,9 @@ static int use_tf(replay *r, int index) {
   if (index == r->tf_active)
     return 0;
   if ((err = rp_occupancy_update(r->occ, r->tfs[index])) != 0 ||
-      (err = rp_device_set_tf(r->dev, r->tfs[index], r->occ)) != 0)
+      (err = r->group != NULL
+                 ? rp_device_group_set_tf(r->group, r->tfs[index], r->occ)
+                 : rp_device_set_tf(r->dev, r->tfs[index], r->occ)) != 0)
     return cli_error(r->ctx, "transfer function", err);
   r->tf_active = index;
   return 0;
@@ -287,6 +376,12 @@ static double predict_ms(void *user, double rho) {
   rp_cost_estimate e;
   float step, scale;
   rp_space_map(&p->r->space, rho, &step, &scale);
+  if (p->r->group != NULL) {
+    if (rp_device_group_predict(p->r->group, p->probe, step, scale, &e) !=
+        0)
+      return NAN;
+    return e.ms;
+  }
   if (rp_cost_predict(p->model, p->probe, step, scale, &e) != 0)
     return NAN;
   return e.ms;
@@ -304,15 +399,13 @@ static int probe_frame(replay *r, const rp_camera *cam, uint32_t effects,
   return err != 0 ? cli_error(r->ctx, "probe", err) : 0;
 }
 
-/* Warms every kernel variant the sequence uses (a first build must not
- * land in a recorded frame) and measures the frame time without
- * adaptation: the median of 3 frames of the first state at density 1. */
-static int calibrate(replay *r) {
+/* Warms every kernel variant the sequence uses: a first build must not
+ * land in a recorded frame. */
+static int warm_kernels(replay *r) {
   rp_sequence_state st;
   rp_camera cam;
   pass_result pr;
   uint32_t i, seen[16], nseen = 0, k;
-  double t[3];
   int err;
   for (i = 0; i < r->frames; i++) {
     if ((err = rp_sequence_frame(r->seq, i, &st)) != 0)
@@ -323,18 +416,32 @@ static int calibrate(replay *r) {
       seen[nseen++] = st.effects;
       rp_sequence_camera(&st, r->vol, &cam);
       if ((err = use_tf(r, st.tf)) != 0 ||
-          (err = render_pass(r, &cam, st.effects, 1.0, &pr)) != 0 ||
-          (err = render_pass(r, &cam, st.effects, 0.3, &pr)) != 0)
+          (err = render_pass(r, &cam, st.effects, 1.0, NULL, &pr)) != 0 ||
+          (err = render_pass(r, &cam, st.effects, 0.3, NULL, &pr)) != 0)
         return err;
     }
   }
+  return 0;
+}
+
+/* Warms the kernels and measures the frame time without adaptation: the
+ * median of 3 frames of the first state at density 1. */
+static int calibrate(replay *r) {
+  rp_sequence_state st;
+  rp_camera cam;
+  pass_result pr;
+  uint32_t i;
+  double t[3];
+  int err;
+  if ((err = warm_kernels(r)) != 0)
+    return err;
   if ((err = rp_sequence_frame(r->seq, 0, &st)) != 0)
     return cli_error(r->ctx, "sequence", err);
   rp_sequence_camera(&st, r->vol, &cam);
   if ((err = use_tf(r, st.tf)) != 0)
     return err;
   for (i = 0; i < 3; i++) {
-    if ((err = render_pass(r, &cam, st.effects, 1.0, &pr)) != 0)
+    if ((err = render_pass(r, &cam, st.effects, 1.0, NULL, &pr)) != 0)
       return err;
     t[i] = pr.ms;
   }
@@ -348,6 +455,47 @@ static int calibrate(replay *r) {
   return 0;
 }
 
+/* Opens the group of --devices with the current volume and TF. */
+static int open_group(replay *r) {
+  rp_group_desc gd = {0};
+  int err;
+  gd.devices = r->o.devices;
+  gd.count = r->o.ndevices;
+  if ((err = rp_device_group_create(r->ctx, &gd, &r->group)) != 0)
+    return cli_error(r->ctx, "--devices", err);
+  if ((err = rp_device_group_set_volume(r->group, r->vol)) != 0 ||
+      (err = rp_device_group_set_tf(r->group, r->tfs[r->tf_active],
+                                    r->occ)) != 0)
+    return cli_error(r->ctx, "upload", err);
+  r->group_used = 0;
+  return 0;
+}
+
+/* A fresh, warm group for the next controller when the current one has
+ * learned from another's frames. */
+static int fresh_group(replay *r) {
+  if (r->group == NULL || !r->group_used)
+    return 0;
+  rp_device_group_destroy(r->group);
+  r->group = NULL;
+  if (open_group(r) != 0)
+    return 1;
+  return warm_kernels(r);
+}
+
+/* The pass's per-device figures into the row (--devices). */
+static void group_row(const replay *r, frame_row *row) {
+  uint32_t i;
+  row->imbalance = r->rep.imbalance;
+  for (i = 0; i < r->rep.count; i++) {
+    const rp_group_device *d = &r->rep.devices[i];
+    row->dev[i].share = d->share;
+    row->dev[i].busy_ms = d->busy_ms;
+    row->dev[i].raycast_ms = d->raycast_ms;
+    row->dev[i].samples = d->samples;
+  }
+}
+
 /* ---- One controller over the sequence ------------------------------------ */
 
 static int play(replay *r, rp_controller_kind kind, frame_row *rows) {
@@ -359,6 +507,10 @@ static int play(replay *r, rp_controller_kind kind, frame_row *rows) {
   cd.kind = kind;
   cd.rho_min = rp_space_min_density(&r->space);
   cd.rho_max = 1.0;
+  if (fresh_group(r) != 0)
+    goto out;
+  if (r->group != NULL)
+    r->group_used = 1;
   if ((err = rp_controller_create(r->ctx, &cd, &ctl)) != 0 ||
       (err = rp_cost_model_create(r->ctx, NULL, &model)) != 0) {
     cli_error(r->ctx, "controller", err);
@@ -396,12 +548,18 @@ static int play(replay *r, rp_controller_kind kind, frame_row *rows) {
     if (i >= r->o.settle)
       rows[f].probe_ms = (cli_now() - t0) * 1e3;
     while (again) {
-      if (render_pass(r, &cam, st.effects, rho, &pr) != 0)
+      if (render_pass(r, &cam, st.effects, rho, &probe, &pr) != 0)
         goto out;
       passes++;
       frame_ms += pr.ms;
-      if (rp_cost_predict(model, &probe, pr.step, pr.scale, &est) != 0) {
-        cli_error(r->ctx, "predict", RP_EINVAL);
+      /* A group predicts before its training on this pass, as the
+       * single model does. */
+      if (r->group != NULL
+              ? (err = rp_device_group_predict(r->group, &probe, pr.step,
+                                               pr.scale, &est)) != 0
+              : rp_cost_predict(model, &probe, pr.step, pr.scale, &est) !=
+                    0) {
+        cli_error(r->ctx, "predict", r->group != NULL ? err : RP_EINVAL);
         goto out;
       }
       if (i >= r->o.settle) {
@@ -421,9 +579,15 @@ static int play(replay *r, rp_controller_kind kind, frame_row *rows) {
                             ? pr.raycast_ms * 1e6 /
                                   (est.fetches * (double)pr.samples)
                             : NAN;
+        if (r->group != NULL)
+          group_row(r, row);
       }
-      if ((err = rp_cost_train(model, &probe, pr.step, pr.scale, pr.samples,
-                               pr.raycast_ms, pr.ms)) != 0 ||
+      if ((err = r->group != NULL
+                     ? rp_device_group_train(r->group, &probe, pr.step,
+                                             pr.scale, pr.ms)
+                     : rp_cost_train(model, &probe, pr.step, pr.scale,
+                                     pr.samples, pr.raycast_ms, pr.ms)) !=
+              0 ||
           (err = rp_controller_end_pass(ctl, pr.ms, &again, &rho)) != 0) {
         cli_error(r->ctx, "train", err);
         goto out;
@@ -451,7 +615,7 @@ static void summarise(rp_controller_kind kind, const frame_row *rows,
   uint32_t i, over = 0, sig_n = 0, open_n = 0, since_switch = UINT32_MAX;
   double se_open = 0;
   double se = 0, se_rel = 0, pe = 0, sig = 0, dens = 0, ov = 0, oh = 0;
-  double mt = 0, mm = 0;
+  double mt = 0, mm = 0, imb = 0;
   memset(s, 0, sizeof(*s));
   s->kind = kind;
   s->frames = n;
@@ -486,6 +650,7 @@ static void summarise(rp_controller_kind kind, const frame_row *rows,
     oh += w->probe_ms;
     mt += w->target_ms;
     mm += w->measured_ms;
+    imb += w->imbalance;
   }
   if (n == 0)
     return;
@@ -500,33 +665,49 @@ static void summarise(rp_controller_kind kind, const frame_row *rows,
   s->overhead_ms = oh / n;
   s->mean_target = mt / n;
   s->mean_ms = mm / n;
+  s->mean_imbalance = imb / n;
 }
 
 /* ---- Output -------------------------------------------------------------- */
 
+/* With `ndev` > 0 (--devices) each row ends in dev<i>_share,
+ * dev<i>_busy_ms, dev<i>_raycast_ms, dev<i>_samples for every device and
+ * the frame's imbalance, all of its last pass. */
 static int write_csv(const char *path, const summary *sums,
-                     frame_row *const *rows, int nctl, uint32_t n) {
+                     frame_row *const *rows, int nctl, uint32_t n,
+                     uint32_t ndev) {
   FILE *f = fopen(path, "w");
   int k;
-  uint32_t i;
+  uint32_t i, j;
   if (f == NULL) {
     fprintf(stderr, "raypace replay: cannot write '%s'\n", path);
     return 1;
   }
   fprintf(f, "controller,frame,target_ms,measured_ms,predicted_ms,"
              "delta_ms,passes,density,step,scale,samples_est,samples,"
-             "sigma_pred_ns,sigma_ns,probe_ms,tf_switch\n");
+             "sigma_pred_ns,sigma_ns,probe_ms,tf_switch");
+  for (j = 0; j < ndev; j++)
+    fprintf(f, ",dev%u_share,dev%u_busy_ms,dev%u_raycast_ms,dev%u_samples",
+            j, j, j, j);
+  fprintf(f, "%s\n", ndev > 0 ? ",imbalance" : "");
   for (k = 0; k < nctl; k++) {
     for (i = 0; i < n; i++) {
       const frame_row *w = &rows[k][i];
       fprintf(f, "%s,%u,%.4f,%.4f,%.4f,%.4f,%d,%.5f,%.4f,%.4f,%.0f,%llu,"
-                 "%.4f,%.4f,%.4f,%d\n",
+                 "%.4f,%.4f,%.4f,%d",
               rp_controller_name(sums[k].kind), w->frame, w->target_ms,
               w->measured_ms, w->predicted_ms,
               w->measured_ms - w->target_ms, w->passes, w->rho,
               (double)w->step, (double)w->scale, w->samples_est,
               (unsigned long long)w->samples, w->sigma_pred_ns, w->sigma_ns,
               w->probe_ms, w->tf_changed);
+      for (j = 0; j < ndev; j++)
+        fprintf(f, ",%.5f,%.4f,%.4f,%llu", w->dev[j].share,
+                w->dev[j].busy_ms, w->dev[j].raycast_ms,
+                (unsigned long long)w->dev[j].samples);
+      if (ndev > 0)
+        fprintf(f, ",%.4f", w->imbalance);
+      fprintf(f, "\n");
     }
   }
   return fclose(f) == 0 ? 0 : 1;
@@ -584,6 +765,85 @@ static int write_plot(const char *png, const char *csv, const summary *sums,
   return 0;
 }
 
+/* Device i's label: its spec, as --devices gave it. */
+static void device_label(const rp_device_desc *d, uint32_t i, char *buf,
+                         size_t size) {
+  int n = snprintf(buf, size, "dev%u %s:%u", i, d->backend, d->index);
+  if (n > 0 && (size_t)n < size && d->compute_units > 0)
+    n += snprintf(buf + n, size - (size_t)n, ":cu=%u", d->compute_units);
+  if (n > 0 && (size_t)n < size && d->slowdown > 0)
+    n += snprintf(buf + n, size - (size_t)n, ":slow=%g", d->slowdown);
+  if (n > 0 && (size_t)n < size && d->fail_at_render > 0)
+    snprintf(buf + n, size - (size_t)n, ":fail=%u", d->fail_at_render);
+}
+
+/* Per-device busy times (left) and stacked shares (right) per frame, one
+ * row of panels per controller, like seed 000 Fig. 8: --devices with
+ * two or more devices. The CSV's device columns start at 17 (write_csv).
+ */
+static int write_device_plot(const char *png, const char *csv,
+                             const summary *sums, int nctl,
+                             const replay *r) {
+  uint32_t n = r->o.ndevices, i;
+  FILE *g;
+  int k, rc;
+  void (*old)(int) = signal(SIGPIPE, SIG_IGN);
+  g = popen("gnuplot", "w");
+  if (g == NULL) {
+    signal(SIGPIPE, old);
+    fprintf(stderr, "raypace replay: --plot: cannot run gnuplot\n");
+    return 1;
+  }
+  fprintf(g, "set terminal pngcairo size 1400,%d noenhanced\n"
+             "set output ", 120 + 260 * nctl);
+  cli_gnuplot_string(g, png);
+  fprintf(g, "\nset datafile separator ','\nset grid\n"
+             "set key outside right top\n"
+             "set multiplot layout %d,2 title ", nctl);
+  cli_gnuplot_string(g, "per-device busy time and share per frame");
+  fprintf(g, "\n");
+  for (k = 0; k < nctl; k++) {
+    const char *name = rp_controller_name(sums[k].kind);
+    fprintf(g, "set title '%s: busy'\nset ylabel 'ms'\nset yrange [*:*]\n"
+               "plot ", name);
+    /* A frame the device had no region in is a gap, not a 0. */
+    for (i = 0; i < n; i++) {
+      char label[96];
+      device_label(&r->o.devices[i], i, label, sizeof(label));
+      fprintf(g, "%s", i ? ", " : "");
+      cli_gnuplot_string(g, csv);
+      fprintf(g, " skip 1 using 2:(strcol(1) eq '%s' && $%u > 0 ? $%u : "
+                 "1/0) with linespoints pt 7 ps 0.4 lc %u title ",
+              name, 20 + 4 * i, 18 + 4 * i, i + 1);
+      cli_gnuplot_string(g, label);
+    }
+    fprintf(g, "\nset title '%s: shares'\nset ylabel 'share'\n"
+               "set yrange [0:1]\nplot ", name);
+    for (i = 0; i < n; i++) {
+      uint32_t j;
+      fprintf(g, "%s", i ? ", " : "");
+      cli_gnuplot_string(g, csv);
+      fprintf(g, " skip 1 using 2:(strcol(1) eq '%s' ? 0", name);
+      for (j = 0; j < i; j++)
+        fprintf(g, " + $%u", 17 + 4 * j);
+      fprintf(g, " : 1/0):(0");
+      for (j = 0; j <= i; j++)
+        fprintf(g, " + $%u", 17 + 4 * j);
+      fprintf(g, ") with filledcurves lc %u fs solid 0.6 title 'dev%u'",
+              i + 1, i);
+    }
+    fprintf(g, "\n");
+  }
+  fprintf(g, "unset multiplot\n");
+  rc = pclose(g);
+  signal(SIGPIPE, old);
+  if (rc != 0) {
+    fprintf(stderr, "raypace replay: gnuplot failed (status %d)\n", rc);
+    return 1;
+  }
+  return 0;
+}
+
 static void print_json(const replay *r, const summary *s) {
   cJSON *o = cJSON_CreateObject();
   char *text;
@@ -607,6 +867,19 @@ static void print_json(const replay *r, const summary *s) {
   else
     cJSON_AddNullToObject(o, "sigma_error_after_30");
   cJSON_AddNumberToObject(o, "overhead_ms", s->overhead_ms);
+  if (r->o.ndevices > 0) {
+    cJSON *a = cJSON_AddArrayToObject(o, "devices");
+    uint32_t i;
+    for (i = 0; i < r->o.ndevices; i++) {
+      rp_caps caps;
+      char name[168];
+      rp_device_group_get_caps(r->group, i, &caps);
+      snprintf(name, sizeof(name), "%s:%s", caps.backend, caps.device);
+      cJSON_AddItemToArray(a, cJSON_CreateString(name));
+    }
+    cJSON_AddNumberToObject(o, "devices_alive", s->devices_alive);
+    cJSON_AddNumberToObject(o, "mean_imbalance", s->mean_imbalance);
+  }
   text = cJSON_PrintUnformatted(o);
   if (text != NULL)
     printf("%s\n", text);
@@ -619,18 +892,24 @@ static void print_table(const replay *r, const summary *sums, int nctl) {
   printf("sequence %s, %u frames, %ux%u, space %s; no-adaptation frame "
          "%.1f ms\n", rp_sequence_name(r->seq), r->frames, r->o.width,
          r->o.height, rp_space_name(r->space.space), r->full_ms);
-  printf("%-11s %8s %8s %8s %8s %8s %7s %7s %8s %9s %8s %8s\n",
+  if (r->o.ndevices > 0)
+    printf("devices %s (a group of %u)\n", r->o.devices_spec,
+           r->o.ndevices);
+  printf("%-11s %8s %8s %8s %8s %8s %7s %7s %8s %9s %8s %8s%s\n",
          "controller", "mean_ms", "target", "rmse_ms", "rmse_open",
          "rmse_rel", "max_ovr", "sw_ovr", ">1.2T", "density", "pred_rmse",
-         "sigma_e30");
+         "sigma_e30", r->o.ndevices > 0 ? "   imbal  alive" : "");
   for (k = 0; k < nctl; k++) {
     const summary *s = &sums[k];
     printf("%-11s %8.2f %8.2f %8.2f %8.2f %8.3f %6.1f%% %6.1f%% %7.1f%% "
-           "%9.4f %8.2f %8.3f\n", rp_controller_name(s->kind), s->mean_ms,
+           "%9.4f %8.2f %8.3f", rp_controller_name(s->kind), s->mean_ms,
            s->mean_target, s->rmse_ms, s->rmse_open_ms, s->rmse_rel,
            100 * s->max_over, 100 * s->switch_over,
            100 * s->share_over_20, s->mean_density, s->pred_rmse_ms,
            s->sigma_err_30);
+    if (r->o.ndevices > 0)
+      printf(" %7.3f %6u", s->mean_imbalance, s->devices_alive);
+    printf("\n");
   }
 }
 
@@ -703,12 +982,17 @@ static int open_scene(replay *r) {
   if ((err = rp_occupancy_build(r->ctx, r->h, r->tfs[st.tf], &r->occ)) != 0)
     return cli_error(r->ctx, "occupancy", err);
   r->tf_active = st.tf;
-  if (cli_open_device(r->ctx, "--backend", r->o.backend, r->o.device,
-                      &r->dev) != 0)
-    return 1;
-  if ((err = rp_device_set_volume(r->dev, r->vol)) != 0 ||
-      (err = rp_device_set_tf(r->dev, r->tfs[st.tf], r->occ)) != 0)
-    return cli_error(r->ctx, "upload", err);
+  if (r->o.ndevices > 0) {
+    if (open_group(r) != 0)
+      return 1;
+  } else {
+    if (cli_open_device(r->ctx, "--backend", r->o.backend, r->o.device,
+                        &r->dev) != 0)
+      return 1;
+    if ((err = rp_device_set_volume(r->dev, r->vol)) != 0 ||
+        (err = rp_device_set_tf(r->dev, r->tfs[st.tf], r->occ)) != 0)
+      return cli_error(r->ctx, "upload", err);
+  }
   r->space.space = r->o.space;
   r->space.base_step = r->o.base_step;
   rp_tile_grid(r->o.width, r->o.height, &tx, &ty);
@@ -725,6 +1009,7 @@ static void close_scene(replay *r) {
   free(r->scaled);
   free(r->image);
   free(r->tiles);
+  rp_device_group_destroy(r->group);
   rp_device_destroy(r->dev);
   rp_occupancy_destroy(r->occ);
   for (i = 0; r->tfs != NULL && i < r->tf_count; i++)
@@ -786,6 +1071,7 @@ int cli_cmd_replay(int argc, char **argv) {
     if (play(&r, kinds[k], rows[k]) != 0)
       goto out;
     summarise(kinds[k], rows[k], r.frames, &sums[k]);
+    sums[k].devices_alive = rp_device_group_alive(r.group);
   }
   if (r.o.json) {
     for (k = 0; k < nctl; k++)
@@ -796,7 +1082,8 @@ int cli_cmd_replay(int argc, char **argv) {
   }
   /* Without --csv the plot's data goes to PLOT.csv, removed after. */
   csv = r.o.csv != NULL ? r.o.csv : r.o.plot != NULL ? csv_tmp : NULL;
-  if (csv != NULL && write_csv(csv, sums, rows, nctl, r.frames) != 0)
+  if (csv != NULL &&
+      write_csv(csv, sums, rows, nctl, r.frames, r.o.ndevices) != 0)
     goto out;
   if (r.o.plot != NULL) {
     char title[256];
@@ -805,6 +1092,19 @@ int cli_cmd_replay(int argc, char **argv) {
              rp_space_name(r.space.space));
     if (write_plot(r.o.plot, csv, sums, nctl, title) != 0)
       goto out;
+    if (r.o.ndevices >= 2) {
+      char dplot[4096];
+      size_t len = strlen(r.o.plot);
+      if (len >= 4 && strcmp(r.o.plot + len - 4, ".png") == 0)
+        len -= 4;
+      if ((size_t)snprintf(dplot, sizeof(dplot), "%.*s-devices.png",
+                           (int)len, r.o.plot) >= sizeof(dplot)) {
+        fprintf(stderr, "raypace replay: --plot path too long\n");
+        goto out;
+      }
+      if (write_device_plot(dplot, csv, sums, nctl, &r) != 0)
+        goto out;
+    }
     if (csv == csv_tmp)
       remove(csv_tmp);
   }

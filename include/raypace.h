@@ -367,6 +367,11 @@ typedef struct rp_device_desc {
    * ("reference" only when named: it is the slow scalar oracle). */
   const char *backend;
   uint32_t index;            /* device within the backend */
+  /* 0: the whole device; n: a sub-device of n compute units (OpenCL:
+   * clCreateSubDevices CL_DEVICE_PARTITION_EQUALLY, the first partition).
+   * Backends that cannot partition refuse it with RP_EUNSUPPORTED; more
+   * than the device has is RP_ERANGE. */
+  uint32_t compute_units;
   /* Testing heterogeneous devices: every depth pass, ERT pre-pass and
    * render takes `slowdown` times as long. The front end waits
    * (slowdown - 1) times the operation's device time after it and
@@ -387,7 +392,8 @@ RP_API const char *const *rp_backend_names(void);
 RP_API int rp_device_count(rp_context *ctx, const char *backend,
                            uint32_t *count);
 /** Opens a device. RP_ENODEV when no backend has one (the message lists
- *  what was tried). \since 0.1 */
+ *  what was tried); RP_EUNSUPPORTED or RP_ERANGE for a compute_units the
+ *  device cannot be partitioned into. \since 0.1 */
 RP_API int rp_device_create(rp_context *ctx, const rp_device_desc *desc,
                             rp_device **out);
 RP_API void rp_device_destroy(rp_device *dev);

@@ -19,8 +19,9 @@
 extern "C" {
 #endif
 
-/* Bumped whenever rp_backend_ops or rp_frame_params change layout. */
-#define RP_BACKEND_ABI 1
+/* Bumped whenever rp_backend_ops, rp_backend_bootstrap or rp_frame_params
+ * change layout. */
+#define RP_BACKEND_ABI 2
 
 /* Coarse ERT pre-pass geometry (DESIGN section 3). */
 #define RP_ERT_RAY_STRIDE 4    /* one pre-pass ray per 4x4 pixels */
@@ -88,8 +89,16 @@ typedef struct rp_backend_bootstrap {
   /* Number of devices usable here (0 when the driver is missing); never
    * fails loudly: probing is how selection skips absent drivers. */
   int (*probe)(rp_context *ctx, uint32_t *device_count);
-  int (*create)(rp_context *ctx, uint32_t index, const rp_backend_ops **ops,
-                void **impl, rp_caps *caps);
+  /* Opens device `index`; with compute_units > 0, a sub-device of that
+   * many compute units (rp_device_desc), which the front end has checked
+   * against partition_units. */
+  int (*create)(rp_context *ctx, uint32_t index, uint32_t compute_units,
+                const rp_backend_ops **ops, void **impl, rp_caps *caps);
+  /* Optional (NULL: the backend cannot partition a device). The compute
+   * units device `index` has to partition; RP_EUNSUPPORTED, with a
+   * message, when that device cannot be partitioned. */
+  int (*partition_units)(rp_context *ctx, uint32_t index,
+                         uint32_t *compute_units);
 } rp_backend_bootstrap;
 
 #ifdef __cplusplus

@@ -52,6 +52,21 @@ extern "C" {
  *  \since 0.1 */
 RP_API int rp_balance_shares(const double *sigma, uint32_t n, double *w);
 
+/** Shares that make the devices finish together when each also pays a
+ *  cost its share does not scale (a depth pass over the whole image, a
+ *  launch): device i takes fixed_i + w_i var_i, var_i being its time for
+ *  the whole frame's share-scaled work. Then w_i = (T - fixed_i) / var_i
+ *  with T = (1 + sum_j fixed_j / var_j) / sum_j (1 / var_j), over the
+ *  devices whose fixed cost is below T (the others get 0). With every
+ *  fixed_i 0 it is rp_balance_shares(var). An unknown var (NaN or 0)
+ *  counts as the known devices' mean speed. Sums to exactly 1.
+ *  \returns 0; RP_EINVAL (NULL, n == 0), RP_ENOTFINITE (an infinite var,
+ *  a NaN or infinite fixed), RP_ERANGE (a negative value, n >
+ *  RP_BALANCE_MAX_DEVICES); a failed call leaves `w` untouched.
+ *  \threadsafety any thread. \since 0.1 */
+RP_API int rp_balance_shares_fixed(const double *var, const double *fixed,
+                                   uint32_t n, double *w);
+
 /** The paper's Eq. 3, w_i = prod_{j != i} sigma_j / sum_k sigma_k, for
  *  comparison only: it equals rp_balance_shares() for two devices, and
  *  for three or more its shares do not sum to one. Not renormalised.

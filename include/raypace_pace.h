@@ -189,6 +189,9 @@ RP_API int rp_controller_end_pass(rp_controller *c, double pass_ms,
  *  density the tuner tries. Probe rays are the ERT pre-pass grid of the
  *  output image (one ray per 4x4 output pixels), subsampled to at most
  *  1024 rays (a 128x128 output traces them all). */
+/** The most rays a probe traces. */
+#define RP_PROBE_MAX_RAYS 1024
+
 typedef struct rp_frame_probe {
   uint32_t width, height;  /* output size */
   uint32_t effects;        /* RP_EFFECT_* the frame renders with */
@@ -208,6 +211,12 @@ typedef struct rp_frame_probe {
                               pixels one voxel spans at the volume centre */
   double diagonal;         /* the volume's diagonal, voxels */
   double probe_ms;         /* wall time the probe took */
+  /* Each probe ray's sampled span L (voxels, 0 for a ray that misses or
+   * meets nothing), row by row: map_width x map_height rays, ray (i, j)
+   * at output pixel (i * map_stride + 2, j * map_stride + 2). What a
+   * device group predicts each tile's cost from. */
+  uint32_t map_width, map_height, map_stride;
+  float span[RP_PROBE_MAX_RAYS];
 } rp_frame_probe;
 
 /** Runs the depth pass and ERT pre-pass on the host for `cam` and

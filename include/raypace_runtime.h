@@ -40,6 +40,7 @@
 #include <uv.h>
 
 #include "raypace.h"
+#include "raypace_balance.h"
 #include "raypace_pace.h"
 
 #ifdef __cplusplus
@@ -76,14 +77,22 @@ typedef struct rp_runtime_counters {
   uint64_t frames;          /* frames delivered, failed ones included */
 } rp_runtime_counters;
 
-/** One device's share of a frame. */
+/** One device's share of a frame (summed over a two-pass frame's
+ *  passes; share, region and status are the last pass's). */
 typedef struct rp_device_frame {
   char name[168];       /* backend:device */
   double raycast_ms;    /* device time of the raycast kernel(s) */
   double depth_ms;      /* device depth pass, wall; 0 when reused */
-  double readback_ms;   /* render call wall minus raycast device time:
-                           enqueue and copying the image back */
-  uint32_t rows;        /* scaled-image rows it rendered */
+  double readback_ms;   /* its worker's wall time minus the raycast's
+                           device time and the depth pass: enqueue and
+                           copying its region back */
+  double busy_ms;       /* its worker's wall time for the frame */
+  uint32_t rows;        /* scaled-image rows its first-round region spans */
+  uint64_t samples;     /* samples it took */
+  double share;         /* its share of the work, [0, 1] */
+  rp_region region;     /* scaled-image pixels it was given */
+  int status;           /* 0, or the RP_E* it was lost with */
+  int dropped;          /* 1 once lost: it renders no more */
 } rp_device_frame;
 
 /** What a frame cost and what the runtime expected. Times in ms. */
@@ -133,7 +142,13 @@ typedef struct rp_frame_stats {
   double dispatch_ms;      /* loop -> worker hand-off and worker -> loop
                               completion, wall */
   double total_ms;         /* frame start on the loop to delivery */
-  uint32_t device_count;
+  uint32_t device_count;    /* devices the runtime opened */
+  uint32_t devices_alive;   /* not lost, after this frame */
+  uint32_t devices_lost;    /* lost during this frame: their regions
+                               were re-rendered by the others */
+  double rerender_ms;       /* wall spent on those re-renders */
+  double imbalance;         /* (max - min) / mean of the devices' busy
+                               times (seed 001 section 6); 0 with one */
   rp_device_frame devices[RP_RUNTIME_MAX_DEVICES];
   rp_runtime_counters counters; /* as of this frame's delivery */
 } rp_frame_stats;
@@ -155,7 +170,13 @@ typedef void (*rp_runtime_closed_cb)(void *user);
 typedef struct rp_runtime_desc {
   uv_loop_t *loop;        /* the app's loop; NULL: the runtime's own loop
                              on its own thread */
-  rp_device_desc device;  /* which device renders */
+  rp_device_desc device;  /* which device renders (device_count 0) */
+  /* Several devices rendering each frame together (DESIGN section 7,
+   * raypace_group.h): device_count of them, at most
+   * RP_RUNTIME_MAX_DEVICES; copied. 0: `device` alone. */
+  const rp_device_desc *devices;
+  uint32_t device_count;
+  rp_damping damping;     /* how the devices' shares move per frame */
   rp_pacing pacing;
   rp_frame_cb on_frame;   /* required */
   void *user;

@@ -117,8 +117,29 @@ static void reference_caps(rp_caps *caps) {
   caps->compute_units = 1;
 }
 
+/* A partition of `units` compute units (0: the whole device) is one
+ * the backend can make of device `index`. */
+static int check_units(rp_context *ctx, const rp_backend_bootstrap *b,
+                       uint32_t index, uint32_t units) {
+  uint32_t have = 0;
+  int err;
+  if (units == 0)
+    return 0;
+  if (b->partition_units == NULL)
+    return rp__fail(ctx, RP_EUNSUPPORTED, "rp_device_create: backend '%s' "
+                    "cannot partition a device (compute_units %u; 0 opens "
+                    "the whole device)", b->name, units);
+  if ((err = b->partition_units(ctx, index, &have)) != 0)
+    return err;
+  if (units > have)
+    return rp__fail(ctx, RP_ERANGE, "rp_device_create: compute_units %u "
+                    "exceeds the %u of %s device %u", units, have, b->name,
+                    index);
+  return 0;
+}
+
 static int open_backend(rp_context *ctx, const char *name, uint32_t index,
-                        rp_device *dev) {
+                        uint32_t units, rp_device *dev) {
   const rp_backend_bootstrap *b = find(name);
   uint32_t count = 0;
   int err;
@@ -128,8 +149,10 @@ static int open_backend(rp_context *ctx, const char *name, uint32_t index,
     return rp__fail(ctx, RP_ENODEV, "backend '%s' has %u device(s) here; "
                     "index %u requested (driver missing?)", name, count,
                     index);
+  if ((err = check_units(ctx, b, index, units)) != 0)
+    return err;
   memset(&dev->caps, 0, sizeof dev->caps);
-  err = b->create(ctx, index, &dev->ops, &dev->impl, &dev->caps);
+  err = b->create(ctx, index, units, &dev->ops, &dev->impl, &dev->caps);
   if (err != 0)
     return err;
   if (dev->caps.backend[0] == '\0')
@@ -172,10 +195,17 @@ int rp_device_create(rp_context *ctx, const rp_device_desc *desc,
       return rp__fail(ctx, RP_ENODEV, "backend 'reference' has one device; "
                       "index %u requested", d.index);
     }
+    if (d.compute_units != 0) {
+      rp__free(ctx, dev);
+      return rp__fail(ctx, RP_EUNSUPPORTED, "rp_device_create: backend "
+                      "'reference' cannot partition its device "
+                      "(compute_units %u; it runs on one thread)",
+                      d.compute_units);
+    }
     reference_caps(&dev->caps);
     err = 0;
   } else if (name != NULL) {
-    err = open_backend(ctx, name, d.index, dev);
+    err = open_backend(ctx, name, d.index, d.compute_units, dev);
   } else {
     char tried[256] = "";
     for (i = 0; registry[i] != NULL && err != 0; i++) {
@@ -183,7 +213,8 @@ int rp_device_create(rp_context *ctx, const rp_device_desc *desc,
       strncat(tried, tried[0] ? ", " : "", sizeof tried - strlen(tried) - 1);
       strncat(tried, registry[i]->name, sizeof tried - strlen(tried) - 1);
       if (registry[i]->probe(ctx, &count) == 0 && d.index < count)
-        err = open_backend(ctx, registry[i]->name, d.index, dev);
+        err = open_backend(ctx, registry[i]->name, d.index,
+                           d.compute_units, dev);
     }
     if (err == RP_ENODEV)
       rp__fail(ctx, RP_ENODEV, "no backend has device %u (tried: %s); "

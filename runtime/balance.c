@@ -132,6 +132,59 @@ int rp_balance_shares(const double *sigma, uint32_t n, double *w) {
   return 0;
 }
 
+int rp_balance_shares_fixed(const double *var, const double *fixed,
+                            uint32_t n, double *w) {
+  double v[RP_BALANCE_MAX_DEVICES], rmean = 0, t = 0;
+  uint32_t i, known = 0, in;
+  int err = check_n(NULL, "balance_shares_fixed",
+                    var == NULL || fixed == NULL || w == NULL, n,
+                    RP_BALANCE_MAX_DEVICES);
+  if (err)
+    return err;
+  for (i = 0; i < n; i++) {
+    if ((!unknown(var[i]) && isinf(var[i])) || !isfinite(fixed[i]))
+      return RP_ENOTFINITE;
+    if ((!unknown(var[i]) && var[i] < 0) || fixed[i] < 0)
+      return RP_ERANGE;
+  }
+  /* Unknown devices take the known ones' mean speed (1 / var), as in
+   * rp_balance_shares. */
+  for (i = 0; i < n; i++)
+    if (!unknown(var[i])) {
+      rmean += 1.0 / var[i];
+      known++;
+    }
+  rmean = known > 0 ? rmean / known : 1.0;
+  for (i = 0; i < n; i++)
+    v[i] = unknown(var[i]) ? 1.0 / rmean : var[i];
+  /* Finishing together at T: f_i + w_i v_i = T with sum w_i = 1 gives
+   * T = (1 + sum f_i / v_i) / sum 1 / v_i over the devices in the race.
+   * A device whose fixed cost alone is past T is left out (w 0) and T
+   * recomputed; each round removes one, so at most n rounds, and the
+   * fastest-finishing device (least f_i + v_i) never leaves. */
+  for (;;) {
+    double a = 0, b = 0;
+    for (i = 0; i < n; i++)
+      if (!isnan(v[i])) {
+        a += fixed[i] / v[i];
+        b += 1.0 / v[i];
+      }
+    t = (1.0 + a) / b;
+    in = 0;
+    for (i = 0; i < n; i++)
+      if (!isnan(v[i]) && fixed[i] >= t) {
+        v[i] = NAN;
+        in++;
+      }
+    if (in == 0)
+      break;
+  }
+  for (i = 0; i < n; i++)
+    w[i] = isnan(v[i]) ? 0.0 : (t - fixed[i]) / v[i];
+  quantise(w, n);
+  return 0;
+}
+
 /* prod_{j != i} sigma_j, which may overflow (the caller checks). */
 static double eq3_product(const double *sigma, uint32_t n, uint32_t i) {
   double p = 1;

@@ -208,7 +208,9 @@ typedef struct probe_job {
   float threshold;
   uint32_t seed, frame, gw;
   uint32_t sub; /* trace every sub-th pre-pass ray along each axis */
+  uint32_t map_w;  /* rays per subgrid row */
   probe_row *rows;
+  float *span;     /* the probe's span map */
 } probe_job;
 
 /* The most pre-pass rays a probe traces. Measured on bonsai at 512 x 512
@@ -216,7 +218,7 @@ typedef struct probe_job {
  * subgrid is within 1.3 % of the whole 16384-ray grid's (4096 rays: 0.45
  * %, 256 rays: 2.6 %), well inside a frame's own noise (+-10 %) and
  * corrected by kappa, at a quarter of 4096 rays' time. */
-#define PROBE_MAX_RAYS 1024u
+#define PROBE_MAX_RAYS ((uint32_t)RP_PROBE_MAX_RAYS)
 
 /* Rays in the subgrid of every sub-th ray of a gw x gh grid. */
 static uint32_t probe_rays(uint32_t gw, uint32_t gh, uint32_t sub) {
@@ -237,6 +239,8 @@ static void probe_rows(uint32_t begin, uint32_t end, void *user) {
       double front, back, stop;
       rp__raygen_ray_at(j->rg, (double)(RP_ERT_RAY_STRIDE * cx) + 2.0,
                         (double)(RP_ERT_RAY_STRIDE * cy) + 2.0, &ray);
+      float *span = &j->span[(cy / j->sub) * j->map_w + cx / j->sub];
+      *span = 0.0f;
       if (!ray.hit)
         continue;
       rp__depth_ray(&ray, j->rg->dims, j->skip ? j->grid : NULL, j->blocks,
@@ -254,6 +258,7 @@ static void probe_rows(uint32_t begin, uint32_t end, void *user) {
         }
       }
       r.span += stop - front;
+      *span = (float)(stop - front);
       r.span_no_ert += back - front;
       if (stop - front > r.max)
         r.max = stop - front;
@@ -336,6 +341,8 @@ int rp_frame_probe_compute(rp_context *ctx, const rp_volume *vol,
   job.sub = 1;
   while (probe_rays(gw, gh, job.sub) > PROBE_MAX_RAYS)
     job.sub++;
+  job.map_w = (gw + job.sub - 1) / job.sub;
+  job.span = out->span;
   err = rp__parallel_for(ctx, gh, probe_rows, &job);
   if (err != 0) {
     rp__free(ctx, job.rows);
@@ -354,6 +361,9 @@ int rp_frame_probe_compute(rp_context *ctx, const rp_volume *vol,
   out->height = d.height;
   out->effects = d.effects;
   out->rays = probe_rays(gw, gh, job.sub);
+  out->map_width = job.map_w;
+  out->map_height = (gh + job.sub - 1) / job.sub;
+  out->map_stride = RP_ERT_RAY_STRIDE * job.sub;
   out->ert_cut = span_no_ert > 0.0 ? 1.0 - out->depth_sum / span_no_ert
                                    : 0.0;
   out->ert_cut = clamp01(out->ert_cut);

@@ -21,6 +21,7 @@
 
 #include "internal.h"
 #include "passes.h"
+#include "raypace_group.h"
 #include "raypace_runtime.h"
 
 /* What an event marks; posted by the setters, consumed per frame. */
@@ -75,15 +76,6 @@ typedef struct scene {
   rp_controller_kind controller_kind;
   rp_controller *controller;
   rp_frame_probe probe;
-  uint64_t vol_gen, tf_gen; /* bumped per upload: part of depth_key */
-  /* What the device's current depth pass was run for (memset before
-   * filling, so it compares with memcmp). */
-  struct depth_key {
-    rp_camera cam;
-    uint32_t sw, sh, skip;
-    uint64_t vol_gen, tf_gen;
-  } depth_key;
-  int depth_valid;
   /* Effect sets rendered since the volume was uploaded, bit (1 << set):
    * a set's first frame builds its kernel variant and allocates, a cost
    * the model must not learn as if every frame paid it. */
@@ -95,17 +87,17 @@ typedef struct training {
   int valid;
   rp_frame_probe probe;
   float step, scale;
-  uint64_t samples;
-  double raycast_ms, pass_ms;
+  double pass_ms;
 } training; /* valid: 0 for a failed frame and a cold one (warm_sets) */
 
 struct rp_runtime {
   rp_context *ctx; /* the worker's, and the loop's between frames */
   rp_runtime_desc desc;
   rp_space_desc space;
-  rp_device *dev;
-  char device_name[168];
-  rp_cost_model *model;
+  /* The devices, their cost models and the split (one device: exactly
+   * that device). The worker's during a frame, the loop's between
+   * frames (training). */
+  rp_device_group *group;
 
   uv_loop_t *loop;
   uv_loop_t own_loop;
@@ -255,10 +247,9 @@ static int recompute(rp_runtime *rt) {
   }
   if (s->stale & STALE_VOLUME_UPLOAD) {
     t0 = now_ms();
-    if ((err = rp_device_set_volume(rt->dev, s->vol)) != 0)
+    if ((err = rp_device_group_set_volume(rt->group, s->vol)) != 0)
       return err;
     st->volume_upload_ms = now_ms() - t0;
-    s->vol_gen++;
     s->warm_sets = 0;
     s->stale &= ~(uint32_t)STALE_VOLUME_UPLOAD;
     count(rt, &rt->counters.volume_uploads);
@@ -275,10 +266,9 @@ static int recompute(rp_runtime *rt) {
   }
   if (s->stale & STALE_TF_UPLOAD) {
     t0 = now_ms();
-    if ((err = rp_device_set_tf(rt->dev, s->tf, s->occ)) != 0)
+    if ((err = rp_device_group_set_tf(rt->group, s->tf, s->occ)) != 0)
       return err;
     st->tf_upload_ms = now_ms() - t0;
-    s->tf_gen++;
     s->stale &= ~(uint32_t)STALE_TF_UPLOAD;
     count(rt, &rt->counters.tf_uploads);
   }
@@ -313,11 +303,11 @@ static int recompute(rp_runtime *rt) {
 
 /* The controller's model of the frame: `user` is the runtime. */
 static double predict_at(void *user, double rho) {
-  const rp_runtime *rt = user;
+  rp_runtime *rt = user;
   rp_cost_estimate e;
   float step, scale;
   rp_space_map(&rt->space, rho, &step, &scale);
-  if (rp_cost_predict(rt->model, &rt->s.probe, step, scale, &e) != 0)
+  if (rp_device_group_predict(rt->group, &rt->s.probe, step, scale, &e) != 0)
     return NAN;
   return e.ms;
 }
@@ -337,17 +327,17 @@ static int reserve(rp_runtime *rt, void **buf, size_t *cap, size_t bytes) {
   return 0;
 }
 
-/* One render pass at density rho: the device depth pass when its inputs
- * changed, the raycast with readback, and the upscale. */
+/* One render pass at density rho: every device's depth pass when its
+ * inputs changed, the raycast of its region with readback, and the
+ * upscale. */
 static int render_pass(rp_runtime *rt, double rho, double *pass_ms) {
   scene *s = &rt->s;
   rp_frame_stats *st = &rt->stats;
-  rp_device_frame *df = &st->devices[0];
   rp_render_desc d = {0};
-  struct depth_key key;
+  rp_group_report rep;
   uint32_t sw, sh, tx, ty, i;
-  double t0 = now_ms(), t1, t2;
-  int err;
+  double t0 = now_ms(), t2;
+  int err, depth = 0;
   rp_space_map(&rt->space, rho, &st->step, &st->scale);
   d.width = s->width;
   d.height = s->height;
@@ -363,33 +353,36 @@ static int render_pass(rp_runtime *rt, double rho, double *pass_ms) {
       (err = reserve(rt, (void **)&rt->tiles, &rt->tiles_cap,
                      (size_t)tx * ty * sizeof(rp_tile_stats))) != 0)
     return err;
-  memset(&key, 0, sizeof key);
-  key.cam = s->cam;
-  key.sw = sw;
-  key.sh = sh;
-  key.skip = (s->effects & RP_EFFECT_SKIP) != 0;
-  key.vol_gen = s->vol_gen;
-  key.tf_gen = s->tf_gen;
-  if (!s->depth_valid || memcmp(&key, &s->depth_key, sizeof key) != 0) {
-    double td = now_ms();
-    s->depth_valid = 0;
-    if ((err = rp_device_depth_pass(rt->dev, &s->cam, &d, NULL)) != 0)
-      return err;
-    s->depth_key = key;
-    s->depth_valid = 1;
-    df->depth_ms += now_ms() - td;
-    count(rt, &rt->counters.device_depth);
-  }
-  t1 = now_ms();
-  if ((err = rp_device_render(rt->dev, &s->cam, &d, NULL, rt->scaled,
-                              rt->tiles)) != 0)
-    return err;
+  err = rp_device_group_render(rt->group, &s->cam, &d, &s->probe,
+                               rt->scaled, rt->tiles, &rep);
   t2 = now_ms();
+  /* Per device, whatever happened: a lost device is part of the story. */
+  st->device_count = rep.count;
+  st->devices_alive = rep.alive;
+  st->devices_lost += rep.lost;
+  st->imbalance = rep.imbalance;
+  st->rerender_ms += rep.rerender_ms;
+  for (i = 0; i < rep.count && i < RP_RUNTIME_MAX_DEVICES; i++) {
+    rp_device_frame *df = &st->devices[i];
+    const rp_group_device *gd = &rep.devices[i];
+    snprintf(df->name, sizeof df->name, "%s", gd->name);
+    df->raycast_ms += gd->raycast_ms;
+    df->depth_ms += gd->depth_ms;
+    df->busy_ms += gd->busy_ms;
+    df->readback_ms += gd->busy_ms - gd->raycast_ms - gd->depth_ms;
+    df->rows += gd->region.y1 - gd->region.y0;
+    df->samples += gd->samples;
+    df->share = gd->share;
+    df->region = gd->region;
+    df->status = gd->status;
+    df->dropped = gd->dropped;
+    depth |= gd->depth_passes > 0;
+  }
+  if (depth)
+    count(rt, &rt->counters.device_depth);
+  if (err != 0)
+    return err;
   count(rt, &rt->counters.renders);
-  df->raycast_ms += (double)rp_device_last_time_ns(rt->dev) * 1e-6;
-  df->readback_ms += (t2 - t1) - (double)rp_device_last_time_ns(rt->dev) *
-                                     1e-6;
-  df->rows += sh;
   st->samples = 0;
   for (i = 0; i < tx * ty; i++)
     st->samples += rt->tiles[i].samples;
@@ -407,8 +400,6 @@ static int render_pass(rp_runtime *rt, double rho, double *pass_ms) {
   rt->job_train.probe = s->probe;
   rt->job_train.step = st->step;
   rt->job_train.scale = st->scale;
-  rt->job_train.samples = st->samples;
-  rt->job_train.raycast_ms = (double)rp_device_last_time_ns(rt->dev) * 1e-6;
   *pass_ms = now_ms() - t0;
   rt->job_train.pass_ms = *pass_ms;
   return 0;
@@ -444,10 +435,10 @@ static int render_frame(rp_runtime *rt) {
     float step, scale;
     rp_space_map(&rt->space, rho, &step, &scale);
     t0 = now_ms();
-    st->predicted_ms =
-        rp_cost_predict(rt->model, &s->probe, step, scale, &est) == 0
-            ? est.ms
-            : NAN;
+    st->predicted_ms = rp_device_group_predict(rt->group, &s->probe, step,
+                                               scale, &est) == 0
+                           ? est.ms
+                           : NAN;
     st->predict_ms += now_ms() - t0;
     if ((err = render_pass(rt, rho, &pass_ms)) != 0) {
       /* The controller's frame stays open otherwise; its history goes
@@ -479,9 +470,6 @@ static void run_frame(rp_runtime *rt) {
   st->frame = rt->frame_no;
   st->events = rt->job_events;
   st->predicted_ms = st->delta = NAN;
-  st->device_count = 1;
-  snprintf(st->devices[0].name, sizeof st->devices[0].name, "%s",
-           rt->device_name);
   rt->out_rgba = NULL;
   rt->job_train.valid = 0;
   rp__clear_error(rt->ctx);
@@ -594,9 +582,9 @@ static void train(rp_runtime *rt) {
   if (!t->valid)
     return;
   /* A refused sample (a zero-sample frame, say) teaches nothing; the
-   * model stays as it was, which is the right outcome. */
-  (void)rp_cost_train(rt->model, &t->probe, t->step, t->scale, t->samples,
-                      t->raycast_ms, t->pass_ms);
+   * models stay as they were, which is the right outcome. */
+  (void)rp_device_group_train(rt->group, &t->probe, t->step, t->scale,
+                              t->pass_ms);
   t->valid = 0;
   rt->last_train_ms = now_ms() - t0;
 }
@@ -665,8 +653,7 @@ static void free_runtime(rp_runtime *rt) {
   rp_histograms_destroy(s->h);
   rp_tf_destroy(s->tf);
   rp_volume_destroy(s->vol);
-  rp_cost_model_destroy(rt->model);
-  rp_device_destroy(rt->dev);
+  rp_device_group_destroy(rt->group);
   rp__free(ctx, rt->scaled);
   rp__free(ctx, rt->image);
   rp__free(ctx, rt->tiles);
@@ -776,6 +763,11 @@ static int check_desc(rp_context *ctx, const rp_runtime_desc *d) {
   if (d->effects & ~(uint32_t)RP__KNOWN_EFFECTS)
     return rp__fail(ctx, RP_EINVAL, "%s: desc->effects has unknown bits "
                     "0x%x", fn, d->effects);
+  if (d->device_count > RP_RUNTIME_MAX_DEVICES)
+    return rp__fail(ctx, RP_ERANGE, "%s: %u devices; at most %d", fn,
+                    d->device_count, RP_RUNTIME_MAX_DEVICES);
+  if (d->device_count > 0 && d->devices == NULL)
+    return rp__fail(ctx, RP_EINVAL, "%s: desc->devices is NULL", fn);
   return 0;
 }
 
@@ -817,7 +809,7 @@ int rp_runtime_create(rp_context *ctx, const rp_runtime_desc *desc,
   static const char fn[] = "rp_runtime_create";
   rp_context *own_ctx = NULL;
   rp_runtime *rt;
-  rp_caps caps;
+  rp_group_desc gd = {0};
   int err;
   if (ctx == NULL)
     return RP_EINVAL;
@@ -834,6 +826,7 @@ int rp_runtime_create(rp_context *ctx, const rp_runtime_desc *desc,
   }
   rt->ctx = own_ctx;
   rt->desc = *desc;
+  rt->desc.devices = NULL; /* the group copies them */
   rt->space = desc->space;
   if (rt->desc.target_ms == 0.0)
     rt->desc.target_ms = 1000.0 / 60.0;
@@ -867,16 +860,15 @@ int rp_runtime_create(rp_context *ctx, const rp_runtime_desc *desc,
     return rp__fail(ctx, RP_EDEVICE, "%s: uv_cond_init failed", fn);
   }
   /* From here on free_runtime undoes everything made so far. */
-  if ((err = rp_device_create(own_ctx, &desc->device, &rt->dev)) != 0 ||
-      (err = rp_cost_model_create(own_ctx, &desc->model, &rt->model)) !=
-          0) {
+  gd.devices = desc->device_count > 0 ? desc->devices : &desc->device;
+  gd.count = desc->device_count > 0 ? desc->device_count : 1;
+  gd.damping = desc->damping;
+  gd.model = desc->model;
+  if ((err = rp_device_group_create(own_ctx, &gd, &rt->group)) != 0) {
     rp__fail(ctx, err, "%s: %s", fn, rp_last_error(own_ctx));
     free_runtime(rt);
     return err;
   }
-  rp_device_get_caps(rt->dev, &caps);
-  snprintf(rt->device_name, sizeof rt->device_name, "%s:%s", caps.backend,
-           caps.device);
   rt->own = desc->loop == NULL;
   if (rt->own) {
     if (uv_loop_init(&rt->own_loop) != 0) {

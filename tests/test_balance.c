@@ -878,8 +878,41 @@ static void memory(void **state) {
   free(c);
 }
 
+/* Shares with fixed costs, in closed form: device i takes f_i + w_i v_i.
+ * - no fixed costs: 1/v ratios, {2/3, 1/3} for v = {1, 2};
+ * - f = {0.5, 0}, v = {1, 1}: T = (1 + 0.5) / 2 = 0.75, w = {0.25, 0.75};
+ * - f = {2, 0}, v = {1, 1}: T = 1.5 < 2 drops device 0, then T = 1,
+ *   w = {0, 1};
+ * - an unknown v counts as the mean speed: v = {NaN, 2} -> {0.5, 0.5}. */
+static void test_shares_fixed(void **state) {
+  double w[2], v[2] = {1.0, 2.0}, f[2] = {0.0, 0.0};
+  (void)state;
+  assert_int_equal(rp_balance_shares_fixed(v, f, 2, w), 0);
+  assert_true(fabs(w[0] - 2.0 / 3.0) < 1e-15 && w[0] + w[1] == 1.0);
+  v[1] = 1.0;
+  f[0] = 0.5;
+  assert_int_equal(rp_balance_shares_fixed(v, f, 2, w), 0);
+  assert_true(w[0] == 0.25 && w[1] == 0.75);
+  f[0] = 2.0;
+  assert_int_equal(rp_balance_shares_fixed(v, f, 2, w), 0);
+  assert_true(w[0] == 0.0 && w[1] == 1.0);
+  v[0] = NAN;
+  v[1] = 2.0;
+  f[0] = 0.0;
+  assert_int_equal(rp_balance_shares_fixed(v, f, 2, w), 0);
+  assert_true(w[0] == 0.5 && w[1] == 0.5);
+  /* Refused input leaves w alone. */
+  f[1] = NAN;
+  assert_int_equal(rp_balance_shares_fixed(v, f, 2, w), RP_ENOTFINITE);
+  f[1] = -1.0;
+  assert_int_equal(rp_balance_shares_fixed(v, f, 2, w), RP_ERANGE);
+  assert_int_equal(rp_balance_shares_fixed(NULL, f, 2, w), RP_EINVAL);
+  assert_true(w[0] == 0.5 && w[1] == 0.5);
+}
+
 int main(void) {
   const struct CMUnitTest tests[] = {
+      cmocka_unit_test(test_shares_fixed),
       cmocka_unit_test(shares_closed_form),
       cmocka_unit_test(shares_unknown),
       cmocka_unit_test(shares_random_exact_sum),

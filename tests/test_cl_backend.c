@@ -38,7 +38,8 @@ typedef struct device {
 } device;
 
 static void open_device(uint32_t index, device *d) {
-  int err = rp_cl_bootstrap.create(ctx, index, &d->ops, &d->impl, &d->caps);
+  int err =
+      rp_cl_bootstrap.create(ctx, index, 0, &d->ops, &d->impl, &d->caps);
   if (err != 0)
     fail_msg("create(%u): %s", (unsigned)index, rp_last_error(ctx));
 }
@@ -237,8 +238,9 @@ static void probe_and_caps(void **state) {
               d.caps.max_alloc_bytes <= d.caps.global_mem_bytes);
   close_device(&d);
   /* Past the end is RP_ENODEV with a message, not a crash. */
-  assert_int_equal(rp_cl_bootstrap.create(ctx, n, &d.ops, &d.impl, &d.caps),
-                   RP_ENODEV);
+  assert_int_equal(
+      rp_cl_bootstrap.create(ctx, n, 0, &d.ops, &d.impl, &d.caps),
+      RP_ENODEV);
   assert_non_null(strstr(rp_last_error(ctx), "does not exist"));
 }
 
@@ -420,6 +422,44 @@ static void sub_devices(void **state) {
   close_device(&part);
   close_device(&whole);
   drop_scene(&s);
+}
+
+/* (4b) Partitions asked for by size (rp_device_desc's compute_units):
+ * device 0 reports the compute units it can be split into, a listed
+ * sub-device will not split again, and a partition the driver refuses is
+ * RP_EUNSUPPORTED naming the OpenCL error (the front end's range check
+ * is skipped here on purpose). */
+static void partitions(void **state) {
+  device d;
+  uint32_t units = 0;
+  (void)state;
+  assert_non_null(rp_cl_bootstrap.partition_units);
+  if (rp_cl_bootstrap.partition_units(ctx, 0, &units) == RP_EUNSUPPORTED)
+    skip();
+  open_device(0, &d);
+  assert_int_equal(units, d.caps.compute_units);
+  close_device(&d);
+  assert_int_equal(rp_cl_bootstrap.partition_units(ctx, device_count,
+                                                   &units),
+                   RP_ENODEV);
+  if (device_count >= 2) {
+    assert_int_equal(rp_cl_bootstrap.partition_units(ctx, 1, &units),
+                     RP_EUNSUPPORTED);
+    assert_non_null(strstr(rp_last_error(ctx), "already a sub-device"));
+  }
+  d.impl = NULL;
+  assert_int_equal(rp_cl_bootstrap.create(ctx, 0, units + 1, &d.ops,
+                                          &d.impl, &d.caps),
+                   RP_EUNSUPPORTED);
+  assert_null(d.impl);
+  assert_non_null(strstr(rp_last_error(ctx), "clCreateSubDevices"));
+  assert_non_null(strstr(rp_last_error(ctx), "CL_"));
+  assert_int_equal(rp_cl_bootstrap.create(ctx, 0, units, &d.ops, &d.impl,
+                                          &d.caps),
+                   0);
+  assert_int_equal(d.caps.sub_device, 1);
+  assert_int_equal(d.caps.compute_units, units);
+  close_device(&d);
 }
 
 /* (5) Images against the C reference: a smoke-level matrix over voxel
@@ -768,6 +808,7 @@ int main(void) {
       cmocka_unit_test(ert_prepass),
       cmocka_unit_test(regions),
       cmocka_unit_test(sub_devices),
+      cmocka_unit_test(partitions),
       cmocka_unit_test(device_timing),
       cmocka_unit_test(images_vs_reference),
   };

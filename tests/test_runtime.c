@@ -112,7 +112,10 @@ typedef struct app {
   seen s;
 } app;
 
-static void app_open(app *a) {
+/* devices / count: the runtime's device list (count 0: one reference
+ * device through desc.device). */
+static void app_open_devices(app *a, const rp_device_desc *devices,
+                             uint32_t count) {
   rp_runtime_desc d = {0};
   memset(a, 0, sizeof *a);
   a->ctx = rp_test_context();
@@ -127,9 +130,13 @@ static void app_open(app *a) {
   d.height = H;
   d.effects = EFFECTS;
   d.target_ms = 1000.0;
+  d.devices = devices;
+  d.device_count = count;
   assert_int_equal(rp_runtime_create(a->ctx, &d, &a->rt), 0);
   a->s.rt = a->rt;
 }
+
+static void app_open(app *a) { app_open_devices(a, NULL, 0); }
 
 static void app_close(app *a) {
   assert_int_equal(rp_runtime_close(a->rt, on_closed, &a->s), 0);
@@ -357,6 +364,52 @@ static void test_bad_input(void **state) {
   assert_true(a.s.has_image);
   app_close(&a);
   rp_tf_destroy(tf);
+  rp_context_destroy(a.ctx);
+}
+
+/* Three devices, one of them lost at its third render: every frame is
+ * the reference image, the lost frame says which device went and that
+ * its region was re-rendered, and afterwards the two left share the
+ * frame. The device list is copied: the caller's array may go. */
+static void test_several_devices(void **state) {
+  app a;
+  rp_device_desc *dd = calloc(3, sizeof *dd);
+  rp_volume *vol, *vol2;
+  rp_tf *tf;
+  rp_camera cam;
+  uint32_t i, f;
+  (void)state;
+  for (i = 0; i < 3; i++)
+    dd[i].backend = "reference";
+  dd[1].fail_at_render = 3;
+  memset(&a, 0, sizeof a);
+  app_open_devices(&a, dd, 3);
+  free(dd);
+  vol = make_volume(a.ctx, 32, 3);
+  vol2 = make_volume(a.ctx, 32, 3);
+  cam = orbit(vol2, 50.0f);
+  tf = post_scene(a.rt, a.ctx, vol, "ct-bone", &cam);
+  for (f = 0; f < 5; f++) {
+    double sum = 0.0;
+    (void)frame(&a);
+    assert_int_equal(a.s.last.status, 0);
+    assert_true(a.s.has_image);
+    expect_reference(a.ctx, vol2, tf, &cam, a.s.image);
+    assert_int_equal(a.s.last.device_count, 3);
+    assert_int_equal(a.s.last.devices_lost, f == 2 ? 1 : 0);
+    assert_int_equal(a.s.last.devices_alive, f >= 2 ? 2 : 3);
+    assert_int_equal(a.s.last.devices[1].dropped, f >= 2);
+    if (f == 2)
+      assert_int_equal(a.s.last.devices[1].status, RP_EDEVICE);
+    for (i = 0; i < 3; i++)
+      sum += a.s.last.devices[i].share;
+    assert_true(sum == 1.0);
+    if (f > 2)
+      assert_true(a.s.last.devices[1].share == 0.0);
+  }
+  app_close(&a);
+  rp_tf_destroy(tf);
+  rp_volume_destroy(vol2);
   rp_context_destroy(a.ctx);
 }
 
@@ -628,6 +681,7 @@ int main(void) {
       cmocka_unit_test(test_passes_per_event),
       cmocka_unit_test(test_requests),
       cmocka_unit_test(test_bad_input),
+      cmocka_unit_test(test_several_devices),
       cmocka_unit_test(test_volume_other_allocator),
       cmocka_unit_test(test_close_in_flight),
       cmocka_unit_test(test_timer_pacing),

@@ -735,6 +735,21 @@ static void test_caps(void **state) {
   assert_true(g_caps.max_alloc_bytes > 0);
   assert_true(g_caps.global_mem_bytes > 0);
   assert_true(g_caps.compute_units >= 1);
+  assert_int_equal(g_caps.sub_device, 0);
+}
+
+/* Vulkan has no sub-devices: no partition_units op, and create refuses a
+ * partition without creating anything. */
+static void test_no_partition(void **state) {
+  const rp_backend_ops *ops = NULL;
+  void *impl = NULL;
+  rp_caps caps;
+  (void)state;
+  assert_null(rp_vk_bootstrap.partition_units);
+  assert_int_equal(rp_vk_bootstrap.create(g_ctx, 0, 1, &ops, &impl, &caps),
+                   RP_EUNSUPPORTED);
+  assert_null(impl);
+  assert_non_null(strstr(rp_last_error(g_ctx), "partition"));
 }
 
 static const char *cache_dir(void) {
@@ -754,7 +769,8 @@ static void cached_device_run(const scene *s, rp_vk_stats *st) {
   frame f;
   frame_desc fd = {16, 16, 1.0f, 1.0f, RP_EFFECT_SHADING | RP_EFFECT_SKIP};
   uint8_t rgba[16 * 16 * 4];
-  assert_int_equal(rp_vk_bootstrap.create(g_ctx, 0, &ops, &impl, &caps), 0);
+  assert_int_equal(rp_vk_bootstrap.create(g_ctx, 0, 0, &ops, &impl, &caps),
+                   0);
   scene_upload(s, impl);
   cameras(s->vol, cams);
   frame_init(s, &cams[0], &fd, &f);
@@ -872,7 +888,7 @@ static void test_bad_kernel(void **state) {
   (void)state;
   for (k = 0; k < RP_VK_KERNEL_COUNT; k++) {
     rp_vk_hooks.corrupt_kernel = k + 1;
-    assert_int_equal(rp_vk_bootstrap.create(g_ctx, 0, &ops, &impl, &caps),
+    assert_int_equal(rp_vk_bootstrap.create(g_ctx, 0, 0, &ops, &impl, &caps),
                      RP_EBUILD);
     rp_vk_hooks.corrupt_kernel = 0;
     assert_non_null(strstr(rp_last_error(g_ctx), "SPIR-V"));
@@ -935,7 +951,7 @@ static void test_no_driver(void **state) {
   }
   assert_int_equal(rp_vk_bootstrap.probe(g_ctx, &count), 0);
   assert_int_equal(count, 0);
-  assert_int_equal(rp_vk_bootstrap.create(g_ctx, 0, &ops, &impl, &caps),
+  assert_int_equal(rp_vk_bootstrap.create(g_ctx, 0, 0, &ops, &impl, &caps),
                    RP_ENODEV);
   for (i = 0; i < 2; i++) {
     if (saved[i] != NULL)
@@ -951,7 +967,7 @@ static void test_no_driver(void **state) {
 static int group_setup(void **state) {
   (void)state;
   g_ctx = rp_test_context();
-  return rp_vk_bootstrap.create(g_ctx, 0, &g_ops, &g_impl, &g_caps);
+  return rp_vk_bootstrap.create(g_ctx, 0, 0, &g_ops, &g_impl, &g_caps);
 }
 
 static int group_teardown(void **state) {
@@ -964,6 +980,7 @@ static int group_teardown(void **state) {
 int main(void) {
   const struct CMUnitTest tests[] = {
       cmocka_unit_test(test_caps),
+      cmocka_unit_test(test_no_partition),
       cmocka_unit_test(test_phantom_u8),
       cmocka_unit_test(test_marschner_lobb_u16),
       cmocka_unit_test(test_float32),

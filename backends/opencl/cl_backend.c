@@ -490,7 +490,7 @@ static int cl_probe(rp_context *ctx, uint32_t *device_count) {
   return rp_cl__count_devices(device_count);
 }
 
-static int cl_create(rp_context *ctx, uint32_t index,
+static int cl_create(rp_context *ctx, uint32_t index, uint32_t units,
                      const rp_backend_ops **ops, void **out, rp_caps *caps) {
   rp_cl_impl *impl = rp__calloc(ctx, 1, sizeof *impl);
   int rc;
@@ -498,7 +498,7 @@ static int cl_create(rp_context *ctx, uint32_t index,
     return rp__fail(ctx, RP_ENOMEM, "opencl: out of memory for device %u",
                     (unsigned)index);
   impl->ctx = ctx;
-  if ((rc = rp_cl__open(impl, index, caps)) != 0) {
+  if ((rc = rp_cl__open(impl, index, units, caps)) != 0) {
     rp__free(ctx, impl);
     return rc;
   }
@@ -507,7 +507,8 @@ static int cl_create(rp_context *ctx, uint32_t index,
   return 0;
 }
 
-const rp_backend_bootstrap rp_cl_bootstrap = {"opencl", cl_probe, cl_create};
+const rp_backend_bootstrap rp_cl_bootstrap = {"opencl", cl_probe, cl_create,
+                                              rp_cl__partition_units};
 
 /* ---- test hooks ---------------------------------------------------------- */
 

@@ -6,7 +6,9 @@
  * into one-compute-unit parts (CL_DEVICE_PARTITION_EQUALLY), each part.
  * On a two-core PoCL machine that is 0 = both cores, 1 and 2 = one core
  * each, which is what the scheduler needs to run two independent workers
- * on the CPU and to learn a cost model for each. */
+ * on the CPU and to learn a cost model for each. rp_device_desc's
+ * compute_units instead splits a root device equally into parts of that
+ * many compute units and opens the first. */
 #include <ctype.h>
 #include <stdio.h>
 #include <string.h>
@@ -154,12 +156,43 @@ int rp_cl__count_devices(uint32_t *count) {
 
 /* ---- open and close ------------------------------------------------------ */
 
-/* Part `part` of `root` split into one-compute-unit sub-devices; the
- * other parts are released. */
-static cl_int make_sub_device(cl_device_id root, int part,
+int rp_cl__partition_units(rp_context *ctx, uint32_t index,
+                           uint32_t *units) {
+  cl_device_partition_property props[8];
+  cl_device_id root = NULL;
+  cl_uint have = 0;
+  size_t size = 0, i;
+  uint32_t count = 0;
+  int part = -1;
+  if (locate(index, &count, &root, &part) != 0)
+    return rp__fail(ctx, RP_ENODEV, "opencl: device %u does not exist "
+                    "(%u found)", (unsigned)index, (unsigned)count);
+  if (part >= 0)
+    return rp__fail(ctx, RP_EUNSUPPORTED, "opencl: device %u is already a "
+                    "sub-device; partition its root device instead",
+                    (unsigned)index);
+  if (clGetDeviceInfo(root, CL_DEVICE_PARTITION_PROPERTIES, sizeof props,
+                      props, &size) != CL_SUCCESS)
+    size = 0;
+  for (i = 0; i < size / sizeof props[0]; i++)
+    if (props[i] == CL_DEVICE_PARTITION_EQUALLY)
+      break;
+  if (i >= size / sizeof props[0])
+    return rp__fail(ctx, RP_EUNSUPPORTED, "opencl: device %u cannot be "
+                    "partitioned (CL_DEVICE_PARTITION_PROPERTIES lacks "
+                    "CL_DEVICE_PARTITION_EQUALLY)", (unsigned)index);
+  clGetDeviceInfo(root, CL_DEVICE_MAX_COMPUTE_UNITS, sizeof have, &have,
+                  NULL);
+  *units = have;
+  return 0;
+}
+
+/* Part `part` of `root` split into sub-devices of `units` compute units
+ * each; the other parts are released. */
+static cl_int make_sub_device(cl_device_id root, cl_uint units, int part,
                               cl_device_id *out) {
-  const cl_device_partition_property props[] = {CL_DEVICE_PARTITION_EQUALLY,
-                                                1, 0};
+  const cl_device_partition_property props[] = {
+      CL_DEVICE_PARTITION_EQUALLY, (cl_device_partition_property)units, 0};
   cl_device_id subs[RP_CL_MAX_DEVICES];
   cl_uint n = 0, i;
   cl_int err = clCreateSubDevices(root, props, RP_CL_MAX_DEVICES, subs, &n);
@@ -185,17 +218,18 @@ static void fill_caps(const rp_cl_impl *impl, int part, rp_caps *caps) {
   snprintf(caps->backend, sizeof caps->backend, "opencl");
   clGetDeviceInfo(impl->device, CL_DEVICE_NAME, sizeof name - 1, name, NULL);
   name[sizeof name - 1] = '\0';
-  if (part >= 0)
-    snprintf(caps->device, sizeof caps->device, "%s (sub-device %d)", name,
-             part);
-  else
-    snprintf(caps->device, sizeof caps->device, "%s", name);
   clGetDeviceInfo(impl->device, CL_DEVICE_GLOBAL_MEM_SIZE, sizeof mem, &mem,
                   NULL);
   clGetDeviceInfo(impl->device, CL_DEVICE_MAX_MEM_ALLOC_SIZE, sizeof alloc,
                   &alloc, NULL);
   clGetDeviceInfo(impl->device, CL_DEVICE_MAX_COMPUTE_UNITS, sizeof units,
                   &units, NULL);
+  if (part >= 0)
+    snprintf(caps->device, sizeof caps->device, "%s (sub-device %d, %u "
+             "compute unit%s)", name, part, (unsigned)units,
+             units == 1 ? "" : "s");
+  else
+    snprintf(caps->device, sizeof caps->device, "%s", name);
   /* AO waits for the AO volume (M7); advertising it would invite frames
    * this backend cannot render. */
   caps->effects = RP_EFFECT_SHADING | RP_EFFECT_ERT | RP_EFFECT_SKIP;
@@ -206,23 +240,34 @@ static void fill_caps(const rp_cl_impl *impl, int part, rp_caps *caps) {
   caps->sub_device = part >= 0;
 }
 
-int rp_cl__open(rp_cl_impl *impl, uint32_t index, rp_caps *caps) {
+int rp_cl__open(rp_cl_impl *impl, uint32_t index, uint32_t compute_units,
+                rp_caps *caps) {
   rp_context *ctx = impl->ctx;
   cl_device_id root = NULL, devs[2];
-  cl_uint ndev = 1;
+  cl_uint ndev = 1, units = 1;
   int part = -1;
   cl_int err;
   uint32_t count = 0;
   if (locate(index, &count, &root, &part) != 0)
     return rp__fail(ctx, RP_ENODEV, "opencl: device %u does not exist "
                     "(%u found)", (unsigned)index, (unsigned)count);
+  /* A partition asked for is the first of the root split equally. */
+  if (compute_units > 0 && part < 0) {
+    units = compute_units;
+    part = 0;
+  }
   if (part < 0) {
     impl->device = root;
     impl->root = NULL;
   } else {
-    if ((err = make_sub_device(root, part, &impl->device)) != CL_SUCCESS)
-      return rp_cl__fail(ctx, err, "clCreateSubDevices (one compute unit "
-                         "each)");
+    err = make_sub_device(root, units, part, &impl->device);
+    if (err == CL_DEVICE_PARTITION_FAILED || err == CL_INVALID_VALUE)
+      return rp__fail(ctx, RP_EUNSUPPORTED, "opencl: clCreateSubDevices "
+                      "(CL_DEVICE_PARTITION_EQUALLY, %u compute units): %s "
+                      "(%d)", (unsigned)units, rp_cl__error_name(err),
+                      (int)err);
+    if (err != CL_SUCCESS)
+      return rp_cl__fail(ctx, err, "clCreateSubDevices");
     impl->root = root;
   }
   devs[0] = impl->device;

@@ -69,9 +69,15 @@ int rp_cl__fail(rp_context *ctx, cl_int err, const char *op);
 /* Devices: for each root device of each platform, the device itself, then
  * its one-compute-unit sub-devices when it can be partitioned. */
 int rp_cl__count_devices(uint32_t *count);
-/* Opens device `index` of that list into impl (context, queue) and fills
- * caps. On failure nothing is left allocated. */
-int rp_cl__open(rp_cl_impl *impl, uint32_t index, rp_caps *caps);
+/* Compute units of root device `index` to partition equally; otherwise
+ * (a listed sub-device, no CL_DEVICE_PARTITION_EQUALLY) RP_EUNSUPPORTED. */
+int rp_cl__partition_units(rp_context *ctx, uint32_t index,
+                           uint32_t *units);
+/* Opens device `index` of that list, or with compute_units > 0 the first
+ * sub-device of that many compute units of it, into impl (context, queue)
+ * and fills caps. On failure nothing is left allocated. */
+int rp_cl__open(rp_cl_impl *impl, uint32_t index, uint32_t compute_units,
+                rp_caps *caps);
 void rp_cl__close(rp_cl_impl *impl);
 /* Builds `sources` for impl's device. On failure the RP_EBUILD message
  * names `what` and quotes the start of the build log. */

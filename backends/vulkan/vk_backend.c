@@ -296,10 +296,15 @@ static int vk_probe(rp_context *ctx, uint32_t *count) {
   return 0;
 }
 
-static int vk_create(rp_context *ctx, uint32_t index,
+static int vk_create(rp_context *ctx, uint32_t index, uint32_t units,
                      const rp_backend_ops **ops, void **out, rp_caps *caps) {
-  rp_vk_impl *impl = rp__calloc(ctx, 1, sizeof *impl);
+  rp_vk_impl *impl;
   int err;
+  /* Vulkan has no sub-devices (no partition_units op below). */
+  if (units != 0)
+    return rp__fail(ctx, RP_EUNSUPPORTED, "vulkan: cannot partition a "
+                    "device (compute_units %u)", (unsigned)units);
+  impl = rp__calloc(ctx, 1, sizeof *impl);
   if (impl == NULL)
     return rp__fail(ctx, RP_ENOMEM, "vulkan: out of memory for the device "
                     "(%zu bytes)", sizeof *impl);
@@ -1051,4 +1056,5 @@ static const rp_backend_ops vk_ops = {
     vk_destroy,     vk_upload_volume, vk_upload_tf,   vk_upload_occupancy,
     vk_depth_pass,  vk_ert_prepass,   vk_raycast,     vk_last_time_ns};
 
-const rp_backend_bootstrap rp_vk_bootstrap = {"vulkan", vk_probe, vk_create};
+const rp_backend_bootstrap rp_vk_bootstrap = {"vulkan", vk_probe, vk_create,
+                                              NULL};

@@ -162,6 +162,140 @@ has "overhead json" '"stage":	"train"'
 refuse "bench overhead loads" "loads" "$rp" bench overhead gen:ml:8 \
   --frames 2 --loads 3 --backend reference
 
+# Device groups (--devices): the list's parser, then renders and a replay.
+# The reference needs no driver; OpenCL parts skip without a device.
+regions_ok() { # regions_ok W H NAME [KEY]: the JSON's KEYs (default
+  # region) are disjoint, lie in the WxH image and cover it; two or more
+  if grep -F "\"${4:-region}\":" "$dir/out" | tr -d '[],' |
+     awk -v W="$1" -v H="$2" '
+    { n = NR; x0[n] = $2; y0[n] = $3; x1[n] = $4; y1[n] = $5 }
+    END {
+      a = 0
+      for (i = 1; i <= n; i++) {
+        if (x0[i] > x1[i] || y0[i] > y1[i] || x1[i] > W || y1[i] > H)
+          exit 1
+        a += (x1[i] - x0[i]) * (y1[i] - y0[i])
+        for (j = 1; j < i; j++)
+          if (x0[i] < x1[j] && x0[j] < x1[i] && y0[i] < y1[j] &&
+              y0[j] < y1[i] && x0[i] < x1[i] && y0[i] < y1[i] &&
+              x0[j] < x1[j] && y0[j] < y1[j])
+            exit 1
+      }
+      exit !(n >= 2 && a == W * H)
+    }'; then pass=$((pass + 1)); else
+    echo "FAIL: $3: regions not a partition of ${1}x$2"; cat "$dir/out"
+    fails=$((fails + 1)); fi
+}
+is_png() { # is_png NAME FILE
+  if [ -s "$2" ] && [ "$(head -c 8 "$2" | od -An -tx1 | tr -d ' \n')" = \
+       "89504e470d0a1a0a" ]; then pass=$((pass + 1)); else
+    echo "FAIL: $1: $2 is not a PNG"; fails=$((fails + 1)); fi
+}
+g="$dir/g.png"
+refuse "devices backend" "backend 'cuda' in 'cuda'" "$rp" render gen:ml:8 \
+  --devices cuda -o "$g"
+refuse "devices index" "device index 'x' in 'opencl:x'" "$rp" render \
+  gen:ml:8 --devices reference,opencl:x -o "$g"
+refuse "devices cu" "'cu=0' in 'opencl:0:cu=0'" "$rp" render gen:ml:8 \
+  --devices opencl:0:cu=0 -o "$g"
+refuse "devices slow" "'slow=0.5'" "$rp" render gen:ml:8 \
+  --devices reference:0:slow=0.5 -o "$g"
+refuse "devices slow nan" "'slow=nan'" "$rp" render gen:ml:8 \
+  --devices reference:slow=nan -o "$g"
+refuse "devices fail" "'fail=-1'" "$rp" render gen:ml:8 \
+  --devices reference:fail=-1 -o "$g"
+refuse "devices empty" "empty device" "$rp" render gen:ml:8 \
+  --devices reference,,reference -o "$g"
+refuse "devices trailing" "empty device" "$rp" render gen:ml:8 \
+  --devices reference, -o "$g"
+refuse "devices twice" "'cu' is given twice" "$rp" render gen:ml:8 \
+  --devices opencl:0:cu=2:cu=3 -o "$g"
+refuse "devices field" "field 'bogus=1' in 'reference:0:bogus=1'" "$rp" \
+  render gen:ml:8 --devices reference:0:bogus=1 -o "$g"
+refuse "devices late index" "field '1' in 'opencl:cu=2:1'" "$rp" render \
+  gen:ml:8 --devices opencl:cu=2:1 -o "$g"
+refuse "devices too many" "at most 8 devices" "$rp" render gen:ml:8 \
+  --devices reference,reference,reference,reference,reference,reference,\
+reference,reference,reference -o "$g"
+refuse "devices and backend" "excludes --backend" "$rp" render gen:ml:8 \
+  --devices reference --backend reference -o "$g"
+refuse "devices and device" "excludes --backend" "$rp" render gen:ml:8 \
+  --device 0 --devices reference -o "$g"
+refuse "overlay alone" "needs --devices" "$rp" render gen:ml:8 \
+  --overlay-split -o "$g"
+refuse "replay devices and backend" "excludes --backend" "$rp" replay \
+  gen:ml:8 --backend reference --devices reference
+refuse "replay devices" "backend 'gpu'" "$rp" replay gen:ml:8 \
+  --devices gpu
+refuse "devices cu on reference" "device 1" "$rp" render gen:ml:8 \
+  --size 8x8 --devices reference,reference:0:cu=2 -o "$g"
+
+# Accepted lists on the reference: every field, one losing its device.
+check "group reference" "$rp" render gen:phantom:32 --size 40x24 \
+  --devices reference:0:slow=1.5:fail=0,reference --overlay-split --json \
+  -o "$g"
+has "group reference devices" '"devices":'
+has "group reference backend" '"backend":	"group"'
+regions_ok 40 24 "group reference"
+is_png "group reference png" "$g"
+check "group reference lost" "$rp" render gen:phantom:32 --size 32x32 \
+  --devices reference:fail=1,reference,reference --warmup 2 -o "$g"
+has "group reference lost line" "device 0 .*LOST (EDEVICE"
+has "group reference alive" "of 3 devices alive"
+check "warmup one device" "$rp" render gen:ml:16 --size 16x16 --warmup 2 \
+  --backend reference -o "$g"
+check "group scaled" "$rp" render gen:phantom:32 --size 50x30 --scale 0.5 \
+  --devices reference,reference --json -o "$g"
+regions_ok 25 15 "group scaled"
+regions_ok 50 30 "group scaled output" output_region
+
+if "$rp" render gen:ml:8 --size 8x8 --backend opencl -o "$g" \
+    >/dev/null 2>&1; then
+  check "group opencl overlay" "$rp" render gen:phantom:64 --size 64x64 \
+    --devices opencl:0,opencl:0 --overlay-split --json -o "$g"
+  is_png "group opencl png" "$g"
+  regions_ok 64 64 "group opencl overlay"
+  has "group opencl status" '"status":	"ok"'
+  check "group opencl fail" "$rp" render gen:phantom:64 --size 64x64 \
+    --devices opencl:0,opencl:0:fail=1 --json -o "$g"
+  is_png "group opencl fail png" "$g"
+  has "group opencl lost" '"lost":	true'
+  has "group opencl lost status" '"status":	"EDEVICE"'
+  has "group opencl alive" '"devices_alive":	1'
+  check "group opencl fail text" "$rp" render gen:phantom:64 \
+    --size 64x64 --devices opencl:0:fail=1,opencl:0 -o "$g"
+  has "group opencl fail text" "device 0 .*LOST (EDEVICE"
+else
+  echo "SKIP: no OpenCL device: group renders on opencl"
+fi
+
+check "replay devices" "$rp" replay gen:phantom:24 --devices \
+  reference,reference:0:slow=2 --sequence orbit --frames 6 --settle 1 \
+  --size 32x32 --controller predicted --json --quiet --csv "$dir/d.csv"
+has "replay devices imbalance" '"mean_imbalance":'
+has "replay devices alive" '"devices_alive":'
+cols="tf_switch,dev0_share,dev0_busy_ms,dev0_raycast_ms,dev0_samples"
+cols="$cols,dev1_share,dev1_busy_ms,dev1_raycast_ms,dev1_samples,imbalance"
+if [ "$(head -1 "$dir/d.csv" | cut -d, -f16-)" = "$cols" ] &&
+   [ "$(wc -l <"$dir/d.csv")" -eq 7 ] &&
+   [ "$(awk -F, 'NR > 1 && ($17 + $21 - 1)^2 > 1e-8 { n++ }
+                 END { print n + 0 }' \
+       "$dir/d.csv")" -eq 0 ]; then
+  pass=$((pass + 1)); else
+  echo "FAIL: replay devices csv"; cat "$dir/d.csv"; fails=$((fails + 1))
+fi
+check "replay devices table" "$rp" replay gen:ml:16 --devices \
+  reference,reference:0:fail=3 --sequence orbit --frames 4 --settle 1 \
+  --size 16x16 --controller vtk --quiet
+has "replay devices table" "imbal  alive"
+if command -v gnuplot >/dev/null 2>&1; then
+  check "replay devices plot" "$rp" replay gen:ml:16 --devices \
+    reference,reference --sequence orbit --frames 6 --settle 1 \
+    --size 16x16 --quiet \
+    --plot "$dir/dp.png"
+  is_png "replay devices plot" "$dir/dp-devices.png"
+fi
+
 if [ -n "${RP_SHARED_DATA:-}" ] && [ -f "$RP_SHARED_DATA/bonsai/bonsai.txt" ]
 then
   check "bonsai info" "$rp" info "$RP_SHARED_DATA/bonsai/bonsai.txt" --json

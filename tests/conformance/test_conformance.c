@@ -564,10 +564,133 @@ static void slowed_and_failing_devices(void **state) {
   drop_scene(&s);
 }
 
+/* rp_device_desc's compute_units. A backend that cannot partition a
+ * device (the reference, Vulkan) refuses it with RP_EUNSUPPORTED. OpenCL,
+ * where the device splits equally: a sub-device of all its compute units
+ * and one of one compute unit open and say so in their caps, the latter
+ * renders the whole device's image byte for byte (the same kernels on the
+ * same hardware), and more compute units than the device has are
+ * RP_ERANGE. A refused device is not created, and every device leaves
+ * the allocation count as it found it (a context of its own counts). */
+typedef struct counting {
+  long allocs, frees;
+} counting;
+
+static void *count_alloc(size_t size, void *user) {
+  ((counting *)user)->allocs++;
+  return malloc(size);
+}
+
+static void count_free(void *p, void *user) {
+  if (p != NULL)
+    ((counting *)user)->frees++;
+  free(p);
+}
+
+/* rp_device_create on the counting context: returns its result and
+ * checks that a refused device is NULL and freed everything it took. */
+static int counted_create(rp_context *cc, const counting *c,
+                          const rp_device_desc *dd, rp_device **out) {
+  long live = c->allocs - c->frees;
+  int err;
+  *out = NULL;
+  err = rp_device_create(cc, dd, out);
+  if (err != 0) {
+    assert_null(*out);
+    assert_int_equal(c->allocs - c->frees, live);
+  }
+  return err;
+}
+
+static void partitioned_devices(void **state) {
+  scene s = make_scene("phantom 40^3", RP_GEN_PHANTOM, 40, 40, 40, RP_U8);
+  counting c = {0, 0};
+  rp_context_desc cd = {0};
+  rp_context *cc = NULL;
+  rp_device_desc dd = {0};
+  rp_device *part = NULL;
+  rp_caps whole, caps;
+  rp_tf *tf = NULL;
+  rp_occupancy *occ = NULL;
+  rp_camera cam = camera(s.vol, 0);
+  rp_render_desc d = {0};
+  uint8_t a[40 * 32 * 4], b[40 * 32 * 4];
+  rp_tile_stats ta[5 * 4], tb[5 * 4];
+  long live;
+  int err;
+  (void)state;
+  cd.allocator.alloc = count_alloc;
+  cd.allocator.free = count_free;
+  cd.allocator.user = &c;
+  assert_int_equal(rp_context_create(&cd, &cc), 0);
+  rp_device_get_caps(dev, &whole);
+  dd.backend = backend_name();
+  dd.compute_units = 1;
+  err = counted_create(cc, &c, &dd, &part);
+  if (strcmp(backend_name(), "opencl") != 0 || err == RP_EUNSUPPORTED) {
+    /* Refused: the message says why, and so is every other count. */
+    assert_int_equal(err, RP_EUNSUPPORTED);
+    assert_non_null(strstr(rp_last_error(cc), "partition"));
+    dd.compute_units = whole.compute_units + 1;
+    assert_int_equal(counted_create(cc, &c, &dd, &part), RP_EUNSUPPORTED);
+    print_message("%s: %s\n", backend_name(), rp_last_error(cc));
+    rp_context_destroy(cc);
+    assert_int_equal(c.allocs, c.frees);
+    drop_scene(&s);
+    if (strcmp(backend_name(), "opencl") == 0)
+      skip(); /* an OpenCL device that cannot be split equally */
+    return;
+  }
+  assert_int_equal(err, 0);
+  rp_device_get_caps(part, &caps);
+  assert_string_equal(caps.backend, "opencl");
+  assert_int_equal(caps.sub_device, 1);
+  assert_int_equal(caps.compute_units, 1);
+  rp_device_destroy(part);
+  /* All of the device's compute units: one part, the size of the whole. */
+  live = c.allocs - c.frees;
+  dd.compute_units = whole.compute_units;
+  assert_int_equal(counted_create(cc, &c, &dd, &part), 0);
+  rp_device_get_caps(part, &caps);
+  assert_int_equal(caps.sub_device, 1);
+  assert_int_equal(caps.compute_units, whole.compute_units);
+  rp_device_destroy(part);
+  assert_int_equal(c.allocs - c.frees, live);
+  /* One more is out of range, and says so. */
+  dd.compute_units = whole.compute_units + 1;
+  assert_int_equal(counted_create(cc, &c, &dd, &part), RP_ERANGE);
+  assert_non_null(strstr(rp_last_error(cc), "exceeds"));
+  rp_context_destroy(cc);
+  assert_int_equal(c.allocs, c.frees);
+  /* One compute unit renders what the whole device renders. */
+  dd.compute_units = 1;
+  assert_int_equal(rp_device_create(ctx, &dd, &part), 0);
+  assert_int_equal(rp_tf_create_preset(ctx, "ct-bone", &tf), 0);
+  assert_int_equal(rp_occupancy_build(ctx, s.h, tf, &occ), 0);
+  d.width = 40, d.height = 32;
+  d.effects = RP_EFFECT_SHADING | RP_EFFECT_ERT | RP_EFFECT_SKIP;
+  memset(a, 0x11, sizeof a);
+  memset(b, 0x22, sizeof b);
+  assert_int_equal(rp_device_set_volume(dev, s.vol), 0);
+  assert_int_equal(rp_device_set_tf(dev, tf, occ), 0);
+  assert_int_equal(rp_device_render(dev, &cam, &d, NULL, a, ta), 0);
+  assert_int_equal(rp_device_set_volume(part, s.vol), 0);
+  assert_int_equal(rp_device_set_tf(part, tf, occ), 0);
+  assert_int_equal(rp_device_render(part, &cam, &d, NULL, b, tb), 0);
+  assert_memory_equal(a, b, sizeof a);
+  assert_memory_equal(ta, tb, sizeof ta);
+  assert_true(ta[2 * 5 + 2].samples > 0); /* the middle is not empty */
+  rp_device_destroy(part);
+  rp_occupancy_destroy(occ);
+  rp_tf_destroy(tf);
+  drop_scene(&s);
+}
+
 int main(void) {
   const struct CMUnitTest tests[] = {
       cmocka_unit_test(front_end_validates),
       cmocka_unit_test(slowed_and_failing_devices),
+      cmocka_unit_test(partitioned_devices),
       cmocka_unit_test(regions_compose),
       cmocka_unit_test(depth_and_ert_passes),
       cmocka_unit_test(odd_viewports_and_scales),

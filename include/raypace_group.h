@@ -1,0 +1,181 @@
+/* raypace device groups: one frame rendered by several devices at once
+ * (DESIGN section 7, milestone M6).
+ *
+ * A group opens its devices, gives each a worker thread, keeps a cost
+ * model per device (its sigma) and, per frame:
+ *   shares from the models (rp_balance_shares, damped) -> each 8x8 tile's
+ *   predicted cost from the probe's ray spans -> the kd-tree split
+ *   (rp_balancer_split) -> every device renders its region concurrently
+ *   into a buffer of its own -> the regions are copied into one image.
+ * A device that fails, or is still rendering past its deadline, is
+ * dropped: the devices left re-render its region in the same frame (the
+ * frame is late, never missing or corrupt) and the shares re-converge
+ * over the devices left. A frame fails only when no device is left.
+ *
+ * A group of one device does exactly what that device alone does, on the
+ * caller's thread.
+ *
+ * Threading: a group belongs to one thread at a time; its workers are
+ * internal. */
+#ifndef RAYPACE_GROUP_H
+#define RAYPACE_GROUP_H
+
+#include <stdint.h>
+
+#include "raypace.h"
+#include "raypace_balance.h"
+#include "raypace_pace.h"
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+#define RP_GROUP_MAX_DEVICES 8
+
+typedef struct rp_device_group rp_device_group;
+
+/** How the shares are chosen each frame. */
+typedef enum rp_share_mode {
+  /* From each device's learned cost (its model's whole-frame raycast
+   * time), w_i proportional to 1 / t_i, then damped. */
+  RP_SHARES_DYNAMIC = 0,
+  /* desc.fixed_shares every frame: a static split, the baseline the
+   * dynamic one is measured against. */
+  RP_SHARES_FIXED = 1
+} rp_share_mode;
+
+/** Zero fields take the defaults. */
+typedef struct rp_group_desc {
+  const rp_device_desc *devices; /* required, `count` of them */
+  uint32_t count;                /* 1..RP_GROUP_MAX_DEVICES */
+  rp_share_mode share_mode;
+  const double *fixed_shares;    /* RP_SHARES_FIXED: `count` finite
+                                    values >= 0, positive sum */
+  rp_damping damping;            /* RP_SHARES_DYNAMIC; default smooth */
+  double damp_rate;              /* in (0, 1]; 0: 0.5 */
+  int split_by_count;            /* 1: the split ignores the predicted
+                                    tile costs (every tile costs 1) */
+  rp_cost_model_desc model;      /* every device's cost model */
+  /* A device still rendering deadline_factor times its predicted time
+   * (at least deadline_min_ms) after the frame's render began is given
+   * up on and dropped. Only devices whose model has learned from a frame
+   * have a deadline. deadline_factor 0: 4; negative: no deadline.
+   * deadline_min_ms 0: 50. */
+  double deadline_factor;
+  double deadline_min_ms;
+} rp_group_desc;
+
+/** One device's part of a frame. */
+typedef struct rp_group_device {
+  char name[168];       /* backend:device */
+  int status;           /* 0, or the RP_E* it failed with this frame (its
+                           region was re-rendered by the others) */
+  int dropped;          /* 1 from the frame it failed or ran late on */
+  int late;             /* 1 if it was given up on at its deadline */
+  double share;         /* its share this frame, [0, 1] */
+  double cost_share;    /* its region's fraction of the predicted tile
+                           cost */
+  rp_region region;     /* scaled-image pixels it was given; empty: none */
+  double depth_ms;      /* its depth pass, wall; 0 when reused */
+  uint32_t depth_passes; /* depth passes it ran (0 when reused) */
+  double raycast_ms;    /* device time of its raycast */
+  double busy_ms;       /* its worker's wall time for the frame: depth
+                           pass, raycast, readback */
+  uint64_t samples;     /* samples its region took */
+  double predicted_ms;  /* its model's time for its region, NaN unknown */
+} rp_group_device;
+
+/** What a frame's render did, per device. */
+typedef struct rp_group_report {
+  uint32_t count;         /* devices in the group, dropped ones included */
+  uint32_t alive;         /* devices not dropped after this frame */
+  uint32_t lost;          /* devices dropped during this frame */
+  double render_ms;       /* wall: dispatch to the last region in, the
+                             re-render included */
+  double rerender_ms;     /* wall spent re-rendering lost regions */
+  double imbalance;       /* (max - min) / mean of the busy_ms of the
+                             devices that rendered a region (first
+                             round), rp_balance_metric */
+  rp_group_device devices[RP_GROUP_MAX_DEVICES];
+} rp_group_report;
+
+/** Opens every device (each with a context of its own, made from `ctx`'s
+ *  description) and starts a worker per device when there are two or
+ *  more. `ctx` is kept for the group's own messages.
+ *  \returns 0, RP_EINVAL (a NULL argument, a bad field), RP_ERANGE,
+ *  RP_ENOTFINITE, RP_ENODEV / RP_EDEVICE (a device would not open: the
+ *  message names it), RP_ENOMEM. \since 0.1 */
+RP_API int rp_device_group_create(rp_context *ctx, const rp_group_desc *desc,
+                                  rp_device_group **out);
+/** Joins the workers (waiting for a late device to finish) and closes the
+ *  devices. NULL: no-op. \since 0.1 */
+RP_API void rp_device_group_destroy(rp_device_group *g);
+
+/** Devices in the group, and those not dropped. \since 0.1 */
+RP_API uint32_t rp_device_group_count(const rp_device_group *g);
+RP_API uint32_t rp_device_group_alive(const rp_device_group *g);
+/** Device i's caps (i < count). \since 0.1 */
+RP_API void rp_device_group_get_caps(const rp_device_group *g, uint32_t i,
+                                     rp_caps *caps);
+
+/** Uploads to every live device, concurrently. A device that fails is
+ *  dropped; the call fails only when none is left (the message says
+ *  why). \since 0.1 */
+RP_API int rp_device_group_set_volume(rp_device_group *g,
+                                      const rp_volume *vol);
+RP_API int rp_device_group_set_tf(rp_device_group *g, const rp_tf *tf,
+                                  const rp_occupancy *occ);
+
+/** The shares the next frame renders with (`count` values, 0 for dropped
+ *  devices), for a frame of probe `p` at (step, scale). \since 0.1 */
+RP_API int rp_device_group_shares(rp_device_group *g,
+                                  const rp_frame_probe *p, float step,
+                                  float scale, double *shares);
+
+/** The frame's predicted time at (step, scale) with those shares: the
+ *  slowest device's launch + its share of its whole-frame raycast + its
+ *  fixed cost c0. `out->ms` is that; the other fields are the fastest
+ *  live device's. \since 0.1 */
+RP_API int rp_device_group_predict(rp_device_group *g,
+                                   const rp_frame_probe *p, float step,
+                                   float scale, rp_cost_estimate *out);
+
+/** Renders the scaled image of `desc` (rp_scaled_size) into `rgba`
+ *  (scaled width x height RGBA8) and its tiles into `tiles` (may be
+ *  NULL), split across the live devices. `probe` (may be NULL: split by
+ *  tile count) must be for this camera and desc's width, height and
+ *  effects; it gives each tile's predicted cost. `report` may be NULL.
+ *  \returns 0 (some devices may have been lost: see the report), or the
+ *  error of the last device when none is left, RP_EINVAL, RP_ENOMEM.
+ *  \since 0.1 */
+RP_API int rp_device_group_render(rp_device_group *g, const rp_camera *cam,
+                                  const rp_render_desc *desc,
+                                  const rp_frame_probe *probe, uint8_t *rgba,
+                                  rp_tile_stats *tiles,
+                                  rp_group_report *report);
+
+/** Trains every device that rendered in the last frame on its own
+ *  region: its samples and times scaled to the whole frame (its rate
+ *  over its region, times the frame's samples), so that each model
+ *  learns the device's cost of a whole frame. `frame_ms` is the caller's
+ *  wall time for the frame's render (what the fixed cost c0 covers: the
+ *  group's render plus whatever the caller adds, an upscale). Call once
+ *  after rp_device_group_render with the same probe, step and scale.
+ *  \returns 0, RP_ESTATE (no frame to learn from), or a model's error.
+ *  \since 0.1 */
+RP_API int rp_device_group_train(rp_device_group *g,
+                                 const rp_frame_probe *p, float step,
+                                 float scale, double frame_ms);
+
+/** Tile costs from a probe's ray spans for the scaled image of `desc`
+ *  (tiles_x * tiles_y floats, rp_tile_grid of rp_scaled_size): each
+ *  tile's rays times (1 + L / step), L the span of the probe ray nearest
+ *  the tile's centre. The +1 is a ray's own cost (set-up, depth lookup)
+ *  in samples. \since 0.1 */
+RP_API int rp_probe_tile_costs(const rp_frame_probe *p,
+                               const rp_render_desc *desc, float *cost);
+
+#ifdef __cplusplus
+}
+#endif
+#endif /* RAYPACE_GROUP_H */

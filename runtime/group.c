@@ -1,0 +1,1187 @@
+/* Several devices rendering one frame (DESIGN section 7).
+ *
+ * The group's thread (the caller's) is the coordinator: it computes the
+ * shares and the split, hands each device a job and waits. Each device
+ * has a worker thread (two devices or more) that owns the device and its
+ * buffers while a job runs; the hand-over is `lock`, so a job's inputs
+ * and outputs are ordered by it. A worker renders into buffers of its
+ * own, never into the caller's image: a device given up on at its
+ * deadline may still be writing when the others have re-rendered its
+ * region, and the caller's image must not see it. The coordinator copies
+ * each finished region across, which costs one image copy per frame.
+ *
+ * Dropped devices stay dropped: their worker may still be busy with the
+ * job they were late on, and only destroy waits for it. */
+#include <math.h>
+#include <stdio.h>
+#include <string.h>
+#include <uv.h>
+
+#include "internal.h"
+#include "raypace_group.h"
+
+enum { JOB_NONE, JOB_VOLUME, JOB_TF, JOB_RENDER, JOB_QUIT };
+
+#define DEFAULT_DEADLINE_FACTOR 4.0
+/* A stall a shared machine can produce (a descheduled thread) must not
+ * cost a device for good. */
+#define DEFAULT_DEADLINE_MIN_MS 200.0
+/* A device trains only on a region that took at least this fraction of
+ * the frame's samples: a sliver's time is mostly launch and readback,
+ * and scaled up to a whole frame it would teach noise. */
+#define MIN_TRAIN_FRACTION 0.02
+/* The least fraction of the frame's predicted cost a region must have for
+ * its time to update the device's rate. A sliver's time is mostly what
+ * every render costs (launch, readback); taken as a rate, it would make
+ * the device look slow, give it a thinner sliver, and so on down. */
+#define MIN_RATE_FRACTION 0.05
+
+/* What a device's current depth pass was run for (memset before filling:
+ * compared with memcmp). */
+typedef struct depth_key {
+  rp_camera cam;
+  uint32_t sw, sh, skip;
+  uint64_t vol_gen, tf_gen;
+} depth_key;
+
+typedef struct member {
+  rp_device_group *g;
+  uint32_t index;
+  rp_context *ctx; /* the device's own: errors on two threads at once */
+  rp_device *dev;
+  rp_caps caps;
+  char name[168];
+  rp_cost_model *model;
+  int dropped, trained;
+  /* Effect sets it has rendered since its volume upload, bit (1 << set):
+   * a set's first render builds a kernel variant, which no deadline may
+   * count as the device being slow. */
+  uint32_t warm_sets;
+  uv_thread_t thread;
+  int thread_started;
+  uv_cond_t wake;
+
+  /* The job, under g->lock: `job` is set by the coordinator and cleared
+   * by the worker when it is done; `busy` while it runs. */
+  int job, busy;
+  const rp_volume *vol;
+  const rp_tf *tf;
+  const rp_occupancy *occ;
+  rp_camera cam;
+  rp_render_desc desc;
+  rp_region region;
+  uint64_t vol_gen, tf_gen;
+
+  /* Results, the worker's during a job, the coordinator's after it. */
+  int status;
+  char error[256];
+  uint8_t *rgba;
+  size_t rgba_cap;
+  rp_tile_stats *tiles;
+  size_t tiles_cap;
+  double depth_ms, raycast_ms, busy_ms;
+  uint32_t depth_passes;
+  uint64_t samples;
+  depth_key key;
+  int key_valid;
+
+  /* The coordinator's, per frame. `outcome` and `why` are the job's
+   * status and message, taken under the lock when it ended (a late
+   * worker's own fields stay its own). */
+  double deadline;  /* absolute ms; INFINITY: none */
+  int by_peers;     /* no model yet: deadline from the peers' times */
+  int pending, outcome;
+  char why[256];
+  double frame_raycast_ms, frame_busy_ms;
+  uint64_t frame_samples;
+  int rendered;     /* rendered a region this frame */
+  /* The split's model of the device (see frame_shares): wall ms per unit
+   * of predicted tile cost outside its depth pass (0: unknown), its depth
+   * pass's ms, and how often a frame needs one (running mean). */
+  double rate, depth_est, depth_freq;
+} member;
+
+struct rp_device_group {
+  rp_context *ctx;
+  rp_group_desc desc;
+  double fixed_shares[RP_GROUP_MAX_DEVICES];
+  uint32_t count;
+  member m[RP_GROUP_MAX_DEVICES];
+  uv_mutex_t lock;
+  uv_cond_t done;
+  int threads; /* workers run the jobs (count >= 2) */
+  uint64_t vol_gen, tf_gen;
+  double prev_shares[RP_GROUP_MAX_DEVICES];
+  int have_prev;
+  rp_balancer *balancer;
+  uint32_t balancer_tiles;
+  float *cost;
+  double *sub_cost;
+  size_t cost_cap;
+  /* The last frame's, for rp_device_group_train. */
+  int can_train;
+  double last_render_ms;
+  uint64_t last_samples;
+};
+
+static double now_ms(void) { return (double)uv_hrtime() * 1e-6; }
+
+/* ---- Jobs ---------------------------------------------------------------- */
+
+static int reserve(member *w, void **buf, size_t *cap, size_t bytes) {
+  void *p;
+  if (bytes <= *cap)
+    return 0;
+  if ((p = rp__malloc(w->ctx, bytes)) == NULL)
+    return rp__fail(w->ctx, RP_ENOMEM, "device group: %zu bytes for '%s'",
+                    bytes, w->name);
+  rp__free(w->ctx, *buf);
+  *buf = p;
+  *cap = bytes;
+  return 0;
+}
+
+static int do_render(member *w) {
+  rp_render_desc *d = &w->desc;
+  const rp_region *r = &w->region;
+  uint32_t sw, sh, tx, ty, x, y;
+  depth_key key;
+  double t0;
+  int err;
+  rp_scaled_size(d, &sw, &sh);
+  rp_tile_grid(sw, sh, &tx, &ty);
+  if ((err = reserve(w, (void **)&w->rgba, &w->rgba_cap,
+                     (size_t)sw * sh * 4)) != 0 ||
+      (err = reserve(w, (void **)&w->tiles, &w->tiles_cap,
+                     (size_t)tx * ty * sizeof(rp_tile_stats))) != 0)
+    return err;
+  memset(&key, 0, sizeof key);
+  key.cam = w->cam;
+  key.sw = sw;
+  key.sh = sh;
+  key.skip = (d->effects & RP_EFFECT_SKIP) != 0;
+  key.vol_gen = w->vol_gen;
+  key.tf_gen = w->tf_gen;
+  if (!w->key_valid || memcmp(&key, &w->key, sizeof key) != 0) {
+    w->key_valid = 0;
+    t0 = now_ms();
+    if ((err = rp_device_depth_pass(w->dev, &w->cam, d, NULL)) != 0)
+      return err;
+    w->depth_ms = now_ms() - t0;
+    w->depth_passes = 1;
+    w->key = key;
+    w->key_valid = 1;
+  }
+  if ((err = rp_device_render(w->dev, &w->cam, d, r, w->rgba, w->tiles)) !=
+      0)
+    return err;
+  w->raycast_ms = (double)rp_device_last_time_ns(w->dev) * 1e-6;
+  for (y = r->y0 / RP_TILE_SIZE; y * RP_TILE_SIZE < r->y1; y++)
+    for (x = r->x0 / RP_TILE_SIZE; x * RP_TILE_SIZE < r->x1; x++)
+      w->samples += w->tiles[(size_t)y * tx + x].samples;
+  return 0;
+}
+
+/* Runs w's job on the calling thread. */
+static void run_job(member *w, int job) {
+  double t0 = now_ms();
+  int err = 0;
+  rp__clear_error(w->ctx);
+  w->depth_ms = w->raycast_ms = 0.0;
+  w->depth_passes = 0;
+  w->samples = 0;
+  switch (job) {
+  case JOB_VOLUME:
+    w->key_valid = 0;
+    w->warm_sets = 0;
+    err = rp_device_set_volume(w->dev, w->vol);
+    break;
+  case JOB_TF:
+    w->key_valid = 0;
+    err = rp_device_set_tf(w->dev, w->tf, w->occ);
+    break;
+  case JOB_RENDER:
+    err = do_render(w);
+    break;
+  default:
+    break;
+  }
+  w->status = err;
+  if (err != 0)
+    snprintf(w->error, sizeof w->error, "%s", rp_last_error(w->ctx));
+  w->busy_ms = now_ms() - t0;
+}
+
+static void worker_main(void *arg) {
+  member *w = arg;
+  rp_device_group *g = w->g;
+  uv_mutex_lock(&g->lock);
+  for (;;) {
+    int job;
+    while (w->job == JOB_NONE)
+      uv_cond_wait(&w->wake, &g->lock);
+    if (w->job == JOB_QUIT)
+      break;
+    job = w->job;
+    w->busy = 1;
+    uv_mutex_unlock(&g->lock);
+    run_job(w, job);
+    uv_mutex_lock(&g->lock);
+    w->busy = 0;
+    w->job = JOB_NONE;
+    uv_cond_broadcast(&g->done);
+  }
+  uv_mutex_unlock(&g->lock);
+}
+
+/* Starts `job` on w (its inputs are set): inline with one device. */
+static void start_job(rp_device_group *g, member *w, int job) {
+  w->pending = 1;
+  if (!g->threads) {
+    run_job(w, job);
+    w->pending = 0;
+    w->outcome = w->status;
+    memcpy(w->why, w->error, sizeof w->why);
+    return;
+  }
+  uv_mutex_lock(&g->lock);
+  w->job = job;
+  uv_cond_signal(&w->wake);
+  uv_mutex_unlock(&g->lock);
+}
+
+/* Waits until every pending member is done or past its deadline; a late
+ * one is marked (outcome RP_EDEVICE, late) and left running. A member
+ * without a model of its own (by_peers) gets its deadline when a peer
+ * finishes: deadline_factor times the longest peer's time since `start`
+ * -- a device that many times slower than its peers at an even split is
+ * not worth waiting for. */
+static void wait_jobs(rp_device_group *g, rp_group_report *rep,
+                      double start) {
+  uint32_t i;
+  double peer_ms = 0.0;
+  if (!g->threads)
+    return; /* the jobs ran in start_job */
+  uv_mutex_lock(&g->lock);
+  for (;;) {
+    double next = INFINITY, now = now_ms();
+    int waiting = 0;
+    for (i = 0; i < g->count; i++) {
+      member *w = &g->m[i];
+      if (!w->pending)
+        continue;
+      if (w->job == JOB_NONE) {
+        w->pending = 0;
+        w->outcome = w->status;
+        memcpy(w->why, w->error, sizeof w->why);
+        if (w->outcome == 0 && w->busy_ms > peer_ms)
+          peer_ms = w->busy_ms;
+      }
+    }
+    for (i = 0; i < g->count; i++) {
+      member *w = &g->m[i];
+      if (!w->pending)
+        continue;
+      waiting = 1;
+      /* Late only once a peer finished: someone must re-render the
+       * region, and the last device is never given up on. */
+      if (peer_ms <= 0.0)
+        continue;
+      if (w->by_peers)
+        w->deadline = start + fmax(g->desc.deadline_min_ms,
+                                   g->desc.deadline_factor * peer_ms);
+      if (w->deadline <= now) {
+        char why[sizeof w->why];
+        w->pending = 0;
+        w->outcome = RP_EDEVICE;
+        snprintf(why, sizeof why, "device '%s' still rendering %.1f ms "
+                 "after its deadline", w->name, now - w->deadline);
+        memcpy(w->why, why, sizeof why);
+        if (rep != NULL)
+          rep->devices[i].late = 1;
+        continue;
+      }
+      if (w->deadline < next)
+        next = w->deadline;
+    }
+    for (waiting = 0, i = 0; i < g->count; i++)
+      waiting |= g->m[i].pending;
+    if (!waiting)
+      break;
+    if (isinf(next)) {
+      uv_cond_wait(&g->done, &g->lock);
+    } else {
+      double ms = next - now;
+      (void)uv_cond_timedwait(&g->done, &g->lock,
+                              (uint64_t)(ms * 1e6) + 1u);
+    }
+  }
+  uv_mutex_unlock(&g->lock);
+}
+
+/* ---- Lifetime ------------------------------------------------------------ */
+
+static void stop_workers(rp_device_group *g) {
+  uint32_t i;
+  uv_mutex_lock(&g->lock);
+  for (i = 0; i < g->count; i++) {
+    /* A late worker finishes its job first: QUIT waits in `job`
+     * until it has cleared it. */
+    while (g->m[i].thread_started && g->m[i].job != JOB_NONE)
+      uv_cond_wait(&g->done, &g->lock);
+    g->m[i].job = JOB_QUIT;
+    uv_cond_signal(&g->m[i].wake);
+  }
+  uv_mutex_unlock(&g->lock);
+  for (i = 0; i < g->count; i++)
+    if (g->m[i].thread_started)
+      uv_thread_join(&g->m[i].thread);
+}
+
+void rp_device_group_destroy(rp_device_group *g) {
+  uint32_t i;
+  rp_context *ctx;
+  if (g == NULL)
+    return;
+  ctx = g->ctx;
+  if (g->threads)
+    stop_workers(g);
+  for (i = 0; i < g->count; i++) {
+    member *w = &g->m[i];
+    if (w->thread_started || g->threads)
+      uv_cond_destroy(&w->wake);
+    rp_cost_model_destroy(w->model);
+    rp_device_destroy(w->dev);
+    if (w->ctx != NULL) {
+      rp__free(w->ctx, w->rgba);
+      rp__free(w->ctx, w->tiles);
+      rp_context_destroy(w->ctx);
+    }
+  }
+  rp_balancer_destroy(g->balancer);
+  rp__free(ctx, g->cost);
+  rp__free(ctx, g->sub_cost);
+  uv_mutex_destroy(&g->lock);
+  uv_cond_destroy(&g->done);
+  rp__free(ctx, g);
+}
+
+static int check_desc(rp_context *ctx, const rp_group_desc *d) {
+  static const char fn[] = "rp_device_group_create";
+  uint32_t i;
+  double sum = 0.0;
+  if (d->devices == NULL)
+    return rp__fail(ctx, RP_EINVAL, "%s: devices is NULL", fn);
+  if (d->count == 0 || d->count > RP_GROUP_MAX_DEVICES)
+    return rp__fail(ctx, RP_ERANGE, "%s: count %u is not in 1..%d", fn,
+                    d->count, RP_GROUP_MAX_DEVICES);
+  if (d->share_mode != RP_SHARES_DYNAMIC && d->share_mode != RP_SHARES_FIXED)
+    return rp__fail(ctx, RP_EINVAL, "%s: unknown share mode %d", fn,
+                    (int)d->share_mode);
+  if (d->damping != RP_DAMP_SMOOTH && d->damping != RP_DAMP_EVEN)
+    return rp__fail(ctx, RP_EINVAL, "%s: unknown damping %d", fn,
+                    (int)d->damping);
+  if (!isfinite(d->damp_rate) || !isfinite(d->deadline_factor) ||
+      !isfinite(d->deadline_min_ms))
+    return rp__fail(ctx, RP_ENOTFINITE, "%s: damp_rate, deadline_factor "
+                    "and deadline_min_ms must be finite", fn);
+  if (d->damp_rate < 0.0 || d->damp_rate > 1.0)
+    return rp__fail(ctx, RP_ERANGE, "%s: damp_rate %g is not in (0, 1]",
+                    fn, d->damp_rate);
+  if (d->deadline_min_ms < 0.0)
+    return rp__fail(ctx, RP_ERANGE, "%s: deadline_min_ms %g < 0", fn,
+                    d->deadline_min_ms);
+  if (d->share_mode == RP_SHARES_FIXED) {
+    if (d->fixed_shares == NULL)
+      return rp__fail(ctx, RP_EINVAL, "%s: fixed shares without "
+                      "fixed_shares", fn);
+    for (i = 0; i < d->count; i++) {
+      if (!isfinite(d->fixed_shares[i]))
+        return rp__fail(ctx, RP_ENOTFINITE, "%s: fixed_shares[%u] is not "
+                        "finite", fn, i);
+      if (d->fixed_shares[i] < 0.0)
+        return rp__fail(ctx, RP_ERANGE, "%s: fixed_shares[%u] < 0", fn, i);
+      sum += d->fixed_shares[i];
+    }
+    if (!(sum > 0.0))
+      return rp__fail(ctx, RP_EINVAL, "%s: fixed_shares sum to 0", fn);
+  }
+  return 0;
+}
+
+int rp_device_group_create(rp_context *ctx, const rp_group_desc *desc,
+                           rp_device_group **out) {
+  static const char fn[] = "rp_device_group_create";
+  rp_device_group *g;
+  uint32_t i;
+  int err;
+  if (ctx == NULL)
+    return RP_EINVAL;
+  if (desc == NULL || out == NULL)
+    return rp__fail(ctx, RP_EINVAL, "%s: %s is NULL", fn,
+                    desc == NULL ? "desc" : "out");
+  *out = NULL;
+  if ((err = check_desc(ctx, desc)) != 0)
+    return err;
+  if ((g = rp__calloc(ctx, 1, sizeof *g)) == NULL)
+    return rp__fail(ctx, RP_ENOMEM, "%s: out of memory", fn);
+  g->ctx = ctx;
+  g->desc = *desc;
+  g->desc.devices = NULL;
+  g->count = desc->count;
+  if (desc->share_mode == RP_SHARES_FIXED) {
+    memcpy(g->fixed_shares, desc->fixed_shares,
+           desc->count * sizeof(double));
+    g->desc.fixed_shares = g->fixed_shares;
+  }
+  if (g->desc.damp_rate == 0.0)
+    g->desc.damp_rate = 0.5;
+  if (g->desc.deadline_factor == 0.0)
+    g->desc.deadline_factor = DEFAULT_DEADLINE_FACTOR;
+  if (g->desc.deadline_min_ms == 0.0)
+    g->desc.deadline_min_ms = DEFAULT_DEADLINE_MIN_MS;
+  g->threads = g->count >= 2;
+  if (uv_mutex_init(&g->lock) != 0) {
+    rp__free(ctx, g);
+    return rp__fail(ctx, RP_EDEVICE, "%s: uv_mutex_init failed", fn);
+  }
+  if (uv_cond_init(&g->done) != 0) {
+    uv_mutex_destroy(&g->lock);
+    rp__free(ctx, g);
+    return rp__fail(ctx, RP_EDEVICE, "%s: uv_cond_init failed", fn);
+  }
+  /* From here on rp_device_group_destroy frees whatever was made. */
+  for (i = 0; i < g->count; i++) {
+    member *w = &g->m[i];
+    w->g = g;
+    w->index = i;
+    w->deadline = INFINITY;
+    if (g->threads && uv_cond_init(&w->wake) != 0) {
+      /* Conds made so far are destroyed by destroy: count them. */
+      g->count = i;
+      rp_device_group_destroy(g);
+      return rp__fail(ctx, RP_EDEVICE, "%s: uv_cond_init failed", fn);
+    }
+  }
+  for (i = 0; i < g->count; i++) {
+    member *w = &g->m[i];
+    if ((err = rp_context_create(&ctx->desc, &w->ctx)) != 0) {
+      rp_device_group_destroy(g);
+      return rp__fail(ctx, err, "%s: a context for device %u", fn, i);
+    }
+    if ((err = rp_device_create(w->ctx, &desc->devices[i], &w->dev)) != 0) {
+      rp__fail(ctx, err, "%s: device %u: %s", fn, i, rp_last_error(w->ctx));
+      rp_device_group_destroy(g);
+      return err;
+    }
+    rp_device_get_caps(w->dev, &w->caps);
+    {
+      char name[sizeof w->name];
+      snprintf(name, sizeof name, "%s:%s", w->caps.backend, w->caps.device);
+      memcpy(w->name, name, sizeof name);
+    }
+    if ((err = rp_cost_model_create(w->ctx, &desc->model, &w->model)) != 0) {
+      rp__fail(ctx, err, "%s: %s", fn, rp_last_error(w->ctx));
+      rp_device_group_destroy(g);
+      return err;
+    }
+  }
+  if (g->threads) {
+    for (i = 0; i < g->count; i++) {
+      member *w = &g->m[i];
+      if (uv_thread_create(&w->thread, worker_main, w) != 0) {
+        rp_device_group_destroy(g);
+        return rp__fail(ctx, RP_EDEVICE, "%s: uv_thread_create failed", fn);
+      }
+      w->thread_started = 1;
+    }
+  }
+  *out = g;
+  return 0;
+}
+
+uint32_t rp_device_group_count(const rp_device_group *g) {
+  return g != NULL ? g->count : 0;
+}
+
+uint32_t rp_device_group_alive(const rp_device_group *g) {
+  uint32_t i, n = 0;
+  if (g == NULL)
+    return 0;
+  for (i = 0; i < g->count; i++)
+    n += !g->m[i].dropped;
+  return n;
+}
+
+void rp_device_group_get_caps(const rp_device_group *g, uint32_t i,
+                              rp_caps *caps) {
+  if (g == NULL || caps == NULL)
+    return;
+  if (i >= g->count) {
+    memset(caps, 0, sizeof *caps);
+    return;
+  }
+  *caps = g->m[i].caps;
+}
+
+/* ---- Uploads ------------------------------------------------------------- */
+
+/* Whether an error means the device is gone (lost, or unable to hold the
+ * scene) rather than a request no device could do (an effect it lacks, a
+ * bad argument): only the first kind drops it. */
+static int loses_device(int err, int upload) {
+  return err == RP_EDEVICE || (upload && err == RP_ENOMEM);
+}
+
+/* Runs `job` on every live device and drops those that lost it. */
+static int upload(rp_device_group *g, int job, const char *fn) {
+  uint32_t i;
+  int last = 0;
+  const char *why = "";
+  for (i = 0; i < g->count; i++) {
+    member *w = &g->m[i];
+    if (w->dropped)
+      continue;
+    w->deadline = INFINITY;
+    w->by_peers = 0;
+    start_job(g, w, job);
+  }
+  wait_jobs(g, NULL, 0.0);
+  for (i = 0; i < g->count; i++) {
+    member *w = &g->m[i];
+    if (w->dropped || w->outcome == 0)
+      continue;
+    if (!loses_device(w->outcome, 1))
+      return rp__fail(g->ctx, w->outcome, "%s: %s", fn, w->why);
+    w->dropped = 1;
+    last = w->outcome;
+    why = w->why;
+    g->have_prev = 0;
+  }
+  if (rp_device_group_alive(g) == 0)
+    return rp__fail(g->ctx, last != 0 ? last : RP_ENODEV,
+                    "%s: no device left; the last said: %s", fn, why);
+  return 0;
+}
+
+int rp_device_group_set_volume(rp_device_group *g, const rp_volume *vol) {
+  uint32_t i;
+  if (g == NULL)
+    return RP_EINVAL;
+  if (vol == NULL)
+    return rp__fail(g->ctx, RP_EINVAL,
+                    "rp_device_group_set_volume: vol is NULL");
+  g->vol_gen++;
+  g->can_train = 0;
+  for (i = 0; i < g->count; i++) {
+    g->m[i].vol = vol;
+    g->m[i].vol_gen = g->vol_gen;
+  }
+  return upload(g, JOB_VOLUME, "rp_device_group_set_volume");
+}
+
+int rp_device_group_set_tf(rp_device_group *g, const rp_tf *tf,
+                           const rp_occupancy *occ) {
+  uint32_t i;
+  if (g == NULL)
+    return RP_EINVAL;
+  if (tf == NULL || occ == NULL)
+    return rp__fail(g->ctx, RP_EINVAL, "rp_device_group_set_tf: %s is NULL",
+                    tf == NULL ? "tf" : "occ");
+  g->tf_gen++;
+  for (i = 0; i < g->count; i++) {
+    g->m[i].tf = tf;
+    g->m[i].occ = occ;
+    g->m[i].tf_gen = g->tf_gen;
+  }
+  return upload(g, JOB_TF, "rp_device_group_set_tf");
+}
+
+/* ---- Shares and prediction ----------------------------------------------- */
+
+/* Each live device's whole-frame estimate: fixed part (launch + c0) and
+ * the part its share scales (the raycast's samples). */
+typedef struct device_cost {
+  double fixed, var;
+  rp_cost_estimate e;
+  int ok;
+} device_cost;
+
+static void device_costs(rp_device_group *g, const rp_frame_probe *p,
+                         float step, float scale, device_cost *c) {
+  uint32_t i;
+  for (i = 0; i < g->count; i++) {
+    member *w = &g->m[i];
+    c[i].ok = 0;
+    if (w->dropped || p == NULL)
+      continue;
+    if (rp_cost_predict(w->model, p, step, scale, &c[i].e) != 0)
+      continue;
+    c[i].fixed = c[i].e.launch_ms + c[i].e.c0_ms;
+    c[i].var = c[i].e.ms - c[i].fixed;
+    c[i].ok = isfinite(c[i].var) && c[i].var > 0.0 && isfinite(c[i].fixed);
+  }
+}
+
+static int grow_split(rp_device_group *g, size_t tiles);
+
+/* Total predicted tile cost of the frame: what the rates multiply. */
+static double frame_cost(rp_device_group *g, const rp_frame_probe *p,
+                         float step, float scale) {
+  rp_render_desc d = {0};
+  uint32_t sw, sh, tx, ty;
+  double sum = 0.0;
+  size_t i;
+  if (p == NULL || p->width == 0 || p->height == 0)
+    return 0.0;
+  d.width = p->width;
+  d.height = p->height;
+  d.step = step;
+  d.image_scale = scale;
+  rp_scaled_size(&d, &sw, &sh);
+  rp_tile_grid(sw, sh, &tx, &ty);
+  if (g->desc.split_by_count)
+    return (double)tx * ty;
+  if (grow_split(g, (size_t)tx * ty) != 0 ||
+      rp_probe_tile_costs(p, &d, g->cost) != 0)
+    return 0.0;
+  for (i = 0; i < (size_t)tx * ty; i++)
+    sum += g->cost[i];
+  return sum;
+}
+
+/* This frame's shares (dropped devices: 0). Dynamic: each device's time
+ * is modelled as depth_freq * depth_est + rate * (its region's predicted
+ * tile cost), both measured on its last frames, and the shares are those
+ * that make the devices finish together (rp_balance_shares_fixed), damped
+ * against the last frame's. A device not yet measured counts as an
+ * average one.
+ *
+ * This sigma (the rate) is per unit of the split's own cost, not the
+ * paper's cost per sample from the device's KRLS model: the split divides
+ * predicted tile cost, so a cost map that is off by a factor for a whole
+ * view is off the same way for every device and cancels; and the depth
+ * pass, which every device runs over the whole image whatever its share,
+ * is a fixed cost the paper's shares cannot express. The KRLS models
+ * still predict the frame's time (rp_device_group_predict). */
+static int frame_shares(rp_device_group *g, const rp_frame_probe *p,
+                        float step, float scale, double *shares) {
+  double var[RP_GROUP_MAX_DEVICES], fixed[RP_GROUP_MAX_DEVICES];
+  double target[RP_GROUP_MAX_DEVICES], prev[RP_GROUP_MAX_DEVICES];
+  double psum = 0.0, cost = 0.0;
+  uint32_t idx[RP_GROUP_MAX_DEVICES], n = 0, i;
+  int err;
+  if (g->desc.share_mode == RP_SHARES_DYNAMIC)
+    cost = frame_cost(g, p, step, scale);
+  for (i = 0; i < g->count; i++) {
+    const member *w = &g->m[i];
+    shares[i] = 0.0;
+    if (w->dropped)
+      continue;
+    idx[n] = i;
+    if (g->desc.share_mode == RP_SHARES_FIXED) {
+      target[n] = g->fixed_shares[i];
+    } else {
+      var[n] = w->rate > 0.0 && cost > 0.0 ? w->rate * cost : NAN;
+      fixed[n] = w->depth_freq * w->depth_est;
+    }
+    prev[n] = g->prev_shares[i];
+    psum += prev[n];
+    n++;
+  }
+  if (n == 0)
+    return RP_ENODEV;
+  if (g->desc.share_mode == RP_SHARES_FIXED) {
+    double sum = 0.0;
+    for (i = 0; i < n; i++)
+      sum += target[i];
+    if (!(sum > 0.0)) /* the live devices all had share 0: even */
+      for (i = 0; i < n; i++)
+        target[i] = 1.0;
+    if ((err = rp_balance_damp(RP_DAMP_SMOOTH, 1.0, NULL, target, n,
+                               target)) != 0)
+      return err;
+  } else {
+    if ((err = rp_balance_shares_fixed(var, fixed, n, target)) != 0)
+      return err;
+    if ((err = rp_balance_damp(g->desc.damping, g->desc.damp_rate,
+                               g->have_prev && psum > 0.0 ? prev : NULL,
+                               target, n, target)) != 0)
+      return err;
+  }
+  for (i = 0; i < n; i++)
+    shares[idx[i]] = target[i];
+  return 0;
+}
+
+int rp_device_group_shares(rp_device_group *g, const rp_frame_probe *p,
+                           float step, float scale, double *shares) {
+  int err;
+  if (g == NULL)
+    return RP_EINVAL;
+  if (shares == NULL)
+    return rp__fail(g->ctx, RP_EINVAL,
+                    "rp_device_group_shares: shares is NULL");
+  if ((err = frame_shares(g, p, step, scale, shares)) != 0)
+    return rp__fail(g->ctx, err, "rp_device_group_shares: no device left");
+  return 0;
+}
+
+int rp_device_group_predict(rp_device_group *g, const rp_frame_probe *p,
+                            float step, float scale, rp_cost_estimate *out) {
+  device_cost c[RP_GROUP_MAX_DEVICES];
+  double shares[RP_GROUP_MAX_DEVICES], worst = -INFINITY, best = INFINITY;
+  double tiles;
+  uint32_t i;
+  int err, any = 0;
+  if (g == NULL)
+    return RP_EINVAL;
+  if (p == NULL || out == NULL)
+    return rp__fail(g->ctx, RP_EINVAL, "rp_device_group_predict: %s is "
+                    "NULL", p == NULL ? "p" : "out");
+  device_costs(g, p, step, scale, c);
+  if ((err = frame_shares(g, p, step, scale, shares)) != 0)
+    return rp__fail(g->ctx, err, "rp_device_group_predict: no device left");
+  {
+    rp_render_desc d = {0};
+    uint32_t sw, sh, tx, ty;
+    d.width = p->width > 0 ? p->width : 1;
+    d.height = p->height > 0 ? p->height : 1;
+    d.image_scale = scale;
+    rp_scaled_size(&d, &sw, &sh);
+    rp_tile_grid(sw, sh, &tx, &ty);
+    tiles = (double)tx * ty;
+  }
+  for (i = 0; i < g->count; i++) {
+    double t;
+    if (g->m[i].dropped)
+      continue;
+    if (!c[i].ok) {
+      /* The model refused the point or predicts nothing: say so. */
+      if (rp_cost_predict(g->m[i].model, p, step, scale, out) != 0)
+        return rp__fail(g->ctx, RP_EINVAL, "rp_device_group_predict: %s",
+                        rp_last_error(g->m[i].ctx));
+      continue;
+    }
+    any = 1;
+    /* A device whose share buys less than half a tile gets an empty
+     * region (rp_balancer_split) and pays nothing. */
+    t = shares[i] * tiles >= 0.5 ? c[i].fixed + shares[i] * c[i].var : 0.0;
+    if (t > worst)
+      worst = t;
+    if (c[i].var < best) {
+      best = c[i].var;
+      *out = c[i].e;
+    }
+  }
+  if (!any) {
+    out->ms = NAN;
+    return 0;
+  }
+  out->ms = worst;
+  return 0;
+}
+
+/* ---- Tile costs ---------------------------------------------------------- */
+
+int rp_probe_tile_costs(const rp_frame_probe *p, const rp_render_desc *desc,
+                        float *cost) {
+  uint32_t sw, sh, tx, ty, x, y;
+  double step, sx, sy;
+  if (p == NULL || desc == NULL || cost == NULL || desc->width == 0 ||
+      desc->height == 0)
+    return RP_EINVAL;
+  step = desc->step > 0.0f ? desc->step : 1.0;
+  if (!isfinite(step))
+    return RP_ENOTFINITE;
+  rp_scaled_size(desc, &sw, &sh);
+  rp_tile_grid(sw, sh, &tx, &ty);
+  /* Scaled pixel -> output pixel. */
+  sx = (double)desc->width / sw;
+  sy = (double)desc->height / sh;
+  for (y = 0; y < ty; y++) {
+    uint32_t y0 = y * RP_TILE_SIZE;
+    uint32_t y1 = y0 + RP_TILE_SIZE < sh ? y0 + RP_TILE_SIZE : sh;
+    double oy = 0.5 * (y0 + y1) * sy;
+    for (x = 0; x < tx; x++) {
+      uint32_t x0 = x * RP_TILE_SIZE;
+      uint32_t x1 = x0 + RP_TILE_SIZE < sw ? x0 + RP_TILE_SIZE : sw;
+      double ox = 0.5 * (x0 + x1) * sx, span = 0.0;
+      if (p->map_width > 0 && p->map_height > 0 && p->map_stride > 0 &&
+          (size_t)p->map_width * p->map_height <= RP_PROBE_MAX_RAYS) {
+        /* The probe ray nearest the tile's centre. */
+        double fi = floor((ox - 2.0) / p->map_stride + 0.5);
+        double fj = floor((oy - 2.0) / p->map_stride + 0.5);
+        uint32_t i = fi <= 0.0 ? 0
+                     : fi >= p->map_width - 1 ? p->map_width - 1
+                                              : (uint32_t)fi;
+        uint32_t j = fj <= 0.0 ? 0
+                     : fj >= p->map_height - 1 ? p->map_height - 1
+                                               : (uint32_t)fj;
+        span = p->span[(size_t)j * p->map_width + i];
+        if (!(span >= 0.0) || !isfinite(span))
+          span = 0.0;
+      }
+      cost[(size_t)y * tx + x] =
+          (float)((double)(x1 - x0) * (y1 - y0) * (1.0 + span / step));
+    }
+  }
+  return 0;
+}
+
+/* ---- Rendering ----------------------------------------------------------- */
+
+static int grow_split(rp_device_group *g, size_t tiles) {
+  if (tiles > g->balancer_tiles) {
+    rp_balancer_desc bd = {0};
+    rp_balancer *b = NULL;
+    int err;
+    bd.max_devices = RP_GROUP_MAX_DEVICES;
+    bd.max_tiles = (uint32_t)tiles;
+    if ((err = rp_balancer_create(g->ctx, &bd, &b)) != 0)
+      return err;
+    rp_balancer_destroy(g->balancer);
+    g->balancer = b;
+    g->balancer_tiles = (uint32_t)tiles;
+  }
+  if (tiles > g->cost_cap) {
+    float *c = rp__malloc(g->ctx, tiles * sizeof *c);
+    double *s = rp__malloc(g->ctx, tiles * sizeof *s);
+    if (c == NULL || s == NULL) {
+      rp__free(g->ctx, c);
+      rp__free(g->ctx, s);
+      return rp__fail(g->ctx, RP_ENOMEM, "device group: %zu tile costs",
+                      tiles);
+    }
+    rp__free(g->ctx, g->cost);
+    rp__free(g->ctx, g->sub_cost);
+    g->cost = c;
+    g->sub_cost = s;
+    g->cost_cap = tiles;
+  }
+  return 0;
+}
+
+/* Splits the tile rectangle `area` (tile units) of a tx-wide grid among
+ * the devices by `shares`; regions[i] in tile units of the whole grid. */
+static int split_area(rp_device_group *g, const rp_region *area, uint32_t tx,
+                      const double *shares, rp_region *regions) {
+  uint32_t w = area->x1 - area->x0, h = area->y1 - area->y0, x, y, i;
+  int err;
+  for (y = 0; y < h; y++)
+    for (x = 0; x < w; x++)
+      g->sub_cost[(size_t)y * w + x] =
+          g->cost[(size_t)(area->y0 + y) * tx + area->x0 + x];
+  if ((err = rp_balancer_split(g->balancer, g->sub_cost, w, h, shares,
+                               g->count, regions)) != 0)
+    return err;
+  for (i = 0; i < g->count; i++) {
+    regions[i].x0 += area->x0;
+    regions[i].x1 += area->x0;
+    regions[i].y0 += area->y0;
+    regions[i].y1 += area->y0;
+  }
+  return 0;
+}
+
+static int region_empty(const rp_region *r) {
+  return r->x0 >= r->x1 || r->y0 >= r->y1;
+}
+
+static double region_cost(const rp_device_group *g, const rp_region *t,
+                          uint32_t tx) {
+  double sum = 0.0;
+  uint32_t x, y;
+  for (y = t->y0; y < t->y1; y++)
+    for (x = t->x0; x < t->x1; x++)
+      sum += g->cost[(size_t)y * tx + x];
+  return sum;
+}
+
+/* Copies w's region (pixels) from its buffers into the caller's. */
+static void take_region(const member *w, const rp_region *r, uint32_t sw,
+                        uint32_t tx, uint8_t *rgba, rp_tile_stats *tiles) {
+  uint32_t y, x;
+  size_t row = (size_t)(r->x1 - r->x0) * 4;
+  for (y = r->y0; y < r->y1; y++)
+    memcpy(rgba + ((size_t)y * sw + r->x0) * 4,
+           w->rgba + ((size_t)y * sw + r->x0) * 4, row);
+  if (tiles == NULL)
+    return;
+  for (y = r->y0 / RP_TILE_SIZE; y * RP_TILE_SIZE < r->y1; y++)
+    for (x = r->x0 / RP_TILE_SIZE; x * RP_TILE_SIZE < r->x1; x++)
+      tiles[(size_t)y * tx + x] = w->tiles[(size_t)y * tx + x];
+}
+
+/* One round: every device with a non-empty region renders it; finished
+ * regions are copied across; the regions of devices that failed or ran
+ * late are appended to `lost` (pixels). Returns the last failure; an
+ * error that does not lose the device (an effect it lacks) is returned
+ * in *refused and fails the frame. */
+static int render_round(rp_device_group *g, const rp_camera *cam,
+                        const rp_render_desc *d, const rp_region *px,
+                        const double *predicted, double start,
+                        uint8_t *rgba, rp_tile_stats *tiles,
+                        rp_group_report *rep, rp_region *lost,
+                        uint32_t *n_lost, int first_round, int *refused) {
+  uint32_t sw, sh, tx, i;
+  int last = 0;
+  rp_scaled_size(d, &sw, &sh);
+  rp_tile_grid(sw, sh, &tx, NULL);
+  for (i = 0; i < g->count; i++) {
+    member *w = &g->m[i];
+    w->pending = 0;
+    if (w->dropped || region_empty(&px[i]))
+      continue;
+    w->cam = *cam;
+    w->desc = *d;
+    w->region = px[i];
+    w->deadline = INFINITY;
+    w->by_peers = 0;
+    if (g->desc.deadline_factor > 0.0 && !isinf(predicted[i]) &&
+        ((w->warm_sets >> (d->effects & 15u)) & 1u)) {
+      if (w->trained && isfinite(predicted[i]))
+        w->deadline = start + fmax(g->desc.deadline_min_ms,
+                                   g->desc.deadline_factor * predicted[i]);
+      else
+        w->by_peers = 1;
+    }
+    if (first_round)
+      rep->devices[i].region = px[i];
+    start_job(g, w, JOB_RENDER);
+  }
+  wait_jobs(g, rep, start);
+  for (i = 0; i < g->count; i++) {
+    member *w = &g->m[i];
+    rp_group_device *rd = &rep->devices[i];
+    if (w->dropped || region_empty(&px[i]))
+      continue;
+    if (w->outcome != 0 && !loses_device(w->outcome, 0)) {
+      rd->status = w->outcome;
+      *refused = rp__fail(g->ctx, w->outcome, "%s", w->why);
+      continue;
+    }
+    if (w->outcome != 0) {
+      w->dropped = 1;
+      g->have_prev = 0;
+      rd->status = w->outcome;
+      rd->dropped = 1;
+      rep->lost++;
+      last = w->outcome;
+      rp__fail(g->ctx, w->outcome, "device group: %s", w->why);
+      lost[(*n_lost)++] = px[i];
+      continue;
+    }
+    take_region(w, &px[i], sw, tx, rgba, tiles);
+    w->warm_sets |= 1u << (d->effects & 15u);
+    rd->depth_ms += w->depth_ms;
+    rd->depth_passes += w->depth_passes;
+    rd->raycast_ms += w->raycast_ms;
+    rd->busy_ms += w->busy_ms;
+    rd->samples += w->samples;
+    w->rendered = 1;
+    w->frame_raycast_ms += w->raycast_ms;
+    w->frame_busy_ms += w->busy_ms;
+    w->frame_samples += w->samples;
+  }
+  return last;
+}
+
+int rp_device_group_render(rp_device_group *g, const rp_camera *cam,
+                           const rp_render_desc *desc,
+                           const rp_frame_probe *probe, uint8_t *rgba,
+                           rp_tile_stats *tiles, rp_group_report *report) {
+  static const char fn[] = "rp_device_group_render";
+  rp_group_report local;
+  rp_group_report *rep = report != NULL ? report : &local;
+  device_cost c[RP_GROUP_MAX_DEVICES];
+  double shares[RP_GROUP_MAX_DEVICES], predicted[RP_GROUP_MAX_DEVICES];
+  double total_cost, times[RP_GROUP_MAX_DEVICES];
+  double cost_abs[RP_GROUP_MAX_DEVICES];
+  rp_region t[RP_GROUP_MAX_DEVICES], px[RP_GROUP_MAX_DEVICES];
+  rp_region lost[RP_GROUP_MAX_DEVICES], all;
+  rp_render_desc d;
+  uint32_t sw, sh, tx, ty, i, n_lost = 0, rounds;
+  double start, t_rr;
+  float step, scale;
+  int err, last, refused = 0;
+  if (g == NULL)
+    return RP_EINVAL;
+  if (cam == NULL || desc == NULL || rgba == NULL)
+    return rp__fail(g->ctx, RP_EINVAL, "%s: %s is NULL", fn,
+                    cam == NULL ? "cam" : desc == NULL ? "desc" : "rgba");
+  if (desc->width == 0 || desc->height == 0)
+    return rp__fail(g->ctx, RP_EINVAL, "%s: a zero image size", fn);
+  g->can_train = 0;
+  d = *desc;
+  memset(rep, 0, sizeof *rep);
+  rep->count = g->count;
+  for (i = 0; i < g->count; i++) {
+    member *w = &g->m[i];
+    snprintf(rep->devices[i].name, sizeof rep->devices[i].name, "%s",
+             w->name);
+    rep->devices[i].dropped = w->dropped;
+    rep->devices[i].predicted_ms = NAN;
+    w->rendered = 0;
+    w->frame_raycast_ms = w->frame_busy_ms = 0.0;
+    w->frame_samples = 0;
+  }
+  rp_scaled_size(&d, &sw, &sh);
+  rp_tile_grid(sw, sh, &tx, &ty);
+  step = d.step > 0.0f ? d.step : 1.0f;
+  scale = d.image_scale > 0.0f ? d.image_scale : 1.0f;
+  device_costs(g, probe, step, scale, c);
+  if ((err = frame_shares(g, probe, step, scale, shares)) != 0)
+    return rp__fail(g->ctx, RP_ENODEV, "%s: no device left", fn);
+  if ((err = grow_split(g, (size_t)tx * ty)) != 0)
+    return err;
+  if (probe != NULL && !g->desc.split_by_count) {
+    if ((err = rp_probe_tile_costs(probe, &d, g->cost)) != 0)
+      return rp__fail(g->ctx, err, "%s: the tile costs", fn);
+  } else {
+    for (i = 0; i < tx * ty; i++)
+      g->cost[i] = 1.0f;
+  }
+  all.x0 = all.y0 = 0;
+  all.x1 = tx;
+  all.y1 = ty;
+  if ((err = split_area(g, &all, tx, shares, t)) != 0 ||
+      (err = rp_balance_to_pixels(t, g->count, sw, sh, px)) != 0)
+    return err; /* the balancer's message is in g->ctx */
+  total_cost = region_cost(g, &all, tx);
+  for (i = 0; i < g->count; i++) {
+    rp_group_device *rd = &rep->devices[i];
+    rd->share = shares[i];
+    cost_abs[i] = region_cost(g, &t[i], tx);
+    rd->cost_share = total_cost > 0.0 ? cost_abs[i] / total_cost : 0.0;
+    predicted[i] = c[i].ok ? c[i].fixed + rd->cost_share * c[i].var : NAN;
+    rd->predicted_ms = region_empty(&t[i]) ? NAN : predicted[i];
+  }
+  memcpy(g->prev_shares, shares, sizeof shares);
+  g->have_prev = 1;
+  start = now_ms();
+  last = render_round(g, cam, &d, px, predicted, start, rgba, tiles, rep,
+                      lost, &n_lost, 1, &refused);
+  if (refused != 0) {
+    rep->alive = rp_device_group_alive(g);
+    return refused;
+  }
+  /* What the split learns: each device that finished its region, its
+   * wall time per unit of predicted cost outside the depth pass. The
+   * last frame's figure alone: the shares' damping does the smoothing. */
+  for (i = 0; i < g->count; i++) {
+    member *w = &g->m[i];
+    const rp_group_device *rd = &rep->devices[i];
+    double ran;
+    if (w->dropped || !w->rendered || !(cost_abs[i] > 0.0))
+      continue;
+    ran = rd->depth_passes > 0;
+    if (ran)
+      w->depth_est = rd->depth_ms;
+    w->depth_freq = w->rate > 0.0 ? w->depth_freq + 0.25 * (ran - w->depth_freq)
+                                  : ran;
+    if (w->rate > 0.0 && cost_abs[i] < MIN_RATE_FRACTION * total_cost)
+      continue;
+    w->rate = fmax(rd->busy_ms - rd->depth_ms, 1e-6) / cost_abs[i];
+  }
+  /* The balance of the first round: a device lost in it counts as one
+   * that rendered nothing. */
+  for (i = 0; i < g->count; i++) {
+    times[i] = rep->devices[i].busy_ms;
+    px[i] = rep->devices[i].region;
+    if (rep->devices[i].status != 0)
+      px[i].x1 = px[i].x0;
+  }
+  (void)rp_balance_metric(times, px, g->count, &rep->imbalance);
+  /* Lost regions go to the devices left, split by their shares; a device
+   * lost in a later round adds its part again. Each round drops at
+   * least one device, so there are at most count rounds. */
+  t_rr = now_ms();
+  for (rounds = 0; n_lost > 0 && rounds < g->count; rounds++) {
+    rp_region todo[RP_GROUP_MAX_DEVICES];
+    uint32_t n_todo = n_lost, k;
+    memcpy(todo, lost, n_lost * sizeof *lost);
+    n_lost = 0;
+    for (k = 0; k < n_todo; k++) {
+      rp_region area;
+      if (rp_device_group_alive(g) == 0)
+        break;
+      if ((err = frame_shares(g, probe, step, scale, shares)) != 0)
+        break;
+      area.x0 = todo[k].x0 / RP_TILE_SIZE;
+      area.y0 = todo[k].y0 / RP_TILE_SIZE;
+      area.x1 = (todo[k].x1 + RP_TILE_SIZE - 1) / RP_TILE_SIZE;
+      area.y1 = (todo[k].y1 + RP_TILE_SIZE - 1) / RP_TILE_SIZE;
+      if ((err = split_area(g, &area, tx, shares, t)) != 0 ||
+          (err = rp_balance_to_pixels(t, g->count, sw, sh, px)) != 0)
+        return rp__fail(g->ctx, err, "%s: the re-render split", fn);
+      for (i = 0; i < g->count; i++)
+        predicted[i] = INFINITY; /* no deadline: the frame must finish */
+      err = render_round(g, cam, &d, px, predicted, now_ms(), rgba, tiles,
+                         rep, lost, &n_lost, 0, &refused);
+      if (refused != 0) {
+        rep->alive = rp_device_group_alive(g);
+        return refused;
+      }
+      if (err != 0)
+        last = err;
+    }
+  }
+  if (n_lost > 0 || rp_device_group_alive(g) == 0) {
+    char why[RP__ERRMSG_MAX];
+    /* The message reads the context it is written to: copy it first. */
+    snprintf(why, sizeof why, "%s", rp_last_error(g->ctx));
+    rep->alive = rp_device_group_alive(g);
+    return rp__fail(g->ctx, last != 0 ? last : RP_ENODEV,
+                    "%s: every device failed; the last said: %s", fn, why);
+  }
+  rep->rerender_ms = rep->lost > 0 ? now_ms() - t_rr : 0.0;
+  rep->render_ms = now_ms() - start;
+  rep->alive = rp_device_group_alive(g);
+  g->last_render_ms = g->threads ? rep->render_ms : g->m[0].frame_busy_ms;
+  g->last_samples = 0;
+  for (i = 0; i < g->count; i++)
+    g->last_samples += g->m[i].frame_samples;
+  g->can_train = 1;
+  return 0;
+}
+
+int rp_device_group_train(rp_device_group *g, const rp_frame_probe *p,
+                          float step, float scale, double frame_ms) {
+  static const char fn[] = "rp_device_group_train";
+  uint32_t i;
+  int err = 0;
+  if (g == NULL)
+    return RP_EINVAL;
+  if (!g->can_train)
+    return rp__fail(g->ctx, RP_ESTATE, "%s: no frame to learn from", fn);
+  if (p == NULL)
+    return rp__fail(g->ctx, RP_EINVAL, "%s: p is NULL", fn);
+  g->can_train = 0;
+  for (i = 0; i < g->count; i++) {
+    member *w = &g->m[i];
+    double f, raycast, frame;
+    int e;
+    if (w->dropped || !w->rendered || w->frame_samples == 0 ||
+        (double)w->frame_samples <
+            MIN_TRAIN_FRACTION * (double)g->last_samples)
+      continue;
+    /* The device's rate over its region, for the whole frame; what the
+     * caller added to the group's render, and the device's own time
+     * outside its raycast, are its fixed cost. One device: exactly the
+     * caller's figures. */
+    f = (double)g->last_samples / (double)w->frame_samples;
+    raycast = w->frame_raycast_ms * f;
+    frame = raycast + (frame_ms - g->last_render_ms) +
+            (w->frame_busy_ms - w->frame_raycast_ms);
+    if (g->count == 1)
+      frame = frame_ms;
+    if ((e = rp_cost_train(w->model, p, step, scale, g->last_samples,
+                           raycast, frame)) != 0) {
+      err = rp__fail(g->ctx, e, "%s: %s", fn, rp_last_error(w->ctx));
+      continue;
+    }
+    w->trained++;
+  }
+  return err;
+}

@@ -1,0 +1,509 @@
+/* Device groups (runtime/group.c): several devices rendering one frame.
+ *
+ * The oracle for every image is one device rendering the whole frame
+ * alone: a region's pixels depend only on its rays, so the group's image
+ * must be byte-identical whatever the split, the speeds or the devices
+ * lost. Devices are "reference" devices (always built) slowed or failed
+ * by rp_device_desc's testing knobs, so the cases are reproducible; the
+ * OpenCL case runs where a driver is. */
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "raypace_group.h"
+#include "test_util.h"
+
+#define W 64
+#define H 48
+#define EFFECTS (RP_EFFECT_ERT | RP_EFFECT_SKIP)
+
+typedef struct scene {
+  rp_context *ctx;
+  rp_volume *vol;
+  rp_histograms *h;
+  rp_tf *tf;
+  rp_occupancy *occ;
+  rp_camera cam;
+  rp_render_desc desc;
+  rp_frame_probe probe;
+} scene;
+
+static void scene_make(scene *s, uint32_t w, uint32_t h) {
+  rp_generate_desc g = {0};
+  memset(s, 0, sizeof *s);
+  s->ctx = rp_test_context();
+  g.kind = RP_GEN_PHANTOM;
+  g.dims[0] = g.dims[1] = g.dims[2] = 48;
+  g.seed = 7;
+  assert_int_equal(rp_volume_generate(s->ctx, &g, &s->vol), 0);
+  assert_int_equal(rp_histograms_build(s->ctx, s->vol, &s->h), 0);
+  assert_int_equal(rp_tf_create_preset(s->ctx, "ct-bone", &s->tf), 0);
+  assert_int_equal(rp_occupancy_build(s->ctx, s->h, s->tf, &s->occ), 0);
+  rp_camera_orbit(&s->cam, s->vol, 30.0f, 20.0f, 2.0f);
+  s->desc.width = w;
+  s->desc.height = h;
+  s->desc.effects = EFFECTS;
+  assert_int_equal(rp_frame_probe_compute(s->ctx, s->vol, s->tf, s->occ,
+                                          &s->cam, &s->desc, 1, 0,
+                                          &s->probe),
+                   0);
+}
+
+static void scene_free(scene *s) {
+  rp_occupancy_destroy(s->occ);
+  rp_tf_destroy(s->tf);
+  rp_histograms_destroy(s->h);
+  rp_volume_destroy(s->vol);
+  rp_context_destroy(s->ctx);
+}
+
+/* The whole frame on one device of `backend`: the oracle. */
+static void render_alone(scene *s, const char *backend, uint8_t *rgba,
+                         rp_tile_stats *tiles) {
+  rp_device_desc dd = {0};
+  rp_device *dev = NULL;
+  dd.backend = backend;
+  assert_int_equal(rp_device_create(s->ctx, &dd, &dev), 0);
+  assert_int_equal(rp_device_set_volume(dev, s->vol), 0);
+  assert_int_equal(rp_device_set_tf(dev, s->tf, s->occ), 0);
+  assert_int_equal(rp_device_render(dev, &s->cam, &s->desc, NULL, rgba,
+                                    tiles),
+                   0);
+  rp_device_destroy(dev);
+}
+
+static rp_device_group *make_group(scene *s, const rp_group_desc *gd) {
+  rp_device_group *g = NULL;
+  int err = rp_device_group_create(s->ctx, gd, &g);
+  if (err != 0)
+    fail_msg("rp_device_group_create: %s", rp_last_error(s->ctx));
+  assert_int_equal(rp_device_group_set_volume(g, s->vol), 0);
+  assert_int_equal(rp_device_group_set_tf(g, s->tf, s->occ), 0);
+  return g;
+}
+
+/* Every pixel of the scaled image lies in exactly one live device's
+ * first-round region, unless a device was lost (its region went to the
+ * others). */
+static void assert_regions_partition(const rp_group_report *r, uint32_t w,
+                                     uint32_t h) {
+  uint32_t x, y, i;
+  for (y = 0; y < h; y++)
+    for (x = 0; x < w; x++) {
+      int owners = 0;
+      for (i = 0; i < r->count; i++) {
+        const rp_region *g = &r->devices[i].region;
+        owners += x >= g->x0 && x < g->x1 && y >= g->y0 && y < g->y1;
+      }
+      assert_int_equal(owners, 1);
+    }
+}
+
+/* Renders a frame with the group and trains it as an app would. */
+static int frame(rp_device_group *g, scene *s, uint8_t *rgba,
+                 rp_tile_stats *tiles, rp_group_report *rep) {
+  int err = rp_device_group_render(g, &s->cam, &s->desc, &s->probe, rgba,
+                                   tiles, rep);
+  if (err == 0)
+    assert_int_equal(rp_device_group_train(g, &s->probe, 1.0f, 1.0f,
+                                           rep->render_ms),
+                     0);
+  return err;
+}
+
+/* Three devices of different speed and an odd image size: the same bytes
+ * as one device alone, tile stats included, and regions that tile it. */
+static void test_matches_one_device(void **state) {
+  static const double slow[3] = {0.0, 3.0, 1.5};
+  uint8_t *one = malloc(W * H * 4), *many = malloc(W * H * 4);
+  rp_tile_stats t_one[8 * 6], t_many[8 * 6];
+  rp_device_desc dd[3];
+  rp_group_desc gd = {0};
+  rp_group_report rep;
+  rp_device_group *g;
+  scene s;
+  uint32_t i, f;
+  (void)state;
+  scene_make(&s, W - 3, H - 5);
+  render_alone(&s, "reference", one, t_one);
+  memset(dd, 0, sizeof dd);
+  for (i = 0; i < 3; i++) {
+    dd[i].backend = "reference";
+    dd[i].slowdown = slow[i];
+  }
+  gd.devices = dd;
+  gd.count = 3;
+  g = make_group(&s, &gd);
+  for (f = 0; f < 4; f++) {
+    double sum = 0.0;
+    memset(many, 0xAB, W * H * 4);
+    memset(t_many, 0xCD, sizeof t_many);
+    assert_int_equal(frame(g, &s, many, t_many, &rep), 0);
+    assert_memory_equal(one, many, (size_t)(W - 3) * (H - 5) * 4);
+    assert_memory_equal(t_one, t_many, sizeof(rp_tile_stats) * 8 * 6);
+    assert_int_equal(rep.count, 3);
+    assert_int_equal(rep.alive, 3);
+    assert_int_equal(rep.lost, 0);
+    assert_regions_partition(&rep, W - 3, H - 5);
+    for (i = 0; i < 3; i++)
+      sum += rep.devices[i].share;
+    assert_true(sum == 1.0); /* exact: see raypace_balance.h */
+  }
+  rp_device_group_destroy(g);
+  scene_free(&s);
+  free(one);
+  free(many);
+}
+
+/* A device 4x slower than its peer ends with about a fifth of the work:
+ * shares 1/5 and 4/5 in closed form for times t and 4t. Bound: within
+ * 0.1 of it after 10 frames: damping halves the error per frame, the
+ * depth pass of the first frame (a fixed cost, 4x on the slow device)
+ * moves it below 1/5 while it is remembered, and the rest is timer noise
+ * on a shared machine (measured: 0.13-0.17 over 5 runs). */
+static void test_shares_follow_speed(void **state) {
+  uint8_t *img = malloc(4 * W * H * 4);
+  rp_device_desc dd[2];
+  rp_group_desc gd = {0};
+  rp_group_report rep;
+  rp_device_group *g;
+  double shares[2];
+  scene s;
+  int f;
+  (void)state;
+  scene_make(&s, 2 * W, 2 * H);
+  memset(dd, 0, sizeof dd);
+  dd[0].backend = dd[1].backend = "reference";
+  dd[1].slowdown = 4.0;
+  gd.devices = dd;
+  gd.count = 2;
+  g = make_group(&s, &gd);
+  /* Before any frame the split is even: nothing is known. */
+  assert_int_equal(rp_device_group_shares(g, &s.probe, 1.0f, 1.0f, shares),
+                   0);
+  assert_true(shares[0] == 0.5 && shares[1] == 0.5);
+  for (f = 0; f < 10; f++)
+    assert_int_equal(frame(g, &s, img, NULL, &rep), 0);
+  assert_int_equal(rp_device_group_shares(g, &s.probe, 1.0f, 1.0f, shares),
+                   0);
+  assert_true(fabs(shares[1] - 0.2) < 0.1);
+  assert_true(fabs(shares[0] + shares[1] - 1.0) == 0.0);
+  rp_device_group_destroy(g);
+  scene_free(&s);
+  free(img);
+}
+
+/* A device that fails at its second render: that frame is still whole
+ * and right (the others re-render its region), it is reported lost, and
+ * from then on it gets nothing. */
+static void test_device_loss(void **state) {
+  uint8_t *one = malloc(W * H * 4), *img = malloc(W * H * 4);
+  rp_device_desc dd[3];
+  rp_group_desc gd = {0};
+  rp_group_report rep;
+  rp_device_group *g;
+  double shares[3];
+  scene s;
+  uint32_t i;
+  (void)state;
+  scene_make(&s, W, H);
+  render_alone(&s, "reference", one, NULL);
+  memset(dd, 0, sizeof dd);
+  for (i = 0; i < 3; i++)
+    dd[i].backend = "reference";
+  dd[1].fail_at_render = 2;
+  gd.devices = dd;
+  gd.count = 3;
+  g = make_group(&s, &gd);
+  assert_int_equal(frame(g, &s, img, NULL, &rep), 0);
+  assert_int_equal(rep.lost, 0);
+  memset(img, 0, W * H * 4);
+  assert_int_equal(frame(g, &s, img, NULL, &rep), 0);
+  assert_memory_equal(one, img, W * H * 4);
+  assert_int_equal(rep.lost, 1);
+  assert_int_equal(rep.alive, 2);
+  assert_int_equal(rep.devices[1].status, RP_EDEVICE);
+  assert_int_equal(rep.devices[1].dropped, 1);
+  assert_true(rep.rerender_ms > 0.0);
+  assert_int_equal(rp_device_group_alive(g), 2);
+  assert_int_equal(rp_device_group_shares(g, &s.probe, 1.0f, 1.0f, shares),
+                   0);
+  assert_true(shares[1] == 0.0);
+  assert_true(shares[0] + shares[2] == 1.0);
+  memset(img, 0, W * H * 4);
+  assert_int_equal(frame(g, &s, img, NULL, &rep), 0);
+  assert_memory_equal(one, img, W * H * 4);
+  assert_int_equal(rep.lost, 0);
+  assert_true(rep.devices[1].region.x0 == rep.devices[1].region.x1 ||
+              rep.devices[1].region.y0 == rep.devices[1].region.y1);
+  rp_device_group_destroy(g);
+  scene_free(&s);
+  free(one);
+  free(img);
+}
+
+/* A device a thousand times slower that the group has not learned yet
+ * (frames rendered, none trained): the even split would wait for it
+ * ~1000x longer than its peer takes. Its first frame builds its kernels
+ * and has no deadline; on the next it is given up on at deadline_factor
+ * times the peer's time, its region is re-rendered by the peer and the
+ * frame comes back whole. Destroy then waits for it. */
+static void test_late_device(void **state) {
+  uint8_t *one = malloc(16 * 8 * 4), *img = malloc(16 * 8 * 4);
+  rp_device_desc dd[2];
+  rp_group_desc gd = {0};
+  rp_group_report rep;
+  rp_device_group *g;
+  scene s;
+  (void)state;
+  scene_make(&s, 16, 8);
+  render_alone(&s, "reference", one, NULL);
+  memset(dd, 0, sizeof dd);
+  dd[0].backend = dd[1].backend = "reference";
+  dd[1].slowdown = 1000.0;
+  gd.devices = dd;
+  gd.count = 2;
+  gd.deadline_factor = 4.0;
+  gd.deadline_min_ms = 1.0;
+  g = make_group(&s, &gd);
+  assert_int_equal(rp_device_group_render(g, &s.cam, &s.desc, &s.probe, img,
+                                          NULL, &rep),
+                   0);
+  assert_int_equal(rep.lost, 0); /* cold: no deadline */
+  memset(img, 0, 16 * 8 * 4);
+  assert_int_equal(rp_device_group_render(g, &s.cam, &s.desc, &s.probe, img,
+                                          NULL, &rep),
+                   0);
+  assert_memory_equal(one, img, 16 * 8 * 4);
+  assert_int_equal(rep.lost, 1);
+  assert_int_equal(rep.devices[1].late, 1);
+  assert_int_equal(rep.devices[1].status, RP_EDEVICE);
+  assert_int_equal(rep.alive, 1);
+  rp_device_group_destroy(g);
+  scene_free(&s);
+  free(one);
+  free(img);
+}
+
+/* Every device lost: the frame fails with the reason and the caller's
+ * image is untouched (no half-written frame passes for a result). */
+static void test_all_lost(void **state) {
+  uint8_t *img = malloc(W * H * 4), *keep = malloc(W * H * 4);
+  rp_device_desc dd[2];
+  rp_group_desc gd = {0};
+  rp_group_report rep;
+  rp_device_group *g;
+  scene s;
+  uint32_t i;
+  (void)state;
+  scene_make(&s, W, H);
+  memset(dd, 0, sizeof dd);
+  for (i = 0; i < 2; i++) {
+    dd[i].backend = "reference";
+    dd[i].fail_at_render = 1;
+  }
+  gd.devices = dd;
+  gd.count = 2;
+  g = make_group(&s, &gd);
+  for (i = 0; i < W * H * 4; i++)
+    img[i] = keep[i] = (uint8_t)(i * 31u);
+  assert_int_equal(rp_device_group_render(g, &s.cam, &s.desc, &s.probe,
+                                          img, NULL, &rep),
+                   RP_EDEVICE);
+  assert_non_null(strstr(rp_last_error(s.ctx), "failed"));
+  assert_memory_equal(img, keep, W * H * 4);
+  assert_int_equal(rep.alive, 0);
+  assert_int_equal(rp_device_group_train(g, &s.probe, 1.0f, 1.0f, 1.0),
+                   RP_ESTATE);
+  assert_int_equal(rp_device_group_render(g, &s.cam, &s.desc, &s.probe,
+                                          img, NULL, &rep),
+                   RP_ENODEV);
+  rp_device_group_destroy(g);
+  scene_free(&s);
+  free(img);
+  free(keep);
+}
+
+/* More devices than tiles, and a 1x1 image: some devices get nothing,
+ * the one pixel is still right. */
+static void test_tiny_images(void **state) {
+  uint8_t one[8 * 8 * 4], img[8 * 8 * 4];
+  rp_device_desc dd[4];
+  rp_group_desc gd = {0};
+  rp_group_report rep;
+  rp_device_group *g;
+  scene s;
+  uint32_t i, sizes[2][2] = {{1, 1}, {8, 5}}, k;
+  (void)state;
+  for (k = 0; k < 2; k++) {
+    uint32_t given = 0;
+    scene_make(&s, sizes[k][0], sizes[k][1]);
+    render_alone(&s, "reference", one, NULL);
+    memset(dd, 0, sizeof dd);
+    for (i = 0; i < 4; i++)
+      dd[i].backend = "reference";
+    gd.devices = dd;
+    gd.count = 4;
+    g = make_group(&s, &gd);
+    memset(img, 0, sizeof img);
+    assert_int_equal(frame(g, &s, img, NULL, &rep), 0);
+    assert_memory_equal(one, img, (size_t)sizes[k][0] * sizes[k][1] * 4);
+    for (i = 0; i < 4; i++) {
+      const rp_region *r = &rep.devices[i].region;
+      given += r->x0 < r->x1 && r->y0 < r->y1;
+    }
+    assert_int_equal(given, 1); /* one tile: one device */
+    assert_regions_partition(&rep, sizes[k][0], sizes[k][1]);
+    rp_device_group_destroy(g);
+    scene_free(&s);
+  }
+}
+
+/* Fixed shares are what the split gets, renormalised; split_by_count
+ * makes each region's tile count follow them. 1:3 of a 4 x 2 grid of
+ * tiles (32 x 16 pixels) is 2 : 6 tiles, cut across x at column 1. */
+static void test_fixed_shares(void **state) {
+  static const double fixed[2] = {1.0, 3.0};
+  uint8_t *img = malloc(32 * 16 * 4);
+  rp_device_desc dd[2];
+  rp_group_desc gd = {0};
+  rp_group_report rep;
+  rp_device_group *g;
+  scene s;
+  (void)state;
+  scene_make(&s, 32, 16);
+  memset(dd, 0, sizeof dd);
+  dd[0].backend = dd[1].backend = "reference";
+  gd.devices = dd;
+  gd.count = 2;
+  gd.share_mode = RP_SHARES_FIXED;
+  gd.fixed_shares = fixed;
+  gd.split_by_count = 1;
+  g = make_group(&s, &gd);
+  assert_int_equal(frame(g, &s, img, NULL, &rep), 0);
+  assert_true(rep.devices[0].share == 0.25);
+  assert_true(rep.devices[1].share == 0.75);
+  assert_int_equal(rep.devices[0].region.x0, 0);
+  assert_int_equal(rep.devices[0].region.x1, 8);
+  assert_int_equal(rep.devices[1].region.x0, 8);
+  assert_int_equal(rep.devices[1].region.x1, 32);
+  assert_true(fabs(rep.devices[0].cost_share - 0.25) < 1e-12);
+  rp_device_group_destroy(g);
+  scene_free(&s);
+  free(img);
+}
+
+/* Tile costs from a hand-made probe: 2 x 2 rays, 16 output pixels apart
+ * (rays at pixels 2 and 18), spans 0, 10, 20, 40 voxels; a 24 x 24 image
+ * at step 2 has 3 x 3 tiles of 8 x 8 rays. Tile centres at 4, 12, 20
+ * map to rays round((c - 2) / 16) = 0, 1, 1; cost = 64 (1 + L / 2). */
+static void test_tile_costs(void **state) {
+  static const float span[4] = {0.0f, 10.0f, 20.0f, 40.0f};
+  static const float want_row[2][3] = {{64.0f, 384.0f, 384.0f},
+                                       {704.0f, 1344.0f, 1344.0f}};
+  rp_frame_probe p;
+  rp_render_desc d = {0};
+  float cost[9];
+  uint32_t x, y;
+  (void)state;
+  memset(&p, 0, sizeof p);
+  p.map_width = p.map_height = 2;
+  p.map_stride = 16;
+  memcpy(p.span, span, sizeof span);
+  d.width = d.height = 24;
+  d.step = 2.0f;
+  assert_int_equal(rp_probe_tile_costs(&p, &d, cost), 0);
+  for (y = 0; y < 3; y++)
+    for (x = 0; x < 3; x++)
+      assert_float_equal(cost[y * 3 + x], want_row[y == 0 ? 0 : 1][x],
+                         1e-3);
+  /* An odd image: the last tiles hold fewer rays (20 x 20: 4 x 8 ...). */
+  d.width = d.height = 20;
+  assert_int_equal(rp_probe_tile_costs(&p, &d, cost), 0);
+  /* Tile (2, 2) is 4 x 4 rays at centre 18 -> ray (1, 1): 16 (1 + 20). */
+  assert_float_equal(cost[2 * 3 + 2], 16.0f * 21.0f, 1e-3);
+  assert_int_equal(rp_probe_tile_costs(NULL, &d, cost), RP_EINVAL);
+}
+
+static void test_bad_input(void **state) {
+  rp_context *ctx = rp_test_context();
+  rp_device_desc dd[9];
+  rp_group_desc gd = {0};
+  rp_device_group *g = NULL;
+  double bad[2] = {NAN, 1.0};
+  (void)state;
+  memset(dd, 0, sizeof dd);
+  dd[0].backend = dd[1].backend = "reference";
+  assert_int_equal(rp_device_group_create(ctx, &gd, &g), RP_EINVAL);
+  gd.devices = dd;
+  assert_int_equal(rp_device_group_create(ctx, &gd, &g), RP_ERANGE);
+  gd.count = 9;
+  assert_int_equal(rp_device_group_create(ctx, &gd, &g), RP_ERANGE);
+  gd.count = 2;
+  gd.share_mode = RP_SHARES_FIXED;
+  assert_int_equal(rp_device_group_create(ctx, &gd, &g), RP_EINVAL);
+  gd.fixed_shares = bad;
+  assert_int_equal(rp_device_group_create(ctx, &gd, &g), RP_ENOTFINITE);
+  gd.share_mode = RP_SHARES_DYNAMIC;
+  gd.damp_rate = 1.5;
+  assert_int_equal(rp_device_group_create(ctx, &gd, &g), RP_ERANGE);
+  gd.damp_rate = 0.0;
+  dd[1].backend = "no-such-backend";
+  assert_int_not_equal(rp_device_group_create(ctx, &gd, &g), 0);
+  assert_non_null(strstr(rp_last_error(ctx), "device 1"));
+  assert_null(g);
+  rp_context_destroy(ctx);
+}
+
+/* Where an OpenCL driver is: two devices of it give the bytes of one. */
+static void test_opencl_pair(void **state) {
+  uint8_t *one = malloc(W * H * 4), *img = malloc(W * H * 4);
+  rp_device_desc dd[2];
+  rp_group_desc gd = {0};
+  rp_group_report rep;
+  rp_device_group *g;
+  uint32_t n = 0;
+  scene s;
+  int f;
+  (void)state;
+  scene_make(&s, W, H);
+  if (rp_device_count(s.ctx, "opencl", &n) != 0 || n == 0) {
+    scene_free(&s);
+    free(one);
+    free(img);
+    skip();
+  }
+  render_alone(&s, "opencl", one, NULL);
+  memset(dd, 0, sizeof dd);
+  dd[0].backend = dd[1].backend = "opencl";
+  dd[1].slowdown = 2.0;
+  gd.devices = dd;
+  gd.count = 2;
+  g = make_group(&s, &gd);
+  for (f = 0; f < 3; f++) {
+    memset(img, 0, W * H * 4);
+    assert_int_equal(frame(g, &s, img, NULL, &rep), 0);
+    assert_memory_equal(one, img, W * H * 4);
+  }
+  rp_device_group_destroy(g);
+  scene_free(&s);
+  free(one);
+  free(img);
+}
+
+int main(void) {
+  const struct CMUnitTest tests[] = {
+      cmocka_unit_test(test_matches_one_device),
+      cmocka_unit_test(test_shares_follow_speed),
+      cmocka_unit_test(test_device_loss),
+      cmocka_unit_test(test_late_device),
+      cmocka_unit_test(test_all_lost),
+      cmocka_unit_test(test_tiny_images),
+      cmocka_unit_test(test_fixed_shares),
+      cmocka_unit_test(test_tile_costs),
+      cmocka_unit_test(test_bad_input),
+      cmocka_unit_test(test_opencl_pair),
+  };
+  return cmocka_run_group_tests(tests, NULL, NULL);
+}
