@@ -265,7 +265,7 @@ static void wait_jobs(rp_device_group *g, rp_group_report *rep,
   uv_mutex_lock(&g->lock);
   for (;;) {
     double next = INFINITY, now = now_ms();
-    int waiting = 0;
+    int waiting;
     for (i = 0; i < g->count; i++) {
       member *w = &g->m[i];
       if (!w->pending)
@@ -282,7 +282,6 @@ static void wait_jobs(rp_device_group *g, rp_group_report *rep,
       member *w = &g->m[i];
       if (!w->pending)
         continue;
-      waiting = 1;
       /* Late only once a peer finished: someone must re-render the
        * region, and the last device is never given up on. */
       if (peer_ms <= 0.0)
@@ -734,6 +733,9 @@ int rp_device_group_predict(rp_device_group *g, const rp_frame_probe *p,
   double tiles;
   uint32_t i;
   int err, any = 0;
+  memset(c, 0, sizeof c);
+  for (i = 0; i < RP_GROUP_MAX_DEVICES; i++)
+    shares[i] = 0.0;
   if (g == NULL)
     return RP_EINVAL;
   if (p == NULL || out == NULL)
@@ -1015,6 +1017,13 @@ int rp_device_group_render(rp_device_group *g, const rp_camera *cam,
   g->can_train = 0;
   d = *desc;
   memset(rep, 0, sizeof *rep);
+  memset(c, 0, sizeof c);
+  memset(t, 0, sizeof t);
+  memset(px, 0, sizeof px);
+  for (i = 0; i < RP_GROUP_MAX_DEVICES; i++) {
+    shares[i] = cost_abs[i] = times[i] = 0.0;
+    predicted[i] = NAN;
+  }
   rep->count = g->count;
   for (i = 0; i < g->count; i++) {
     member *w = &g->m[i];
@@ -1032,7 +1041,7 @@ int rp_device_group_render(rp_device_group *g, const rp_camera *cam,
   scale = d.image_scale > 0.0f ? d.image_scale : 1.0f;
   device_costs(g, probe, step, scale, c);
   if ((err = frame_shares(g, probe, step, scale, shares)) != 0)
-    return rp__fail(g->ctx, RP_ENODEV, "%s: no device left", fn);
+    return rp__fail(g->ctx, err, "%s: no device left", fn);
   if ((err = grow_split(g, (size_t)tx * ty)) != 0)
     return err;
   if (probe != NULL && !g->desc.split_by_count) {
@@ -1106,7 +1115,7 @@ int rp_device_group_render(rp_device_group *g, const rp_camera *cam,
       rp_region area;
       if (rp_device_group_alive(g) == 0)
         break;
-      if ((err = frame_shares(g, probe, step, scale, shares)) != 0)
+      if (frame_shares(g, probe, step, scale, shares) != 0)
         break;
       area.x0 = todo[k].x0 / RP_TILE_SIZE;
       area.y0 = todo[k].y0 / RP_TILE_SIZE;
