@@ -18,6 +18,7 @@
 #include <uv.h>
 
 #include "internal.h"
+#include "passes.h"
 #include "raypace_group.h"
 
 enum { JOB_NONE, JOB_VOLUME, JOB_TF, JOB_RENDER, JOB_QUIT };
@@ -624,14 +625,16 @@ static void device_costs(rp_device_group *g, const rp_frame_probe *p,
 
 static int grow_split(rp_device_group *g, size_t tiles);
 
-/* Total predicted tile cost of the frame: what the rates multiply. */
+/* Total predicted tile cost of the frame: what the rates multiply (only
+ * dynamic shares use it; 0 for fixed ones and without a probe). */
 static double frame_cost(rp_device_group *g, const rp_frame_probe *p,
                          float step, float scale) {
   rp_render_desc d = {0};
   uint32_t sw, sh, tx, ty;
   double sum = 0.0;
   size_t i;
-  if (p == NULL || p->width == 0 || p->height == 0)
+  if (g->desc.share_mode != RP_SHARES_DYNAMIC || p == NULL ||
+      p->width == 0 || p->height == 0)
     return 0.0;
   d.width = p->width;
   d.height = p->height;
@@ -662,16 +665,15 @@ static double frame_cost(rp_device_group *g, const rp_frame_probe *p,
  * view is off the same way for every device and cancels; and the depth
  * pass, which every device runs over the whole image whatever its share,
  * is a fixed cost the paper's shares cannot express. The KRLS models
- * still predict the frame's time (rp_device_group_predict). */
-static int frame_shares(rp_device_group *g, const rp_frame_probe *p,
-                        float step, float scale, double *shares) {
+ * still predict the frame's time (rp_device_group_predict).
+ * `cost` is the frame's total predicted tile cost (frame_cost; 0:
+ * unknown, every device counts as average). */
+static int frame_shares(rp_device_group *g, double cost, double *shares) {
   double var[RP_GROUP_MAX_DEVICES], fixed[RP_GROUP_MAX_DEVICES];
   double target[RP_GROUP_MAX_DEVICES], prev[RP_GROUP_MAX_DEVICES];
-  double psum = 0.0, cost = 0.0;
+  double psum = 0.0;
   uint32_t idx[RP_GROUP_MAX_DEVICES], n = 0, i;
   int err;
-  if (g->desc.share_mode == RP_SHARES_DYNAMIC)
-    cost = frame_cost(g, p, step, scale);
   for (i = 0; i < g->count; i++) {
     const member *w = &g->m[i];
     shares[i] = 0.0;
@@ -721,7 +723,7 @@ int rp_device_group_shares(rp_device_group *g, const rp_frame_probe *p,
   if (shares == NULL)
     return rp__fail(g->ctx, RP_EINVAL,
                     "rp_device_group_shares: shares is NULL");
-  if ((err = frame_shares(g, p, step, scale, shares)) != 0)
+  if ((err = frame_shares(g, frame_cost(g, p, step, scale), shares)) != 0)
     return rp__fail(g->ctx, err, "rp_device_group_shares: no device left");
   return 0;
 }
@@ -742,7 +744,7 @@ int rp_device_group_predict(rp_device_group *g, const rp_frame_probe *p,
     return rp__fail(g->ctx, RP_EINVAL, "rp_device_group_predict: %s is "
                     "NULL", p == NULL ? "p" : "out");
   device_costs(g, p, step, scale, c);
-  if ((err = frame_shares(g, p, step, scale, shares)) != 0)
+  if ((err = frame_shares(g, frame_cost(g, p, step, scale), shares)) != 0)
     return rp__fail(g->ctx, err, "rp_device_group_predict: no device left");
   {
     rp_render_desc d = {0};
@@ -793,9 +795,11 @@ int rp_probe_tile_costs(const rp_frame_probe *p, const rp_render_desc *desc,
   if (p == NULL || desc == NULL || cost == NULL || desc->width == 0 ||
       desc->height == 0)
     return RP_EINVAL;
-  step = desc->step > 0.0f ? desc->step : 1.0;
+  step = rp__render_desc_defaults(desc).step;
   if (!isfinite(step))
     return RP_ENOTFINITE;
+  if (!(step > 0.0))
+    return RP_ERANGE;
   rp_scaled_size(desc, &sw, &sh);
   rp_tile_grid(sw, sh, &tx, &ty);
   /* Scaled pixel -> output pixel. */
@@ -1004,8 +1008,7 @@ int rp_device_group_render(rp_device_group *g, const rp_camera *cam,
   rp_region lost[RP_GROUP_MAX_DEVICES], all;
   rp_render_desc d;
   uint32_t sw, sh, tx, ty, i, n_lost = 0, rounds;
-  double start, t_rr;
-  float step, scale;
+  double start, t_rr, share_cost;
   int err, last, refused = 0;
   if (g == NULL)
     return RP_EINVAL;
@@ -1015,7 +1018,7 @@ int rp_device_group_render(rp_device_group *g, const rp_camera *cam,
   if (desc->width == 0 || desc->height == 0)
     return rp__fail(g->ctx, RP_EINVAL, "%s: a zero image size", fn);
   g->can_train = 0;
-  d = *desc;
+  d = rp__render_desc_defaults(desc);
   memset(rep, 0, sizeof *rep);
   memset(c, 0, sizeof c);
   memset(t, 0, sizeof t);
@@ -1037,11 +1040,6 @@ int rp_device_group_render(rp_device_group *g, const rp_camera *cam,
   }
   rp_scaled_size(&d, &sw, &sh);
   rp_tile_grid(sw, sh, &tx, &ty);
-  step = d.step > 0.0f ? d.step : 1.0f;
-  scale = d.image_scale > 0.0f ? d.image_scale : 1.0f;
-  device_costs(g, probe, step, scale, c);
-  if ((err = frame_shares(g, probe, step, scale, shares)) != 0)
-    return rp__fail(g->ctx, err, "%s: no device left", fn);
   if ((err = grow_split(g, (size_t)tx * ty)) != 0)
     return err;
   if (probe != NULL && !g->desc.split_by_count) {
@@ -1054,10 +1052,18 @@ int rp_device_group_render(rp_device_group *g, const rp_camera *cam,
   all.x0 = all.y0 = 0;
   all.x1 = tx;
   all.y1 = ty;
+  total_cost = region_cost(g, &all, tx);
+  /* The rates are per unit of this frame's costs: what frame_cost would
+   * give, computed once here. */
+  share_cost = g->desc.share_mode == RP_SHARES_DYNAMIC && probe != NULL
+                   ? total_cost
+                   : 0.0;
+  device_costs(g, probe, d.step, d.image_scale, c);
+  if ((err = frame_shares(g, share_cost, shares)) != 0)
+    return rp__fail(g->ctx, err, "%s: no device left", fn);
   if ((err = split_area(g, &all, tx, shares, t)) != 0 ||
       (err = rp_balance_to_pixels(t, g->count, sw, sh, px)) != 0)
     return err; /* the balancer's message is in g->ctx */
-  total_cost = region_cost(g, &all, tx);
   for (i = 0; i < g->count; i++) {
     rp_group_device *rd = &rep->devices[i];
     rd->share = shares[i];
@@ -1107,20 +1113,20 @@ int rp_device_group_render(rp_device_group *g, const rp_camera *cam,
    * least one device, so there are at most count rounds. */
   t_rr = now_ms();
   for (rounds = 0; n_lost > 0 && rounds < g->count; rounds++) {
-    rp_region todo[RP_GROUP_MAX_DEVICES];
-    uint32_t n_todo = n_lost, k;
-    memcpy(todo, lost, n_lost * sizeof *lost);
+    rp_region redo[RP_GROUP_MAX_DEVICES];
+    uint32_t n_redo = n_lost, k;
+    memcpy(redo, lost, n_lost * sizeof *lost);
     n_lost = 0;
-    for (k = 0; k < n_todo; k++) {
+    for (k = 0; k < n_redo; k++) {
       rp_region area;
       if (rp_device_group_alive(g) == 0)
         break;
-      if (frame_shares(g, probe, step, scale, shares) != 0)
+      if (frame_shares(g, share_cost, shares) != 0)
         break;
-      area.x0 = todo[k].x0 / RP_TILE_SIZE;
-      area.y0 = todo[k].y0 / RP_TILE_SIZE;
-      area.x1 = (todo[k].x1 + RP_TILE_SIZE - 1) / RP_TILE_SIZE;
-      area.y1 = (todo[k].y1 + RP_TILE_SIZE - 1) / RP_TILE_SIZE;
+      area.x0 = redo[k].x0 / RP_TILE_SIZE;
+      area.y0 = redo[k].y0 / RP_TILE_SIZE;
+      area.x1 = (redo[k].x1 + RP_TILE_SIZE - 1) / RP_TILE_SIZE;
+      area.y1 = (redo[k].y1 + RP_TILE_SIZE - 1) / RP_TILE_SIZE;
       if ((err = split_area(g, &area, tx, shares, t)) != 0 ||
           (err = rp_balance_to_pixels(t, g->count, sw, sh, px)) != 0)
         return rp__fail(g->ctx, err, "%s: the re-render split", fn);
