@@ -73,6 +73,11 @@ static void render_alone(scene *s, const char *backend, uint8_t *rgba,
   rp_device_destroy(dev);
 }
 
+static int cmp_double(const void *a, const void *b) {
+  double x = *(const double *)a, y = *(const double *)b;
+  return x < y ? -1 : x > y;
+}
+
 static rp_device_group *make_group(scene *s, const rp_group_desc *gd) {
   rp_device_group *g = NULL;
   int err = rp_device_group_create(s->ctx, gd, &g);
@@ -157,19 +162,20 @@ static void test_matches_one_device(void **state) {
 }
 
 /* A device 8x slower than its peer ends with about a ninth of the work:
- * shares 1/9 and 8/9 in closed form for times t and 8t. Bound: within
- * 0.1 of 1/9 after 10 frames, and below the fast one's. Damping halves
- * the error per frame; the first frame's depth pass (a fixed cost, 8x on
- * the slow device) moves it lower while remembered; the rest is timer
- * noise: ctest runs two tests at once on a 2-core machine, and a 4x
- * factor with a bound of 0.1 failed once that way. */
+ * shares 1/9 and 8/9 in closed form for times t and 8t. Bound: the
+ * median share over frames 7 to 11 within 0.1 of 1/9, and below the
+ * fast one's. Damping halves the error per frame; the first frame's
+ * depth pass (a fixed cost, 8x on the slow device) moves it lower while
+ * remembered; the rest is timer noise: ctest runs two tests at once on a
+ * 2-core machine, and the share at one frame failed the bound that way
+ * twice. */
 static void test_shares_follow_speed(void **state) {
   uint8_t *img = malloc(4 * W * H * 4);
   rp_device_desc dd[2];
   rp_group_desc gd = {0};
   rp_group_report rep;
   rp_device_group *g;
-  double shares[2];
+  double shares[2], slow_share[5];
   scene s;
   int f;
   (void)state;
@@ -184,13 +190,20 @@ static void test_shares_follow_speed(void **state) {
   assert_int_equal(rp_device_group_shares(g, &s.probe, 1.0f, 1.0f, shares),
                    0);
   assert_true(shares[0] == 0.5 && shares[1] == 0.5);
-  for (f = 0; f < 10; f++)
+  /* The shares each frame after the 6th; their median is what is held
+   * to the bound, so one frame a loaded machine stalled (the share
+   * follows the last frame's times) does not decide the test. */
+  for (f = 0; f < 11; f++) {
     assert_int_equal(frame(g, &s, img, NULL, &rep), 0);
-  assert_int_equal(rp_device_group_shares(g, &s.probe, 1.0f, 1.0f, shares),
-                   0);
-  assert_true(fabs(shares[1] - 1.0 / 9.0) < 0.1);
-  assert_true(shares[1] < shares[0]);
-  assert_true(fabs(shares[0] + shares[1] - 1.0) == 0.0);
+    assert_int_equal(
+        rp_device_group_shares(g, &s.probe, 1.0f, 1.0f, shares), 0);
+    assert_true(fabs(shares[0] + shares[1] - 1.0) == 0.0);
+    if (f >= 6)
+      slow_share[f - 6] = shares[1];
+  }
+  qsort(slow_share, 5, sizeof *slow_share, cmp_double);
+  assert_true(fabs(slow_share[2] - 1.0 / 9.0) < 0.1);
+  assert_true(slow_share[2] < 0.5);
   rp_device_group_destroy(g);
   scene_free(&s);
   free(img);
