@@ -206,6 +206,14 @@ typedef struct rp_frame_probe {
   double depth_max;        /* largest L */
   double ert_cut;          /* share of the span that ERT removes, [0, 1]
                               (0 with ERT off) */
+  /* With RP_EFFECT_SHADING (0 otherwise): the samples expected to show
+   * (opacity above 0), the only ones the raycast shades. lit_span: sum
+   * over probe rays of L times the share of voxels that show in the
+   * blocks along L (rp_occupancy); lit_ends: of the samples the lattice
+   * adds to L / h (1/2 a ray, 1 a ray ERT ends), those that show, the
+   * sample ERT ends a ray on always. At step h the shaded share is
+   * (lit_span / h + lit_ends) / (depth_sum / h + those samples). */
+  double lit_span, lit_ends;
   double view[3];          /* unit view direction, volume axes */
   double pixels_per_voxel; /* splatted voxel size at scale 1: output
                               pixels one voxel spans at the volume centre */
@@ -231,8 +239,10 @@ RP_API int rp_frame_probe_compute(rp_context *ctx, const rp_volume *vol,
                                   const rp_render_desc *desc, uint32_t seed,
                                   uint32_t frame, rp_frame_probe *out);
 
-/** Volume fetches per sample for an effect set: k = 1 + 6 * shading +
- *  1 * AO. \since 0.1 */
+/** The most volume fetches a sample takes with an effect set:
+ *  1 + 6 * shading + 1 * AO. Only samples with opacity above 0 are
+ *  shaded; the cost model's k (rp_cost_estimate.fetches) takes the
+ *  probe's shaded share. \since 0.1 */
 RP_API uint32_t rp_fetches_per_sample(uint32_t effects);
 
 #define RP_COST_FEATURES 8

@@ -592,11 +592,8 @@ int rp__device_render(rp_device *dev, const rp_camera *cam,
                     dev->caps.backend, dev->fail_at_render);
   t0 = now_ns();
   if (dev->ops == NULL) {
-    if (fetches != NULL)
-      return rp__fail(dev->ctx, RP_EUNSUPPORTED, "rp_device_render: the "
-                      "reference device does not count fetches");
     rp__reference_render(dev->ref_vol, &dev->ref_tf, dev->ref_grid,
-                         dev->blocks, &rg, &d, region, rgba, tiles);
+                         dev->blocks, &rg, &d, region, rgba, tiles, fetches);
     record_time(dev, t0);
     return 0;
   }

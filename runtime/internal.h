@@ -66,6 +66,10 @@ struct rp_occupancy {
    * depth. */
   float bin_alpha[RP_OPACITY_BINS];
   uint8_t *grid;          /* block_count */
+  /* Per block, the share of its voxels whose density bin has a mean
+   * opacity above 0: the samples there that show, and so are shaded.
+   * The cost model's estimate of the shaded share. */
+  float *visible;         /* block_count */
   /* Lowest and highest non-empty density bin over each block and its 26
    * neighbours: depends on H only, so it is computed once at build. */
   uint8_t *bin_lo, *bin_hi; /* bin_lo > bin_hi: no voxel at all */

@@ -83,10 +83,11 @@ int rp_occupancy_build(rp_context *ctx, const rp_histograms *h,
   occ->h = h;
   occ->alpha_hist = rp__malloc(ctx, n * RP_OPACITY_BINS);
   occ->grid = rp__malloc(ctx, n);
+  occ->visible = rp__malloc(ctx, n * sizeof *occ->visible);
   occ->bin_lo = rp__malloc(ctx, n);
   occ->bin_hi = rp__malloc(ctx, n);
-  if (occ->alpha_hist == NULL || occ->grid == NULL || occ->bin_lo == NULL ||
-      occ->bin_hi == NULL) {
+  if (occ->alpha_hist == NULL || occ->grid == NULL || occ->visible == NULL ||
+      occ->bin_lo == NULL || occ->bin_hi == NULL) {
     rp_occupancy_destroy(occ);
     return rp__fail(ctx, RP_ENOMEM, "occupancy: out of memory for %zu "
                     "blocks", n);
@@ -175,6 +176,7 @@ int rp_occupancy_update(rp_occupancy *occ, const rp_tf *tf) {
       uint64_t q = (acc[j] * 510 + total) / (2 * total); /* round(f*255) */
       out[j] = (uint8_t)(acc[j] > 0 && q == 0 ? 1 : q);
     }
+    occ->visible[b] = (float)((double)(total - acc[0]) / (double)total);
     occ->grid[b] = reach[occ->bin_lo[b]][occ->bin_hi[b]] > 0.0f;
     empty += occ->grid[b] == 0;
   }
@@ -198,6 +200,7 @@ void rp_occupancy_destroy(rp_occupancy *occ) {
     return;
   rp__free(occ->ctx, occ->alpha_hist);
   rp__free(occ->ctx, occ->grid);
+  rp__free(occ->ctx, occ->visible);
   rp__free(occ->ctx, occ->bin_lo);
   rp__free(occ->ctx, occ->bin_hi);
   rp__free(occ->ctx, occ);

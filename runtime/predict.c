@@ -194,7 +194,7 @@ uint32_t rp_fetches_per_sample(uint32_t effects) {
 /* One probe row's sums: rows are reduced in order afterwards, so the
  * result does not depend on how threads split the grid. */
 typedef struct probe_row {
-  double span, span_no_ert, max;
+  double span, span_no_ert, max, lit_span, lit_ends;
   uint32_t hit, ended;
 } probe_row;
 
@@ -202,6 +202,7 @@ typedef struct probe_job {
   const rp__raygen *rg;
   const uint8_t *grid;       /* occupancy, or NULL */
   const uint8_t *alpha_hist; /* H-alpha, or NULL */
+  const float *visible;      /* per block, or NULL: no shading */
   double corr[RP_OPACITY_BINS]; /* bin opacities at the coarse step */
   const uint32_t *blocks;
   int skip, ert;
@@ -225,11 +226,34 @@ static uint32_t probe_rays(uint32_t gw, uint32_t gh, uint32_t sub) {
   return ((gw + sub - 1) / sub) * ((gh + sub - 1) / sub);
 }
 
+/* The share of voxels that show in the blocks along [front, stop] of a
+ * ray: the mean over points half a block apart (at least one), each at
+ * the centre of its stretch. The blocks' shares are exact counts (of the
+ * voxels whose density bin has opacity above 0); what this misses is
+ * interpolation across a bin edge, and that a SIMD packet or a GPU warp
+ * shades all its lanes when one shows, which sigma absorbs. */
+static double visible_share(const probe_job *j, const rp__ray *ray,
+                            double front, double stop) {
+  double len = stop - front, n = ceil(len / RP_ERT_COARSE_STEP), sum = 0.0;
+  uint32_t k, count;
+  if (!(n >= 1.0))
+    n = 1.0;
+  count = n > 4096.0 ? 4096u : (uint32_t)n;
+  for (k = 0; k < count; k++) {
+    double t = front + ((double)k + 0.5) * len / (double)count, p[3];
+    int a;
+    for (a = 0; a < 3; a++)
+      p[a] = ray->p0[a] + t * ray->dp[a];
+    sum += j->visible[rp__block_of(p, j->blocks)];
+  }
+  return sum / (double)count;
+}
+
 static void probe_rows(uint32_t begin, uint32_t end, void *user) {
   const probe_job *j = user;
   uint32_t cy, cx;
   for (cy = begin; cy < end; cy++) {
-    probe_row r = {0.0, 0.0, 0.0, 0, 0};
+    probe_row r = {0.0, 0.0, 0.0, 0.0, 0.0, 0, 0};
     if (cy % j->sub != 0) {
       j->rows[cy] = r;
       continue;
@@ -237,6 +261,7 @@ static void probe_rows(uint32_t begin, uint32_t end, void *user) {
     for (cx = 0; cx < j->gw; cx += j->sub) {
       rp__ray ray;
       double front, back, stop;
+      int ended;
       rp__raygen_ray_at(j->rg, (double)(RP_ERT_RAY_STRIDE * cx) + 2.0,
                         (double)(RP_ERT_RAY_STRIDE * cy) + 2.0, &ray);
       float *span = &j->span[(cy / j->sub) * j->map_w + cx / j->sub];
@@ -248,6 +273,7 @@ static void probe_rows(uint32_t begin, uint32_t end, void *user) {
       if (!(front <= back))
         continue;
       stop = back;
+      ended = 0;
       if (j->ert) {
         double d = rp__ert_prepass_ray(j->rg, cx, cy, j->grid, j->alpha_hist,
                                        j->corr, j->blocks, j->threshold,
@@ -255,7 +281,13 @@ static void probe_rows(uint32_t begin, uint32_t end, void *user) {
         if (d <= stop) {
           stop = d > front ? d : front;
           r.ended++;
+          ended = 1;
         }
+      }
+      if (j->visible != NULL) {
+        double v = visible_share(j, &ray, front, stop);
+        r.lit_span += (stop - front) * v;
+        r.lit_ends += ended ? 1.0 : 0.5 * v;
       }
       r.span += stop - front;
       *span = (float)(stop - front);
@@ -327,6 +359,8 @@ int rp_frame_probe_compute(rp_context *ctx, const rp_volume *vol,
   job.rg = &rg;
   job.grid = occ->grid;
   job.alpha_hist = occ->alpha_hist;
+  /* The shaded share is needed only when something is shaded. */
+  job.visible = (d.effects & RP_EFFECT_SHADING) ? occ->visible : NULL;
   rp__ert_corrected(occ->bin_alpha, tf->reference_step, job.corr);
   job.blocks = occ->h->blocks;
   job.skip = (d.effects & RP_EFFECT_SKIP) != 0;
@@ -353,6 +387,8 @@ int rp_frame_probe_compute(rp_context *ctx, const rp_volume *vol,
     span_no_ert += job.rows[y].span_no_ert;
     out->rays_hit += job.rows[y].hit;
     out->rays_ended += job.rows[y].ended;
+    out->lit_span += job.rows[y].lit_span;
+    out->lit_ends += job.rows[y].lit_ends;
     if (job.rows[y].max > out->depth_max)
       out->depth_max = job.rows[y].max;
   }
@@ -583,6 +619,14 @@ static void features(const rp_frame_probe *p, float step, float scale,
              : 0.0;
 }
 
+/* The probe rays' samples at `step`: sum_i (L_i / step + e_i), e_i = 1
+ * for rays ERT ends and 1/2 for the others (header). */
+static double probe_samples(const rp_frame_probe *p, float step) {
+  return p->depth_sum / (double)step +
+         0.5 * (double)(p->rays_hit - p->rays_ended) +
+         (double)p->rays_ended;
+}
+
 static double estimate_samples(const rp_frame_probe *p, float step,
                                float scale) {
   rp_render_desc d = {0};
@@ -593,10 +637,21 @@ static double estimate_samples(const rp_frame_probe *p, float step,
   d.height = p->height;
   d.image_scale = scale;
   rp_scaled_size(&d, &w, &h);
-  return (double)w * (double)h / (double)p->rays *
-         (p->depth_sum / (double)step +
-          0.5 * (double)(p->rays_hit - p->rays_ended) +
-          (double)p->rays_ended);
+  return (double)w * (double)h / (double)p->rays * probe_samples(p, step);
+}
+
+/* k at `step`: a fetch per sample, six more per shaded one, and only the
+ * samples that show are shaded (the probe's share of them), one more
+ * with AO. A frame with no sample gets the shaded share 1: its k prices
+ * nothing, and the most is the safe side. */
+static double fetches_per_sample(const rp_frame_probe *p, float step) {
+  double k = (p->effects & RP_EFFECT_AO) ? 2.0 : 1.0;
+  if (p->effects & RP_EFFECT_SHADING) {
+    double all = probe_samples(p, step);
+    double lit = p->lit_span / (double)step + p->lit_ends;
+    k += 6.0 * (all > 0.0 ? clamp01(lit / all) : 1.0);
+  }
+  return k;
 }
 
 static int check_point(rp_context *ctx, const char *fn,
@@ -611,6 +666,8 @@ static int check_point(rp_context *ctx, const char *fn,
                     "in (0, 1]", fn, (double)step, (double)scale);
   if (!isfinite(p->depth_sum) || !isfinite(p->depth_max) ||
       p->depth_sum < 0.0 || p->width == 0 || p->height == 0 ||
+      !(p->lit_span >= 0.0 && p->lit_span <= p->depth_sum * (1.0 + 1e-9)) ||
+      !(p->lit_ends >= 0.0 && p->lit_ends <= (double)p->rays_hit) ||
       p->rays_hit > p->rays || p->rays_ended > p->rays_hit)
     return rp__fail(ctx, RP_EINVAL, "%s: the probe was not filled in by "
                     "rp_frame_probe_compute", fn);
@@ -672,7 +729,7 @@ int rp_cost_predict(const rp_cost_model *m, const rp_frame_probe *p,
     return rp__fail(m->ctx, RP_EINVAL, "rp_cost_predict: out is NULL");
   features(p, step, scale, out->features);
   out->samples = estimate_samples(p, step, scale);
-  out->fetches = rp_fetches_per_sample(p->effects);
+  out->fetches = fetches_per_sample(p, step);
   out->sigma_ns = exp(log_sigma_at(m, out->features) + m->log_q);
   out->sample_ratio =
       exp(log_at(m->kappa_krls, &m->log_kappa, out->features));
@@ -748,7 +805,7 @@ int rp_cost_train(rp_cost_model *m, const rp_frame_probe *p, float step,
   /* A raycast the device could not time (0) costs the whole frame. */
   if (raycast_ms == 0.0 || raycast_ms > frame_ms)
     raycast_ms = frame_ms;
-  fetches = (double)rp_fetches_per_sample(p->effects) * (double)samples;
+  fetches = fetches_per_sample(p, step) * (double)samples;
   /* Everything is checked before anything is learned: a time so large
    * that its cost per fetch overflows is refused whole. What sigma_learn
    * takes the log of lies between SIGMA_SHARE of this and this. */

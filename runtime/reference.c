@@ -84,6 +84,7 @@ typedef struct render_ctx {
 typedef struct ray_result {
   double rgba[4];   /* premultiplied */
   uint64_t samples; /* lattice samples taken */
+  uint64_t lit;     /* of those, shaded ones (opacity above 0) */
   double last_depth; /* depth of the last one; meaningless if none */
 } ray_result;
 
@@ -143,6 +144,7 @@ static void cast(const render_ctx *rc, const rp__ray *ray, ray_result *out) {
   double C[3] = {0.0, 0.0, 0.0}, A = 0.0;
   int c;
   out->samples = 0;
+  out->lit = 0;
   out->last_depth = 0.0;
   for (c = 0; c < 4; c++)
     out->rgba[c] = 0.0;
@@ -169,8 +171,10 @@ static void cast(const render_ctx *rc, const rp__ray *ray, ray_result *out) {
       rgb[c] = tf[c];
     /* A transparent sample adds exactly 0 whatever its colour, so its
      * six gradient fetches can be spared without changing a bit. */
-    if (rc->shading && alpha > 0.0)
+    if (rc->shading && alpha > 0.0) {
       shade(rc, ray, p, rgb);
+      out->lit++;
+    }
     w = (1.0 - A) * alpha;
     for (c = 0; c < 3; c++)
       C[c] += w * rgb[c];
@@ -281,15 +285,16 @@ static int check_args(rp_context *ctx, const rp_volume *vol,
   return 0;
 }
 
-/* Renders one tile's pixels and fills its stats. */
+/* Renders one tile's pixels and fills its stats and its volume fetches
+ * (either may be NULL): one per sample, six more per shaded one. */
 static void render_tile(const render_ctx *rc, const rp__raygen *rg,
                         uint32_t tx, uint32_t ty, uint8_t *rgba,
-                        rp_tile_stats *stats) {
+                        rp_tile_stats *stats, uint64_t *fetches) {
   uint32_t x0 = tx * RP_TILE_SIZE, y0 = ty * RP_TILE_SIZE, x, y;
   uint32_t x1 = rg->width - x0 < RP_TILE_SIZE ? rg->width : x0 + RP_TILE_SIZE;
   uint32_t y1 =
       rg->height - y0 < RP_TILE_SIZE ? rg->height : y0 + RP_TILE_SIZE;
-  uint64_t samples = 0, hits = 0;
+  uint64_t samples = 0, hits = 0, lit = 0;
   double depth_sum = 0.0;
   for (y = y0; y < y1; y++) {
     for (x = x0; x < x1; x++) {
@@ -304,6 +309,7 @@ static void render_tile(const render_ctx *rc, const rp__raygen *rg,
       /* No wrap: at most 64 rays of at most 2^53 samples each. The
        * uint32 field saturates below. */
       samples += res.samples;
+      lit += res.lit;
       if (res.samples > 0) {
         hits++;
         depth_sum += res.last_depth;
@@ -315,13 +321,15 @@ static void render_tile(const render_ctx *rc, const rp__raygen *rg,
     stats->rays_hit = (uint32_t)hits;
     stats->mean_depth = hits > 0 ? (float)(depth_sum / (double)hits) : 0.0f;
   }
+  if (fetches != NULL)
+    *fetches = samples + 6u * lit;
 }
 
 void rp__reference_render(const rp_volume *vol, const rp_tf *tf,
                           const uint8_t *grid, const uint32_t blocks[3],
                           const rp__raygen *rg, const rp_render_desc *d,
                           const rp_region *region, uint8_t *rgba,
-                          rp_tile_stats *tiles) {
+                          rp_tile_stats *tiles, uint64_t *fetches) {
   render_ctx rc;
   uint32_t tiles_x, tx, ty;
   rc.vol = vol;
@@ -346,7 +354,9 @@ void rp__reference_render(const rp_volume *vol, const rp_tf *tf,
     for (tx = region->x0 / RP_TILE_SIZE;
          tx * RP_TILE_SIZE < region->x1; tx++)
       render_tile(&rc, rg, tx, ty, rgba,
-                  tiles != NULL ? &tiles[(size_t)ty * tiles_x + tx] : NULL);
+                  tiles != NULL ? &tiles[(size_t)ty * tiles_x + tx] : NULL,
+                  fetches != NULL ? &fetches[(size_t)ty * tiles_x + tx]
+                                  : NULL);
 }
 
 int rp_render_reference(rp_context *ctx, const rp_volume *vol,
@@ -376,6 +386,6 @@ int rp_render_reference(rp_context *ctx, const rp_volume *vol,
   all.y1 = rg.height;
   rp__reference_render(vol, tf, occ != NULL ? occ->grid : NULL,
                        occ != NULL ? occ->h->blocks : NULL, &rg, &d, &all,
-                       rgba, tiles);
+                       rgba, tiles, NULL);
   return 0;
 }

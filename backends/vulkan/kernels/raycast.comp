@@ -115,7 +115,7 @@ float correct(float a) {
 
 /* Headlight shading: central differences one voxel either side, per world
  * unit; two-sided, flat gradients lit as facing the light. Six fetches,
- * taken for every sample (the cost model's k = 7). */
+ * taken only for samples with opacity above 0 (the caller's test). */
 vec3 shade(vec3 rgb, vec3 p, vec3 dir) {
   vec3 g;
   if (RP_COUNT)
@@ -200,7 +200,9 @@ Result cast_ray(uvec2 pix) {
     v = v_next;
     float a = RP_CORRECT ? correct(c.a) : c.a;
     vec3 rgb = c.rgb;
-    if (RP_SHADING)
+    /* A transparent sample adds exactly 0 whatever its colour: its
+     * gradient is not fetched. */
+    if (RP_SHADING && a > 0.0)
       rgb = shade(rgb, p, ray.dir);
     float w = (1.0 - res.C.a) * a;
     res.C.rgb += w * rgb;
