@@ -21,7 +21,7 @@ extern "C" {
 
 /* Bumped whenever rp_backend_ops, rp_backend_bootstrap or rp_frame_params
  * change layout. */
-#define RP_BACKEND_ABI 2
+#define RP_BACKEND_ABI 3
 
 /* Coarse ERT pre-pass geometry (DESIGN section 3). */
 #define RP_ERT_RAY_STRIDE 4    /* one pre-pass ray per 4x4 pixels */
@@ -51,6 +51,10 @@ typedef struct rp_frame_params {
   float value_min, value_max; /* TF position x = (v - min) / (max - min) */
   uint32_t lut_size;
   uint32_t ert_seed, frame; /* ERT pre-pass random stream */
+  /* The occupied blocks lie in [occupied_lo, occupied_end) along each
+   * axis (an empty range when none is): with RP_EFFECT_SKIP the depth
+   * pass may clip rays to that box rather than walk the whole grid. */
+  uint32_t occupied_lo[3], occupied_end[3];
 } rp_frame_params;
 
 typedef struct rp_backend_ops {

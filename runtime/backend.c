@@ -49,6 +49,8 @@ struct rp_device {
   rp_volume *ref_vol;
   rp_tf ref_tf;
   uint8_t *ref_grid, *ref_alpha;
+  /* The uploaded occupancy's box of occupied blocks. */
+  uint32_t box_lo[3], box_end[3];
   /* The frame the device's current depth-pass result belongs to. */
   int depth_valid;
   rp_frame_params depth_params;
@@ -388,6 +390,8 @@ int rp_device_set_tf(rp_device *dev, const rp_tf *tf,
     return err;
   }
   dev->have_tf = 1;
+  memcpy(dev->box_lo, occ->box_lo, sizeof dev->box_lo);
+  memcpy(dev->box_end, occ->box_end, sizeof dev->box_end);
   dev->depth_valid = 0;
   dev->tf_id = tf->id;
   dev->ref_step = tf->reference_step;
@@ -397,9 +401,9 @@ int rp_device_set_tf(rp_device *dev, const rp_tf *tf,
 }
 
 int rp__frame_params(rp_context *ctx, const rp_volume *shape,
-                     const rp_camera *cam, const rp_render_desc *d,
-                     float ref_step, uint32_t lut_size, rp__raygen *rg,
-                     rp_frame_params *p) {
+                     const rp_occupancy *occ, const rp_camera *cam,
+                     const rp_render_desc *d, float ref_step,
+                     uint32_t lut_size, rp__raygen *rg, rp_frame_params *p) {
   int err, a;
   if ((err = rp__raygen_init(ctx, cam, shape, d->width, d->height, rg)) != 0)
     return err;
@@ -414,6 +418,8 @@ int rp__frame_params(rp_context *ctx, const rp_volume *shape,
     p->inv_spacing[a] = (float)(1.0 / rg->spacing[a]);
     p->idims[a] = shape->dims[a];
     p->blocks[a] = rp__blocks_along(shape->dims[a]);
+    p->occupied_lo[a] = occ != NULL ? occ->box_lo[a] : 0u;
+    p->occupied_end[a] = occ != NULL ? occ->box_end[a] : p->blocks[a];
   }
   p->half_w = (float)rg->half_w;
   p->half_h = (float)rg->half_h;
@@ -454,8 +460,12 @@ static int prepare_frame(rp_device *dev, const char *fn,
     return rp__fail(ctx, RP_EUNSUPPORTED, "%s: device '%s' (%s) cannot "
                     "render effects 0x%x", fn, dev->caps.device,
                     dev->caps.backend, (unsigned)unsupported);
-  return rp__frame_params(ctx, &dev->shape, cam, d, dev->ref_step,
-                          dev->lut_size, rg, p);
+  if ((err = rp__frame_params(ctx, &dev->shape, NULL, cam, d, dev->ref_step,
+                              dev->lut_size, rg, p)) != 0)
+    return err;
+  memcpy(p->occupied_lo, dev->box_lo, sizeof dev->box_lo);
+  memcpy(p->occupied_end, dev->box_end, sizeof dev->box_end);
+  return 0;
 }
 
 /* Whether the device's depth result is the one `p` needs: everything

@@ -70,6 +70,9 @@ struct rp_occupancy {
    * opacity above 0: the samples there that show, and so are shaded.
    * The cost model's estimate of the shaded share. */
   float *visible;         /* block_count */
+  /* The occupied blocks lie in [box_lo, box_end) along each axis (an
+   * empty range when none is): the depth pass walks only that box. */
+  uint32_t box_lo[3], box_end[3];
   /* Lowest and highest non-empty density bin over each block and its 26
    * neighbours: depends on H only, so it is computed once at build. */
   uint8_t *bin_lo, *bin_hi; /* bin_lo > bin_hi: no voxel at all */

@@ -116,6 +116,30 @@ static int opacity_bin(double a) {
   return j > RP_OPACITY_BINS - 1 ? RP_OPACITY_BINS - 1 : j;
 }
 
+/* The box of the occupied blocks, in block indices. */
+static void occupied_box(rp_occupancy *occ) {
+  const uint32_t *nb = occ->h->blocks;
+  uint32_t x, y, z, a;
+  for (a = 0; a < 3; a++) {
+    occ->box_lo[a] = nb[a];
+    occ->box_end[a] = 0;
+  }
+  for (z = 0; z < nb[2]; z++)
+    for (y = 0; y < nb[1]; y++)
+      for (x = 0; x < nb[0]; x++) {
+        uint32_t c[3];
+        if (!occ->grid[((size_t)z * nb[1] + y) * nb[0] + x])
+          continue;
+        c[0] = x, c[1] = y, c[2] = z;
+        for (a = 0; a < 3; a++) {
+          if (c[a] < occ->box_lo[a])
+            occ->box_lo[a] = c[a];
+          if (c[a] + 1 > occ->box_end[a])
+            occ->box_end[a] = c[a] + 1;
+        }
+      }
+}
+
 int rp_occupancy_update(rp_occupancy *occ, const rp_tf *tf) {
   const rp_histograms *h;
   const rp__value_range *r;
@@ -190,6 +214,7 @@ int rp_occupancy_update(rp_occupancy *occ, const rp_tf *tf) {
                         : weight[j] > 0.0
                             ? (float)(alpha_sum[j] / weight[j])
                             : (float)rp__ert_bin_alpha(j);
+  occupied_box(occ);
   occ->empty = empty;
   occ->tf_id = tf->id;
   return 0;

@@ -127,7 +127,7 @@ static void frame_params(const scene *s, const rp_camera *cam,
                          rp_render_desc *d, rp__raygen *rg,
                          rp_frame_params *p) {
   *d = rp__render_desc_defaults(d);
-  assert_int_equal(rp__frame_params(ctx, s->vol, cam, d,
+  assert_int_equal(rp__frame_params(ctx, s->vol, s->occ, cam, d,
                                     rp_tf_reference_step(s->tf),
                                     (uint32_t)s->tf->lut_size, rg, p),
                    0);

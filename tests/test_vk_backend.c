@@ -180,7 +180,7 @@ static void frame_init(const scene *s, const rp_camera *cam,
   d.image_scale = fd->scale;
   f->d = rp__render_desc_defaults(&d);
   rp_tf_lut(s->tf, &lut_size);
-  assert_int_equal(rp__frame_params(g_ctx, s->vol, cam, &f->d,
+  assert_int_equal(rp__frame_params(g_ctx, s->vol, s->occ, cam, &f->d,
                                     rp_tf_reference_step(s->tf),
                                     (uint32_t)lut_size, &f->rg, &f->p),
                    0);

@@ -49,7 +49,7 @@ static const struct {
     {"ert", rp_vk_spv_ert, sizeof rp_vk_spv_ert},
 };
 
-_Static_assert(sizeof(rp_vk_params) == 256,
+_Static_assert(sizeof(rp_vk_params) == 288,
                "rp_vk_params must match the Params block in common.glsl");
 
 static const rp_backend_ops vk_ops;
@@ -815,6 +815,9 @@ static void set_params(rp_vk_impl *impl, const rp_frame_params *p) {
     u->inv_sp[a] = p->inv_spacing[a];
     u->idims[a] = p->idims[a];
     u->blocks[a] = p->blocks[a];
+    /* Block faces sit at 16 b - 0.5: exact in float. */
+    u->box_lo[a] = (float)RP_BLOCK_SIZE * (float)p->occupied_lo[a] - 0.5f;
+    u->box_hi[a] = (float)RP_BLOCK_SIZE * (float)p->occupied_end[a] - 0.5f;
   }
   u->eye[3] = p->ortho ? 1.0f : 0.0f;
   u->fwd[3] = p->half_w;

@@ -74,6 +74,8 @@ typedef struct rp_vk_params {
   uint32_t misc[4];   /* height, ERT grid w, ERT grid h, unused */
   uint32_t seed[4];   /* ert_seed, frame */
   uint32_t rect[4];   /* region x0, y0, width, height */
+  float box_lo[4];    /* xyz the occupied blocks' box, voxel space */
+  float box_hi[4];
 } rp_vk_params;
 
 /* A buffer with its own memory. `map` is the persistent mapping when the

@@ -74,6 +74,7 @@ typedef struct rp_cl_frame {
   float value_min, value_max;
   uint lut_size;
   uint ert_seed, frame;
+  uint occupied_lo[3], occupied_end[3];
 } rp_cl_frame;
 
 /* A packet of rays in voxel space, structure of arrays: p(t) = p0 +

@@ -49,14 +49,37 @@ void rp_cl_occupied_span(const rp_cl_frame *fp, const rp_cl_packet *k,
   /* Depth between planes along each axis (infinite when still). */
   vfloat gx = RP_CL_BLOCK * fabs(ix), gy = RP_CL_BLOCK * fabs(iy);
   vfloat gz = RP_CL_BLOCK * fabs(iz);
-  vint bx = rp_cl_block_axis(k->p0x + k->s * k->dpx, fp->blocks[0]);
-  vint by = rp_cl_block_axis(k->p0y + k->s * k->dpy, fp->blocks[1]);
-  vint bz = rp_cl_block_axis(k->p0z + k->s * k->dpz, fp->blocks[2]);
+  /* Only the box of the occupied blocks (its faces are block faces) can
+   * hold D_front and D_back: the walks run over [lo, hi], the ray's span
+   * inside it, and a ray that misses it meets no occupied block. Those
+   * rays were the ones that crossed the whole grid (bonsai, 512^2, ERT
+   * and skipping: the pass took 4.5 % of a raycast before, 3.9 % after;
+   * engine 3.8 % and 2.9 %). */
+  vfloat lo = k->s, hi = k->t1;
+  vint in = k->hit;
+#define RP_CL_BOX(p, d, inv, a)                                               \
+  {                                                                           \
+    float b0 = RP_CL_BLOCK * (float)fp->occupied_lo[a] - 0.5f;                \
+    float b1 = RP_CL_BLOCK * (float)fp->occupied_end[a] - 0.5f;               \
+    vfloat ta = (b0 - (p)) * (inv), tb = (b1 - (p)) * (inv);                  \
+    vint still = (d) == 0.0f;                                                 \
+    in &= ~still | (((p) >= b0) & ((p) <= b1));                               \
+    lo = select(fmax(lo, fmin(ta, tb)), lo, still);                           \
+    hi = select(fmin(hi, fmax(ta, tb)), hi, still);                           \
+  }
+  RP_CL_BOX(k->p0x, k->dpx, ix, 0)
+  RP_CL_BOX(k->p0y, k->dpy, iy, 1)
+  RP_CL_BOX(k->p0z, k->dpz, iz, 2)
+#undef RP_CL_BOX
+  in &= lo <= hi;
+  vint bx = rp_cl_block_axis(k->p0x + lo * k->dpx, fp->blocks[0]);
+  vint by = rp_cl_block_axis(k->p0y + lo * k->dpy, fp->blocks[1]);
+  vint bz = rp_cl_block_axis(k->p0z + lo * k->dpz, fp->blocks[2]);
   vfloat nx = rp_cl_plane(k->p0x, k->dpx, ix, bx, ux);
   vfloat ny = rp_cl_plane(k->p0y, k->dpy, iy, by, uy);
   vfloat nz = rp_cl_plane(k->p0z, k->dpz, iz, bz, uz);
-  vfloat edge = k->s, front = INFINITY, back = -INFINITY;
-  vint go = k->hit, want = k->hit; /* before t1; still looking */
+  vfloat edge = lo, front = INFINITY, back = -INFINITY;
+  vint go = in, want = in; /* before hi; still looking */
   /* Forward: each pass looks at one block per lane and steps every lane
    * short of t1 across its nearest exit plane. The stepping ignores what
    * the lookups found (lanes that are done step on, unused), so the next
@@ -67,7 +90,7 @@ void rp_cl_occupied_span(const rp_cl_frame *fp, const rp_cl_packet *k,
     vint occ = rp_cl_gather_byte(grid, rp_cl_block_index(fp, bx, by, bz));
     vint ax = leave == nx, ay = ~ax & (leave == ny), az = ~ax & ~ay;
     front = select(front, edge, want & (occ != 0));
-    go &= leave < k->t1;
+    go &= leave < hi;
     want &= go & (occ == 0);
     bx += select((vint)(0), sx, go & ax);
     by += select((vint)(0), sy, go & ay);
@@ -85,16 +108,16 @@ void rp_cl_occupied_span(const rp_cl_frame *fp, const rp_cl_packet *k,
      * block in between is then entered and left at the same depth. */
     edge = fmax(edge, leave);
   }
-  /* Backward, from the block at t1, across entry planes (the side of a
+  /* Backward, from the block at hi, across entry planes (the side of a
    * block facing the eye), in the lanes that found a block. */
   want = go = front != INFINITY;
-  bx = rp_cl_block_axis(k->p0x + k->t1 * k->dpx, fp->blocks[0]);
-  by = rp_cl_block_axis(k->p0y + k->t1 * k->dpy, fp->blocks[1]);
-  bz = rp_cl_block_axis(k->p0z + k->t1 * k->dpz, fp->blocks[2]);
+  bx = rp_cl_block_axis(k->p0x + hi * k->dpx, fp->blocks[0]);
+  by = rp_cl_block_axis(k->p0y + hi * k->dpy, fp->blocks[1]);
+  bz = rp_cl_block_axis(k->p0z + hi * k->dpz, fp->blocks[2]);
   nx = rp_cl_entry_neg(k->p0x, k->dpx, ix, bx, ux);
   ny = rp_cl_entry_neg(k->p0y, k->dpy, iy, by, uy);
   nz = rp_cl_entry_neg(k->p0z, k->dpz, iz, bz, uz);
-  edge = k->t1;
+  edge = hi;
   while (any(want)) {
     vfloat enter = -fmin(fmin(nx, ny), nz);
     vint occ = rp_cl_gather_byte(grid, rp_cl_block_index(fp, bx, by, bz));

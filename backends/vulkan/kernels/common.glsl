@@ -53,6 +53,8 @@ struct Params {
   uvec4 misc;    /* x height, y ERT grid width, z ERT grid height */
   uvec4 seed;    /* x ert_seed, y frame */
   uvec4 rect;    /* the region: x0, y0, width, height (scaled pixels) */
+  vec4 box_lo;   /* xyz: the box of the occupied blocks, voxel space */
+  vec4 box_hi;
 };
 
 layout(set = 0, binding = 0, std430) readonly buffer Frame {
