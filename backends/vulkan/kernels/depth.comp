@@ -38,24 +38,26 @@ vec2 walk(Ray ray) {
   }
   if (!(ray.s <= ray.t1))
     return vec2(RP_INF, -RP_INF);
-  ivec3 cell = block_cell(ray.p0 + ray.s * ray.dp);
   ivec3 dir = ivec3(sign(ray.dp));
+  /* A ray crosses at most one boundary per block along each axis; the
+   * bound only guards against a pathological float loop. */
+  int guard = int(P.blocks.x + P.blocks.y + P.blocks.z) + 3;
+  /* Two walks, each ending at the first occupied block it meets: forward
+   * from s (D_front: where it is entered), then backward from t1 (D_back:
+   * where it is left). A ray through a solid object stops early at both
+   * ends; only rays that meet nothing inside the box cross it. */
+  ivec3 cell = block_cell(ray.p0 + ray.s * ray.dp);
   vec3 next;
   for (int a = 0; a < 3; a++)
     next[a] = dir[a] == 0 ? RP_BIG
                           : boundary(cell[a], ray.p0[a], ray.dp[a]);
-  float front = RP_BIG, back = -RP_BIG, t = ray.s;
-  /* A ray crosses at most one boundary per block along each axis; the
-   * bound only guards against a pathological float loop. */
-  int guard = int(P.blocks.x + P.blocks.y + P.blocks.z) + 3;
+  float front = RP_BIG, t = ray.s;
   for (int n = 0; n < guard; n++) {
-    float exit_t = min(min(next.x, next.y), next.z);
-    exit_t = min(exit_t, ray.t1);
     if (block_occupied(block_index(cell))) {
-      if (front == RP_BIG)
-        front = t;
-      back = exit_t;
+      front = t;
+      break;
     }
+    float exit_t = min(min(next.x, next.y), next.z);
     if (exit_t >= ray.t1)
       break;
     int a = next.x <= next.y ? (next.x <= next.z ? 0 : 2)
@@ -68,7 +70,36 @@ vec2 walk(Ray ray) {
     t = next[a];
     next[a] = boundary(cell[a], ray.p0[a], ray.dp[a]);
   }
-  return front == RP_BIG ? vec2(RP_INF, -RP_INF) : vec2(front, back);
+  if (front == RP_BIG)
+    return vec2(RP_INF, -RP_INF);
+  /* Backward: per axis the depth where the ray entered the current block
+   * (the exit plane of the block before it), the latest of them first. */
+  cell = block_cell(ray.p0 + ray.t1 * ray.dp);
+  vec3 prev;
+  for (int a = 0; a < 3; a++)
+    prev[a] = dir[a] == 0 ? -RP_BIG
+                          : boundary(cell[a] - dir[a], ray.p0[a], ray.dp[a]);
+  float back = front;
+  t = ray.t1;
+  for (int n = 0; n < guard; n++) {
+    if (block_occupied(block_index(cell))) {
+      back = t;
+      break;
+    }
+    float enter_t = max(max(prev.x, prev.y), prev.z);
+    /* The forward walk met an occupied block at D_front, so this walk
+     * meets one by then; the bound only guards rounding. */
+    if (enter_t <= front)
+      break;
+    int a = prev.x >= prev.y ? (prev.x >= prev.z ? 0 : 2)
+                             : (prev.y >= prev.z ? 1 : 2);
+    cell[a] -= dir[a];
+    if (cell[a] < 0 || cell[a] >= int(P.blocks[a]))
+      break;
+    t = prev[a];
+    prev[a] = boundary(cell[a] - dir[a], ray.p0[a], ray.dp[a]);
+  }
+  return vec2(front, max(back, front));
 }
 
 void main() {

@@ -114,12 +114,9 @@ float correct(float a) {
 }
 
 /* Headlight shading: central differences one voxel either side, per world
- * unit; two-sided, flat gradients lit as facing the light. Six fetches,
- * taken only for samples with opacity above 0 (the caller's test). */
+ * unit; two-sided, flat gradients lit as facing the light. Six fetches. */
 vec3 shade(vec3 rgb, vec3 p, vec3 dir) {
   vec3 g;
-  if (RP_COUNT)
-    fetches += 6u;
   for (int a = 0; a < 3; a++) {
     vec3 e = vec3(0.0);
     e[a] = 1.0;
@@ -190,20 +187,35 @@ Result cast_ray(uvec2 pix) {
   int i = first;
   float v = sample_volume(ray.p0 + (ray.s + float(i) * step) * ray.dp);
   while (i <= last) {
-    float t = ray.s + float(i) * step;
-    vec3 p = ray.p0 + t * ray.dp;
-    float t_next = ray.s + float(i + 1) * step;
-    float v_next = sample_volume(ray.p0 + t_next * ray.dp);
-    if (RP_COUNT)
-      fetches++;
-    vec4 c = classify(v);
-    v = v_next;
-    float a = RP_CORRECT ? correct(c.a) : c.a;
+    vec4 c;
+    float a;
+    /* With shading, march over transparent samples in a loop of their
+     * own: they add exactly 0 whatever their colour, and so need no
+     * gradient. lavapipe runs divergent branches as masked SIMD lanes and
+     * executes their code even when every lane is masked off (measured:
+     * shading tested per sample, or behind a subgroup vote, saved
+     * nothing), but it does leave a loop once every lane has. The
+     * shading below then runs once per sample that shows in some lane,
+     * not once per sample. Without shading the loop body runs once. */
+    for (;;) {
+      float t_next = ray.s + float(i + 1) * step;
+      float v_next = sample_volume(ray.p0 + t_next * ray.dp);
+      if (RP_COUNT)
+        fetches++;
+      c = classify(v);
+      v = v_next;
+      a = RP_CORRECT ? correct(c.a) : c.a;
+      if (!RP_SHADING || a > 0.0 || i >= last)
+        break;
+      i++;
+    }
     vec3 rgb = c.rgb;
-    /* A transparent sample adds exactly 0 whatever its colour: its
-     * gradient is not fetched. */
-    if (RP_SHADING && a > 0.0)
-      rgb = shade(rgb, p, ray.dir);
+    if (RP_SHADING && a > 0.0) {
+      float t = ray.s + float(i) * step;
+      rgb = shade(rgb, ray.p0 + t * ray.dp, ray.dir);
+      if (RP_COUNT)
+        fetches += 6u;
+    }
     float w = (1.0 - res.C.a) * a;
     res.C.rgb += w * rgb;
     res.C.a += w;
