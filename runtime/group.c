@@ -32,10 +32,17 @@ enum { JOB_NONE, JOB_VOLUME, JOB_TF, JOB_RENDER, JOB_QUIT };
  * and scaled up to a whole frame it would teach noise. */
 #define MIN_TRAIN_FRACTION 0.02
 /* The least fraction of the frame's predicted cost a region must have for
- * its time to update the device's rate. A sliver's time is mostly what
+ * its time to raise the device's rate. A sliver's time is mostly what
  * every render costs (launch, readback); taken as a rate, it would make
- * the device look slow, give it a thinner sliver, and so on down. */
+ * the device look slow, give it a thinner sliver, and so on down. It is
+ * still an upper bound on the rate, so a sliver that measures lower than
+ * the rate counts: a device squeezed by one stalled frame recovers. */
 #define MIN_RATE_FRACTION 0.05
+/* The rate is the median of the device's last RATE_FRAMES measured
+ * rates: one stalled frame (a descheduled thread on a shared machine:
+ * 10x and more) moves nothing, a device that really slows down is
+ * followed from its second frame. */
+#define RATE_FRAMES 3
 
 /* What a device's current depth pass was run for (memset before filling:
  * compared with memcmp). */
@@ -100,6 +107,8 @@ typedef struct member {
    * of predicted tile cost outside its depth pass (0: unknown), its depth
    * pass's ms, and how often a frame needs one (running mean). */
   double rate, depth_est, depth_freq;
+  double rates[RATE_FRAMES]; /* the last measured rates, a ring */
+  uint32_t n_rates, next_rate;
 } member;
 
 struct rp_device_group {
@@ -652,6 +661,22 @@ static double frame_cost(rp_device_group *g, const rp_frame_probe *p,
   return sum;
 }
 
+/* Files a measured rate and takes the median of the last ones. */
+static void rate_add(member *w, double measured) {
+  double v[RATE_FRAMES], t;
+  uint32_t i, j;
+  w->rates[w->next_rate] = measured;
+  w->next_rate = (w->next_rate + 1) % RATE_FRAMES;
+  if (w->n_rates < RATE_FRAMES)
+    w->n_rates++;
+  memcpy(v, w->rates, w->n_rates * sizeof *v);
+  for (i = 1; i < w->n_rates; i++) /* insertion sort of at most three */
+    for (j = i; j > 0 && v[j - 1] > v[j]; j--)
+      t = v[j], v[j] = v[j - 1], v[j - 1] = t;
+  /* Of two, the lower: the other may be the stall. */
+  w->rate = v[(w->n_rates - 1) / 2];
+}
+
 /* This frame's shares (dropped devices: 0). Dynamic: each device's time
  * is modelled as depth_freq * depth_est + rate * (its region's predicted
  * tile cost), both measured on its last frames, and the shares are those
@@ -1087,7 +1112,7 @@ int rp_device_group_render(rp_device_group *g, const rp_camera *cam,
   for (i = 0; i < g->count; i++) {
     member *w = &g->m[i];
     const rp_group_device *rd = &rep->devices[i];
-    double ran;
+    double ran, measured;
     if (w->dropped || !w->rendered || !(cost_abs[i] > 0.0))
       continue;
     ran = rd->depth_passes > 0;
@@ -1095,9 +1120,11 @@ int rp_device_group_render(rp_device_group *g, const rp_camera *cam,
       w->depth_est = rd->depth_ms;
     w->depth_freq = w->rate > 0.0 ? w->depth_freq + 0.25 * (ran - w->depth_freq)
                                   : ran;
-    if (w->rate > 0.0 && cost_abs[i] < MIN_RATE_FRACTION * total_cost)
+    measured = fmax(rd->busy_ms - rd->depth_ms, 1e-6) / cost_abs[i];
+    if (w->rate > 0.0 && cost_abs[i] < MIN_RATE_FRACTION * total_cost &&
+        !(measured < w->rate))
       continue;
-    w->rate = fmax(rd->busy_ms - rd->depth_ms, 1e-6) / cost_abs[i];
+    rate_add(w, measured);
   }
   /* The balance of the first round: a device lost in it counts as one
    * that rendered nothing. */

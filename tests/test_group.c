@@ -163,19 +163,20 @@ static void test_matches_one_device(void **state) {
 
 /* A device 8x slower than its peer ends with about a ninth of the work:
  * shares 1/9 and 8/9 in closed form for times t and 8t. Bound: the
- * median share over frames 7 to 11 within 0.1 of 1/9, and below the
+ * median share over frames 7 to 15 within 0.1 of 1/9, and below the
  * fast one's. Damping halves the error per frame; the first frame's
  * depth pass (a fixed cost, 8x on the slow device) moves it lower while
- * remembered; the rest is timer noise: ctest runs two tests at once on a
- * 2-core machine, and the share at one frame failed the bound that way
- * twice. */
+ * remembered; the rest is timer noise. The shares follow wall times, so
+ * ctest runs this test alone (tests/CMakeLists.txt): beside another test
+ * on a 2-core machine, the median of five frames still failed the bound
+ * once. */
 static void test_shares_follow_speed(void **state) {
   uint8_t *img = malloc(4 * W * H * 4);
   rp_device_desc dd[2];
   rp_group_desc gd = {0};
   rp_group_report rep;
   rp_device_group *g;
-  double shares[2], slow_share[5];
+  double shares[2], slow_share[9];
   scene s;
   int f;
   (void)state;
@@ -193,7 +194,7 @@ static void test_shares_follow_speed(void **state) {
   /* The shares each frame after the 6th; their median is what is held
    * to the bound, so one frame a loaded machine stalled (the share
    * follows the last frame's times) does not decide the test. */
-  for (f = 0; f < 11; f++) {
+  for (f = 0; f < 15; f++) {
     assert_int_equal(frame(g, &s, img, NULL, &rep), 0);
     assert_int_equal(
         rp_device_group_shares(g, &s.probe, 1.0f, 1.0f, shares), 0);
@@ -201,9 +202,11 @@ static void test_shares_follow_speed(void **state) {
     if (f >= 6)
       slow_share[f - 6] = shares[1];
   }
-  qsort(slow_share, 5, sizeof *slow_share, cmp_double);
-  assert_true(fabs(slow_share[2] - 1.0 / 9.0) < 0.1);
-  assert_true(slow_share[2] < 0.5);
+  qsort(slow_share, 9, sizeof *slow_share, cmp_double);
+  print_message("slow device's share: median %.3f (range %.3f to %.3f) "
+                "against 1/9\n", slow_share[4], slow_share[0], slow_share[8]);
+  assert_true(fabs(slow_share[4] - 1.0 / 9.0) < 0.1);
+  assert_true(slow_share[4] < 0.5);
   rp_device_group_destroy(g);
   scene_free(&s);
   free(img);

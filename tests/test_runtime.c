@@ -445,15 +445,21 @@ static void test_volume_other_allocator(void **state) {
 }
 
 /* Close while the worker renders: the frame is not delivered, nothing
- * leaks (ASan), the loop is left empty (app_close checks). And close
- * from inside the frame callback. */
+ * leaks (ASan), the loop is left empty (app_close checks). The device is
+ * slowed 100x so that the frame is still rendering when close comes: at
+ * full speed it could finish, and its completion be delivered, inside
+ * the first uv_run below, which also serves the worker's wake-up. And
+ * close from inside the frame callback. */
 static void test_close_in_flight(void **state) {
   app a;
   rp_volume *vol;
   rp_tf *tf = NULL;
   rp_camera cam;
+  rp_device_desc slow = {0};
   (void)state;
-  app_open(&a);
+  slow.backend = "reference";
+  slow.slowdown = 100.0;
+  app_open_devices(&a, &slow, 1);
   vol = make_volume(a.ctx, 64, 4);
   cam = orbit(vol, 30.0f);
   tf = post_scene(a.rt, a.ctx, vol, "ct-soft", &cam);
