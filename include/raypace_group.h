@@ -60,7 +60,7 @@ typedef struct rp_group_desc {
    * (at least deadline_min_ms) after the frame's render began is given
    * up on and dropped. Only devices whose model has learned from a frame
    * have a deadline. deadline_factor 0: 4; negative: no deadline.
-   * deadline_min_ms 0: 50. */
+   * deadline_min_ms 0: 200. */
   double deadline_factor;
   double deadline_min_ms;
 } rp_group_desc;
