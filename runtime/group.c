@@ -1034,7 +1034,7 @@ int rp_device_group_render(rp_device_group *g, const rp_camera *cam,
   rp_render_desc d;
   uint32_t sw, sh, tx, ty, i, n_lost = 0, rounds;
   double start, t_rr, share_cost;
-  int err, last, refused = 0;
+  int err, last, refused = 0, frame_depth;
   if (g == NULL)
     return RP_EINVAL;
   if (cam == NULL || desc == NULL || rgba == NULL)
@@ -1106,15 +1106,31 @@ int rp_device_group_render(rp_device_group *g, const rp_camera *cam,
     rep->alive = rp_device_group_alive(g);
     return refused;
   }
+  /* Whether this frame needed a depth pass: a property of the frame (a
+   * new camera or TF), seen on any device that rendered. */
+  frame_depth = 0;
+  for (i = 0; i < g->count; i++)
+    if (!g->m[i].dropped && g->m[i].rendered && cost_abs[i] > 0.0 &&
+        rep->devices[i].depth_passes > 0)
+      frame_depth = 1;
   /* What the split learns: each device that finished its region, its
-   * wall time per unit of predicted cost outside the depth pass. The
-   * last frame's figure alone: the shares' damping does the smoothing. */
+   * wall time per unit of predicted cost outside the depth pass (rate_add
+   * keeps the median of the last three), and how often frames need its
+   * depth pass. */
   for (i = 0; i < g->count; i++) {
     member *w = &g->m[i];
     const rp_group_device *rd = &rep->devices[i];
     double ran, measured;
-    if (w->dropped || !w->rendered || !(cost_abs[i] > 0.0))
+    if (w->dropped)
       continue;
+    if (!w->rendered || !(cost_abs[i] > 0.0)) {
+      /* Idle this frame: its fixed cost must still follow the frames.
+       * Charged a depth pass the frames no longer need, a device the
+       * split squeezed out (one slow depth pass, say) would stay out. */
+      if (w->rate > 0.0)
+        w->depth_freq += 0.25 * ((double)frame_depth - w->depth_freq);
+      continue;
+    }
     ran = rd->depth_passes > 0;
     if (ran)
       w->depth_est = rd->depth_ms;
