@@ -383,6 +383,12 @@ typedef struct rp_device_desc {
    * and every one after it fail with RP_EDEVICE, as a device that is
    * lost mid-session does. 0: never. */
   uint32_t fail_at_render;
+  /* Testing a stall: the stall_at_render-th render (counting from 1)
+   * takes stall_ms longer, in wall time and in the time reported, as a
+   * thread descheduled on a shared machine does. 0: never; stall_ms
+   * finite and in [0, 60000]. */
+  uint32_t stall_at_render;
+  double stall_ms;
 } rp_device_desc;
 
 /** The compiled-in backends, NULL-terminated. */

@@ -58,6 +58,8 @@ struct rp_device {
   /* rp_device_desc's testing knobs, and renders so far. */
   double slowdown;
   uint32_t fail_at_render, renders;
+  uint32_t stall_at_render;
+  double stall_ms;
 };
 
 const char *const *rp_backend_names(void) {
@@ -179,6 +181,10 @@ int rp_device_create(rp_context *ctx, const rp_device_desc *desc,
     return rp__fail(ctx, isfinite(d.slowdown) ? RP_ERANGE : RP_ENOTFINITE,
                     "rp_device_create: slowdown %g is not 0 or in "
                     "[1, 10000]", d.slowdown);
+  if (!(d.stall_ms >= 0.0 && d.stall_ms <= 60000.0))
+    return rp__fail(ctx, isfinite(d.stall_ms) ? RP_ERANGE : RP_ENOTFINITE,
+                    "rp_device_create: stall_ms %g is not in [0, 60000]",
+                    d.stall_ms);
   name = d.backend;
   if (name == NULL || name[0] == '\0') {
     name = getenv("RP_BACKEND");
@@ -191,6 +197,8 @@ int rp_device_create(rp_context *ctx, const rp_device_desc *desc,
   dev->ctx = ctx;
   dev->slowdown = d.slowdown;
   dev->fail_at_render = d.fail_at_render;
+  dev->stall_at_render = d.stall_at_render;
+  dev->stall_ms = d.stall_ms;
   if (name != NULL && strcmp(name, REFERENCE) == 0) {
     if (d.index != 0) {
       rp__free(ctx, dev);
@@ -284,6 +292,16 @@ static void record_time(rp_device *dev, uint64_t start) {
     sleep_ns((uint64_t)extra);
     dev->last_ns += (uint64_t)extra;
   }
+}
+
+/* rp_device_desc's stall, on its render. */
+static void injected_stall(rp_device *dev) {
+  uint64_t ns;
+  if (dev->stall_at_render == 0 || dev->renders != dev->stall_at_render)
+    return;
+  ns = (uint64_t)(dev->stall_ms * 1e6);
+  sleep_ns(ns);
+  dev->last_ns += ns;
 }
 
 int rp_device_set_volume(rp_device *dev, const rp_volume *vol) {
@@ -596,7 +614,8 @@ int rp__device_render(rp_device *dev, const rp_camera *cam,
     region = &all;
   else if ((err = check_region(dev->ctx, region, rg.width, rg.height)) != 0)
     return err;
-  if (dev->fail_at_render != 0 && ++dev->renders >= dev->fail_at_render)
+  dev->renders++;
+  if (dev->fail_at_render != 0 && dev->renders >= dev->fail_at_render)
     return rp__fail(dev->ctx, RP_EDEVICE, "rp_device_render: device '%s' "
                     "(%s) failed (injected at render %u)", dev->caps.device,
                     dev->caps.backend, dev->fail_at_render);
@@ -605,6 +624,7 @@ int rp__device_render(rp_device *dev, const rp_camera *cam,
     rp__reference_render(dev->ref_vol, &dev->ref_tf, dev->ref_grid,
                          dev->blocks, &rg, &d, region, rgba, tiles, fetches);
     record_time(dev, t0);
+    injected_stall(dev);
     return 0;
   }
   if (!dev->depth_valid || !same_depth_frame(&dev->depth_params, &p)) {
@@ -619,6 +639,7 @@ int rp__device_render(rp_device *dev, const rp_camera *cam,
                                fetches)) != 0)
     return err;
   record_time(dev, t0);
+  injected_stall(dev);
   return 0;
 }
 

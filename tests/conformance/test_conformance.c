@@ -561,6 +561,20 @@ static void front_end_validates(void **state) {
   rp_device_destroy(NULL);
 }
 
+
+/* One render of the whole 8x8 image, its wall time and the time the
+ * device reports, in ns. */
+static void timed_render(rp_device *on, const rp_camera *cam,
+                         const rp_render_desc *d, uint8_t *img,
+                         double *wall_ns, double *reported_ns) {
+  struct timespec a, b;
+  clock_gettime(CLOCK_MONOTONIC, &a);
+  assert_int_equal(rp_device_render(on, cam, d, NULL, img, NULL), 0);
+  clock_gettime(CLOCK_MONOTONIC, &b);
+  *wall_ns = (double)(b.tv_sec - a.tv_sec) * 1e9 +
+             (double)(b.tv_nsec - a.tv_nsec);
+  *reported_ns = (double)rp_device_last_time_ns(on);
+}
 /* rp_device_desc's testing knobs, on this backend. A device slowed 1000x
  * sleeps 999x its device time after each operation and reports 1000x
  * it: its renders report at least 10x the median of the same renders on
@@ -585,7 +599,6 @@ static void slowed_and_failing_devices(void **state) {
   rp_device_desc dd = {0};
   rp_device *slow = NULL, *lost = NULL, *plain = NULL;
   uint8_t first[8 * 8 * 4], img[8 * 8 * 4], keep[8 * 8 * 4];
-  struct timespec a, b;
   double wall_ns, reported_ns, plain_ns[3];
   int i;
   (void)state;
@@ -603,6 +616,13 @@ static void slowed_and_failing_devices(void **state) {
   assert_int_equal(rp_device_create(ctx, &dd, &slow), RP_ERANGE);
   assert_null(slow);
   dd.slowdown = 0.0;
+  dd.stall_ms = -1.0;
+  assert_int_equal(rp_device_create(ctx, &dd, &slow), RP_ERANGE);
+  assert_non_null(strstr(rp_last_error(ctx), "stall_ms"));
+  dd.stall_ms = INFINITY;
+  assert_int_equal(rp_device_create(ctx, &dd, &slow), RP_ENOTFINITE);
+  assert_null(slow);
+  dd.stall_ms = 0.0;
   assert_int_equal(rp_device_create(ctx, &dd, &plain), 0);
   assert_int_equal(rp_device_set_volume(plain, s.vol), 0);
   assert_int_equal(rp_device_set_tf(plain, tf, occ), 0);
@@ -616,17 +636,33 @@ static void slowed_and_failing_devices(void **state) {
   assert_int_equal(rp_device_set_volume(slow, s.vol), 0);
   assert_int_equal(rp_device_set_tf(slow, tf, occ), 0);
   for (i = 0; i < 2; i++) {
-    clock_gettime(CLOCK_MONOTONIC, &a);
-    assert_int_equal(rp_device_render(slow, &cam, &d, NULL, first, NULL), 0);
-    clock_gettime(CLOCK_MONOTONIC, &b);
-    wall_ns = (double)(b.tv_sec - a.tv_sec) * 1e9 +
-              (double)(b.tv_nsec - a.tv_nsec);
-    reported_ns = (double)rp_device_last_time_ns(slow);
+    timed_render(slow, &cam, &d, first, &wall_ns, &reported_ns);
     assert_true(reported_ns >= 10.0 * plain_ns[1]);
     assert_true(wall_ns + 1.0 >= reported_ns * 999.0 / 1000.0);
   }
   assert_memory_equal(first, img, sizeof img);
+  rp_device_destroy(slow);
+  slow = NULL;
+  /* A stall of 200 ms on the second render only: that render's wall and
+   * reported times grow by it, the first and third do not (an 8x8 render
+   * takes well under a millisecond). */
   dd.slowdown = 0.0;
+  dd.stall_at_render = 2;
+  dd.stall_ms = 200.0;
+  assert_int_equal(rp_device_create(ctx, &dd, &slow), 0);
+  assert_int_equal(rp_device_set_volume(slow, s.vol), 0);
+  assert_int_equal(rp_device_set_tf(slow, tf, occ), 0);
+  for (i = 0; i < 3; i++) {
+    timed_render(slow, &cam, &d, first, &wall_ns, &reported_ns);
+    if (i == 1) {
+      assert_true(wall_ns >= 200e6 && reported_ns >= 200e6);
+    } else {
+      assert_true(reported_ns < 200e6);
+    }
+    assert_memory_equal(first, img, sizeof img);
+  }
+  dd.stall_at_render = 0;
+  dd.stall_ms = 0.0;
   dd.fail_at_render = 2;
   assert_int_equal(rp_device_create(ctx, &dd, &lost), 0);
   assert_int_equal(rp_device_set_volume(lost, s.vol), 0);
