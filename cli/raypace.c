@@ -531,10 +531,7 @@ static int render_group(rp_context *ctx, const render_opts *o,
         continue;
       fate[i].status = d->status;
       fate[i].late = d->late;
-      /* The group's context holds the message of the last device lost
-       * this frame; with several lost, each has only its code. */
-      if (rep.lost == 1)
-        snprintf(fate[i].why, sizeof fate[i].why, "%s", rp_last_error(ctx));
+      snprintf(fate[i].why, sizeof fate[i].why, "%s", d->error);
     }
     if (frame < o->warmup &&
         (err = rp_device_group_train(g, probe, step, scale,

@@ -83,6 +83,8 @@ typedef struct rp_group_device {
                            pass, raycast, readback */
   uint64_t samples;     /* samples its region took */
   double predicted_ms;  /* its model's time for its region, NaN unknown */
+  char error[256];      /* why it failed this frame (status != 0): its
+                           own message, the device's context's; "" else */
 } rp_group_device;
 
 /** What a frame's render did, per device. */

@@ -92,6 +92,7 @@ typedef struct rp_device_frame {
   double share;         /* its share of the work, [0, 1] */
   rp_region region;     /* scaled-image pixels it was given */
   int status;           /* 0, or the RP_E* it was lost with */
+  char error[256];      /* why, when status != 0; "" otherwise */
   int dropped;          /* 1 once lost: it renders no more */
 } rp_device_frame;
 

@@ -989,6 +989,7 @@ static int render_round(rp_device_group *g, const rp_camera *cam,
       continue;
     if (w->outcome != 0 && !loses_device(w->outcome, 0)) {
       rd->status = w->outcome;
+      snprintf(rd->error, sizeof rd->error, "%s", w->why);
       *refused = rp__fail(g->ctx, w->outcome, "%s", w->why);
       continue;
     }
@@ -996,6 +997,7 @@ static int render_round(rp_device_group *g, const rp_camera *cam,
       w->dropped = 1;
       g->have_prev = 0;
       rd->status = w->outcome;
+      snprintf(rd->error, sizeof rd->error, "%s", w->why);
       rd->dropped = 1;
       rep->lost++;
       last = w->outcome;

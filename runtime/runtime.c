@@ -375,6 +375,8 @@ static int render_pass(rp_runtime *rt, double rho, double *pass_ms) {
     df->share = gd->share;
     df->region = gd->region;
     df->status = gd->status;
+    if (gd->status != 0)
+      snprintf(df->error, sizeof df->error, "%s", gd->error);
     df->dropped = gd->dropped;
     depth |= gd->depth_passes > 0;
   }

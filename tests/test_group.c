@@ -306,6 +306,10 @@ static void test_device_loss(void **state) {
   assert_int_equal(rep.lost, 1);
   assert_int_equal(rep.alive, 2);
   assert_int_equal(rep.devices[1].status, RP_EDEVICE);
+  /* Its own message, in the report: the group's context keeps only the
+   * last device's. */
+  assert_non_null(strstr(rep.devices[1].error, "injected"));
+  assert_string_equal(rep.devices[0].error, "");
   assert_int_equal(rep.devices[1].dropped, 1);
   assert_true(rep.rerender_ms > 0.0);
   assert_int_equal(rp_device_group_alive(g), 2);
@@ -361,6 +365,7 @@ static void test_late_device(void **state) {
   assert_int_equal(rep.lost, 1);
   assert_int_equal(rep.devices[1].late, 1);
   assert_int_equal(rep.devices[1].status, RP_EDEVICE);
+  assert_non_null(strstr(rep.devices[1].error, "still rendering"));
   assert_int_equal(rep.alive, 1);
   rp_device_group_destroy(g);
   scene_free(&s);

@@ -400,6 +400,9 @@ static void test_several_devices(void **state) {
     assert_int_equal(a.s.last.devices_alive, f >= 2 ? 2 : 3);
     assert_int_equal(a.s.last.devices[1].dropped, f >= 2);
     if (f == 2)
+      assert_non_null(strstr(a.s.last.devices[1].error, "injected"));
+    assert_string_equal(a.s.last.devices[0].error, "");
+    if (f == 2)
       assert_int_equal(a.s.last.devices[1].status, RP_EDEVICE);
     for (i = 0; i < 3; i++)
       sum += a.s.last.devices[i].share;
