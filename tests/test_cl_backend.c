@@ -291,15 +291,22 @@ static void fetch_counts_and_cost(void **state) {
    * shaded and some not. */
   assert_true(f_plain > 0 && f_plain == samples);
   assert_true(f_lit > f_plain && f_lit < 7 * f_plain);
-  /* Device time of the non-counting variants, best of three each. */
-  for (r = 0; r < 6; r++) {
+  /* Device time of the non-counting variants at 160^2, alternating, the
+   * best of nine each: a burst of load from a test beside this one falls
+   * on both (best of three at 96^2, a few ms a frame, was once reversed
+   * under ASan in CI). */
+  image_free(&plain);
+  image_free(&lit);
+  for (r = 0; r < 18; r++) {
     rp_render_desc d = {0};
     rp__raygen rg;
     rp_frame_params p;
     double t;
-    d.width = d.height = 96;
+    d.width = d.height = 160;
     d.effects = RP_EFFECT_SKIP | ((r & 1) ? RP_EFFECT_SHADING : 0u);
     frame_params(&s, &cam, &d, &rg, &p);
+    if (r < 2)
+      image_alloc((r & 1) ? &lit : &plain, p.width, p.height);
     render(&dev, &p, (r & 1) ? &lit : &plain, 0);
     t = (double)dev.ops->last_time_ns(dev.impl);
     assert_true(t > 0);
