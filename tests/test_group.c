@@ -229,18 +229,17 @@ static void test_shares_follow_speed(void **state) {
 }
 
 /* Two devices of the same speed, one of which stalls for 600 ms on its
- * fourth render (a thread descheduled on a shared machine): its rate is
- * the median of its last three, so the stall moves no share. Held to a
- * control: the same pair without the stall, frame for frame (equal
- * devices need not split 1/2: the tile cost map may favour one side).
+ * fourth render (frame 3; a thread descheduled on a shared machine): its
+ * rate is the median of its last three, so the stall moves no share.
  * Undamped (damp_rate 1), so that the shares are the rates' own: with
- * the last frame's rate alone the stalled device's share fell to 0.02
- * the frame after, against the control's 0.5, under the 5 % a region
- * needs to raise the rate. Bound: on the three frames the stall is among
- * the last three rates, the share within 0.3 of the control's (noise
- * alone, undamped, moved one by 0.23 under TSan); over the nine frames
- * from the stall on, the median difference within 0.15 (measured under
- * ASan and TSan: -0.03 to 0.08). */
+ * the last frame's rate alone the stalled device's share at frame 3 fell
+ * to 0.02, under the 5 % a region needs to raise the rate. Bounds: at
+ * frame 3 the share within [0.2, 0.8] (undamped noise alone reached 0.27
+ * under TSan and 0.72 in CI); over the nine frames from the stall on,
+ * the median difference from a control (the same pair without the
+ * stall, frame for frame: equal devices need not split 1/2, the tile
+ * cost map may favour one side) within 0.15 (measured under ASan and
+ * TSan: -0.03 to 0.08). */
 static void test_stall_recovers(void **state) {
   uint8_t *img = malloc(4 * W * H * 4);
   rp_device_desc dd[2], cd[2];
@@ -268,12 +267,11 @@ static void test_stall_recovers(void **state) {
         rp_device_group_shares(g, &s.probe, 1.0f, 1.0f, shares), 0);
     assert_int_equal(
         rp_device_group_shares(c, &sc.probe, 1.0f, 1.0f, control), 0);
-    if (f >= 3) {
+    if (f == 3 && !(shares[1] >= 0.2 && shares[1] <= 0.8))
+      fail_msg("frame 3: the stalled device's share is %.3f (the "
+               "control's %.3f)", shares[1], control[1]);
+    if (f >= 3)
       diff[f - 3] = shares[1] - control[1];
-      if (f <= 5 && fabs(diff[f - 3]) > 0.3)
-        fail_msg("frame %d: the stalled device's share is %.3f, the "
-                 "control's %.3f", f, shares[1], control[1]);
-    }
   }
   qsort(diff, 9, sizeof *diff, cmp_double);
   print_message("stalled device's share less the control's after the "
