@@ -17,7 +17,6 @@
 #include <cjson/cJSON.h>
 #include <getopt.h>
 #include <math.h>
-#include <signal.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -303,15 +302,12 @@ static int write_csv(FILE *f, const char *path, const sweep_point *p,
  * is built in, else the plain png terminal. */
 static int write_plot(const quality_opts *o, const char *device,
                       const sweep_point *p, int per_space) {
+  cli_plot plot;
   FILE *g;
-  int s, i, status;
-  void (*old)(int) = signal(SIGPIPE, SIG_IGN);
-  g = popen("gnuplot", "w");
-  if (g == NULL) {
-    signal(SIGPIPE, old);
-    fprintf(stderr, "raypace bench: --plot: cannot run gnuplot\n");
+  int s, i;
+  if (cli_plot_open(&plot, "raypace bench") != 0)
     return 1;
-  }
+  g = plot.g;
   fprintf(g, "if (strstrt(GPVAL_TERMINALS, 'pngcairo') > 0) "
              "{ set terminal pngcairo size 960,640 } "
              "else { set terminal png size 960,640 }\n"
@@ -342,14 +338,7 @@ static int write_plot(const quality_opts *o, const char *device,
             s ? ", " : "", rp_space_name(spaces[s]),
             rp_space_name(spaces[s]));
   fprintf(g, "\n");
-  status = pclose(g);
-  signal(SIGPIPE, old);
-  if (status != 0) {
-    fprintf(stderr, "raypace bench: --plot: gnuplot failed (status %d)\n",
-            status);
-    return 1;
-  }
-  return 0;
+  return cli_plot_close(&plot, "raypace bench");
 }
 
 static void json_metrics(cJSON *o, const rp_image_metrics *m) {

@@ -1,6 +1,7 @@
 #include "cli_util.h"
 
 #include <math.h>
+#include <signal.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -277,6 +278,29 @@ void cli_gnuplot_string(FILE *g, const char *s) {
     fputc(*s, g);
   }
   fputc('\'', g);
+}
+
+int cli_plot_open(cli_plot *p, const char *who) {
+  p->sigpipe = signal(SIGPIPE, SIG_IGN);
+  p->g = popen("gnuplot", "w");
+  if (p->g == NULL) {
+    signal(SIGPIPE, p->sigpipe);
+    fprintf(stderr, "%s: --plot: cannot run gnuplot\n", who);
+    return 1;
+  }
+  return 0;
+}
+
+int cli_plot_close(cli_plot *p, const char *who) {
+  int status = pclose(p->g);
+  signal(SIGPIPE, p->sigpipe);
+  p->g = NULL;
+  if (status != 0) {
+    fprintf(stderr, "%s: --plot: gnuplot failed (status %d)\n", who,
+            status);
+    return 1;
+  }
+  return 0;
 }
 
 int cli_have_gnuplot(void) {

@@ -48,6 +48,16 @@ void cli_gnuplot_string(FILE *g, const char *s);
 /* 1 if a gnuplot command is on the PATH: checked before a long run that
  * ends in a plot. */
 int cli_have_gnuplot(void);
+/* A gnuplot to write commands to. SIGPIPE is ignored from open to close:
+ * a gnuplot that dies early must not kill us. */
+typedef struct cli_plot {
+  FILE *g;
+  void (*sigpipe)(int); /* the handler to put back */
+} cli_plot;
+/* 0, or 1 with "<who>: --plot: cannot run gnuplot" on stderr. */
+int cli_plot_open(cli_plot *p, const char *who);
+/* Waits for gnuplot; 0, or 1 with its status on stderr. */
+int cli_plot_close(cli_plot *p, const char *who);
 /* Seconds from a monotonic clock. */
 double cli_now(void);
 /* Prints "raypace: <what>: <rp_strerror>: <last error>" to stderr. */

@@ -26,7 +26,6 @@
 #include <cjson/cJSON.h>
 #include <getopt.h>
 #include <math.h>
-#include <signal.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -718,16 +717,12 @@ static int write_csv(const char *path, const summary *sums,
  * CSV. */
 static int write_plot(const char *png, const char *csv, const summary *sums,
                       int nctl, const char *title) {
+  cli_plot plot;
   FILE *g;
-  int k, rc;
-  /* A gnuplot that dies early must not kill us with SIGPIPE. */
-  void (*old)(int) = signal(SIGPIPE, SIG_IGN);
-  g = popen("gnuplot", "w");
-  if (g == NULL) {
-    signal(SIGPIPE, old);
-    fprintf(stderr, "raypace replay: --plot: cannot run gnuplot\n");
+  int k;
+  if (cli_plot_open(&plot, "raypace replay") != 0)
     return 1;
-  }
+  g = plot.g;
   fprintf(g, "set terminal pngcairo size 1200,900 noenhanced\n"
              "set output ");
   cli_gnuplot_string(g, png);
@@ -756,13 +751,7 @@ static int write_plot(const char *png, const char *csv, const summary *sums,
             rp_controller_name(sums[k].kind));
   }
   fprintf(g, "\nunset multiplot\n");
-  rc = pclose(g);
-  signal(SIGPIPE, old);
-  if (rc != 0) {
-    fprintf(stderr, "raypace replay: gnuplot failed (status %d)\n", rc);
-    return 1;
-  }
-  return 0;
+  return cli_plot_close(&plot, "raypace replay");
 }
 
 /* Device i's label: its spec, as --devices gave it. */
@@ -785,15 +774,12 @@ static int write_device_plot(const char *png, const char *csv,
                              const summary *sums, int nctl,
                              const replay *r) {
   uint32_t n = r->o.ndevices, i;
+  cli_plot plot;
   FILE *g;
-  int k, rc;
-  void (*old)(int) = signal(SIGPIPE, SIG_IGN);
-  g = popen("gnuplot", "w");
-  if (g == NULL) {
-    signal(SIGPIPE, old);
-    fprintf(stderr, "raypace replay: --plot: cannot run gnuplot\n");
+  int k;
+  if (cli_plot_open(&plot, "raypace replay") != 0)
     return 1;
-  }
+  g = plot.g;
   fprintf(g, "set terminal pngcairo size 1400,%d noenhanced\n"
              "set output ", 120 + 260 * nctl);
   cli_gnuplot_string(g, png);
@@ -835,13 +821,7 @@ static int write_device_plot(const char *png, const char *csv,
     fprintf(g, "\n");
   }
   fprintf(g, "unset multiplot\n");
-  rc = pclose(g);
-  signal(SIGPIPE, old);
-  if (rc != 0) {
-    fprintf(stderr, "raypace replay: gnuplot failed (status %d)\n", rc);
-    return 1;
-  }
-  return 0;
+  return cli_plot_close(&plot, "raypace replay");
 }
 
 static void print_json(const replay *r, const summary *s) {
