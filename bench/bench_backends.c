@@ -254,7 +254,7 @@ static void bench_frame(rp_context *ctx, rp_device *dev, const scene *s,
     double t0 = now(), c0 = cpu_now(), t, c;
     uint64_t one, all;
     int nt;
-    if ((err = rp_render_reference(ctx, s->vol, s->tf, s->occ, &s->cam, &d,
+    if ((err = rp_render_reference(ctx, s->vol, s->tf, s->occ, NULL, &s->cam, &d,
                                    rgba, tiles)) != 0)
       die(ctx, "reference", err);
     t = now() - t0;

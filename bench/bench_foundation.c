@@ -97,7 +97,7 @@ static void bench_volume(rp_context *ctx, const char *name, rp_volume *vol,
     /* The reference is slow by design; three runs give a median. */
     for (r = 0; r < 3; r++) {
       double t0 = now();
-      if ((err = rp_render_reference(ctx, vol, tf[0], occ, &cam, &rd, rgba,
+      if ((err = rp_render_reference(ctx, vol, tf[0], occ, NULL, &cam, &rd, rgba,
                                      tiles)) != 0)
         die(ctx, "render", err);
       t[r] = now() - t0;

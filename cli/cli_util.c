@@ -6,6 +6,7 @@
 #include <stdlib.h>
 #include <string.h>
 #include <time.h>
+#include <unistd.h>
 
 int cli_error(rp_context *ctx, const char *what, int err) {
   const char *detail = rp_last_error(ctx);
@@ -305,4 +306,20 @@ int cli_plot_close(cli_plot *p, const char *who) {
 
 int cli_have_gnuplot(void) {
   return system("command -v gnuplot >/dev/null 2>&1") == 0;
+}
+
+/* A bar on stderr, redrawn in place; only on a terminal, so logs and
+ * pipes stay clean. */
+void cli_progress(double fraction, void *user) {
+  static const int width = 30;
+  const char *what = user != NULL ? user : "working";
+  int filled = (int)(fraction * width + 0.5), i;
+  if (!isatty(fileno(stderr)))
+    return;
+  fprintf(stderr, "\r%s [", what);
+  for (i = 0; i < width; i++)
+    fputc(i < filled ? '#' : ' ', stderr);
+  fprintf(stderr, "] %3d%%%s", (int)(fraction * 100.0 + 0.5),
+          fraction >= 1.0 ? "\n" : "");
+  fflush(stderr);
 }

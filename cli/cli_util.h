@@ -60,6 +60,9 @@ int cli_plot_open(cli_plot *p, const char *who);
 int cli_plot_close(cli_plot *p, const char *who);
 /* Seconds from a monotonic clock. */
 double cli_now(void);
+/* rp_progress_fn drawing a bar on stderr when it is a terminal; `user`
+ * is the label (a string). */
+void cli_progress(double fraction, void *user);
 /* Prints "raypace: <what>: <rp_strerror>: <last error>" to stderr. */
 int cli_error(rp_context *ctx, const char *what, int err);
 

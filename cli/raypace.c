@@ -10,6 +10,7 @@
 #include <string.h>
 
 #include "cli_util.h"
+#include "raypace_ao.h"
 #include "commands.h"
 #include "raypace.h"
 #include "raypace_group.h"
@@ -60,6 +61,10 @@ static void usage_render(FILE *f) {
           "  --size WxH            image size (default 512x512)\n"
           "  --step D              sample step in voxels (default 1)\n"
           "  --shading             gradient shading\n"
+          "  --ao                  ambient occlusion (computed first, on the\n"
+          "                        rendering device(s), with a progress bar)\n"
+          "  --ao-scheme NAME      with --devices: dynamic (default), static\n"
+          "                        or naive\n"
           "  --no-ert              no early ray termination\n"
           "  --no-skip             no empty-space skipping\n"
           "  --ert-threshold A     stop rays at this opacity (default 0.99)"
@@ -247,8 +252,9 @@ typedef struct render_opts {
   float orbit[3], background[3], fov, step, ert_threshold, scale;
   uint32_t device;
   uint32_t width, height;
-  int ortho, shading, ert, skip, json;
+  int ortho, shading, ert, skip, json, ao;
   int device_given, overlay;
+  rp_ao_scheme ao_scheme;
   uint32_t warmup;
   const char *devices_spec;
   rp_device_desc devices[RP_GROUP_MAX_DEVICES];
@@ -264,6 +270,8 @@ static int parse_render(int argc, char **argv, render_opts *o) {
       {"size", required_argument, 0, 's'},
       {"step", required_argument, 0, 'd'},
       {"shading", no_argument, 0, 'S'},
+      {"ao", no_argument, 0, 'A'},
+      {"ao-scheme", required_argument, 0, 'C'},
       {"no-ert", no_argument, 0, 'E'},
       {"no-skip", no_argument, 0, 'K'},
       {"ert-threshold", required_argument, 0, 'a'},
@@ -296,6 +304,17 @@ static int parse_render(int argc, char **argv, render_opts *o) {
     case 's': bad = cli_parse_size(optarg, &o->width, &o->height); break;
     case 'd': bad = cli_parse_positive(optarg, &o->step); break;
     case 'S': o->shading = 1; break;
+    case 'A': o->ao = 1; break;
+    case 'C':
+      if (strcmp(optarg, "dynamic") == 0)
+        o->ao_scheme = RP_AO_DYNAMIC;
+      else if (strcmp(optarg, "static") == 0)
+        o->ao_scheme = RP_AO_STATIC;
+      else if (strcmp(optarg, "naive") == 0)
+        o->ao_scheme = RP_AO_STATIC_NAIVE;
+      else
+        bad = 1;
+      break;
     case 'E': o->ert = 0; break;
     case 'K': o->skip = 0; break;
     case 'a': bad = cli_parse_positive(optarg, &o->ert_threshold); break;
@@ -500,6 +519,23 @@ static int render_group(rp_context *ctx, const render_opts *o,
     cli_error(ctx, "upload", err);
     goto out;
   }
+  if (o->ao) {
+    rp_ao_plan *plan = NULL;
+    rp_ao *ao = NULL;
+    rp_ao_schedule sc = {0};
+    sc.scheme = o->ao_scheme;
+    sc.progress = cli_progress;
+    sc.user = "ambient occlusion";
+    if ((err = rp_ao_plan_create(ctx, vol, tf, NULL, &plan)) == 0 &&
+        (err = rp_device_group_compute_ao(g, plan, &sc, &ao, NULL)) == 0)
+      err = rp_device_group_set_ao(g, ao);
+    rp_ao_destroy(ao);
+    rp_ao_plan_destroy(plan);
+    if (err != 0) {
+      cli_error(ctx, "--ao", err);
+      goto out;
+    }
+  }
   rp_scaled_size(rd, &sw, &sh);
   rp_tile_grid(sw, sh, &tx, &ty);
   rgba = malloc((size_t)sw * sh * 4);
@@ -616,11 +652,12 @@ static int cmd_render(int argc, char **argv) {
   rp_caps caps;
   rp_camera cam = {0};
   rp_render_desc rd = {0};
+  rp_ao *ao = NULL;
   uint8_t *rgba = NULL, *out = NULL;
   rp_tile_stats *tiles = NULL;
   uint32_t tx, ty, t, sw, sh;
   uint64_t samples = 0, rays = 0;
-  double t0, t_render, depth_sum = 0;
+  double t0, t_render, depth_sum = 0, ao_ms = 0;
   int err, rc = 1;
   if ((rc = parse_render(argc, argv, &o)) != 0)
     return rc == 1 ? 0 : rc;
@@ -647,7 +684,8 @@ static int cmd_render(int argc, char **argv) {
   rd.ert_threshold = o.ert_threshold;
   rd.image_scale = o.scale;
   rd.effects = (o.shading ? RP_EFFECT_SHADING : 0) |
-               (o.ert ? RP_EFFECT_ERT : 0) | (o.skip ? RP_EFFECT_SKIP : 0);
+               (o.ert ? RP_EFFECT_ERT : 0) | (o.skip ? RP_EFFECT_SKIP : 0) |
+               (o.ao ? RP_EFFECT_AO : 0);
   if (o.ndevices > 0) {
     rc = render_group(ctx, &o, vol, tf, occ, &cam, &rd);
     goto out;
@@ -659,6 +697,22 @@ static int cmd_render(int argc, char **argv) {
       (err = rp_device_set_tf(dev, tf, occ)) != 0) {
     cli_error(ctx, "upload", err);
     goto out;
+  }
+  if (o.ao) {
+    rp_ao_plan *plan = NULL;
+    rp_ao_schedule sc = {0};
+    sc.progress = cli_progress;
+    sc.user = "ambient occlusion";
+    t0 = cli_now();
+    if ((err = rp_ao_plan_create(ctx, vol, tf, NULL, &plan)) == 0 &&
+        (err = rp_ao_compute(ctx, &dev, 1, plan, &sc, &ao, NULL)) == 0)
+      err = rp_device_set_ao(dev, ao);
+    ao_ms = (cli_now() - t0) * 1e3;
+    rp_ao_plan_destroy(plan);
+    if (err != 0) {
+      cli_error(ctx, "--ao", err);
+      goto out;
+    }
   }
   rp_scaled_size(&rd, &sw, &sh);
   rp_tile_grid(sw, sh, &tx, &ty);
@@ -709,6 +763,8 @@ static int cmd_render(int argc, char **argv) {
     cJSON_AddNumberToObject(root, "render_ms", t_render * 1e3);
     cJSON_AddNumberToObject(root, "device_ms",
                             rp_device_last_time_ns(dev) * 1e-6);
+    cJSON_AddBoolToObject(root, "ao", o.ao);
+    cJSON_AddNumberToObject(root, "ao_ms", ao_ms);
     cJSON_AddNumberToObject(root, "samples_per_s",
                             t_render > 0 ? samples / t_render : 0.0);
     rc = print_json(root);
@@ -723,6 +779,7 @@ out:
   free(rgba);
   free(out);
   free(tiles);
+  rp_ao_destroy(ao);
   rp_device_destroy(dev);
   rp_occupancy_destroy(occ);
   rp_histograms_destroy(h);

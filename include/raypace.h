@@ -264,6 +264,9 @@ RP_API const uint8_t *rp_occupancy_alpha_hist(const rp_occupancy *occ);
 RP_API const uint8_t *rp_occupancy_grid(const rp_occupancy *occ);
 RP_API uint32_t rp_occupancy_empty_blocks(const rp_occupancy *occ);
 
+/** An ambient-occlusion volume (raypace_ao.h). */
+typedef struct rp_ao rp_ao;
+
 /* ---- Cameras, render settings, images ---------------------------------- */
 
 typedef enum rp_projection {
@@ -337,11 +340,12 @@ RP_API void rp_tile_grid(uint32_t width, uint32_t height, uint32_t *tiles_x,
  *  width x height at scale 1; premultiplied alpha, rows top to bottom) to
  *  `rgba` and, if `tiles` is not NULL, its tiles_x*tiles_y stats.
  *  `occ` is required when RP_EFFECT_SKIP is set and must have been built
- *  for `tf` on this volume. Single-threaded on purpose: obviously correct
+ *  for `tf` on this volume; `ao` (raypace_ao.h) likewise with
+ *  RP_EFFECT_AO. Single-threaded on purpose: obviously correct
  *  first. \since 0.1 */
 RP_API int rp_render_reference(rp_context *ctx, const rp_volume *vol,
                                const rp_tf *tf, const rp_occupancy *occ,
-                               const rp_camera *cam,
+                               const rp_ao *ao, const rp_camera *cam,
                                const rp_render_desc *desc, uint8_t *rgba,
                                rp_tile_stats *tiles);
 
@@ -383,6 +387,9 @@ typedef struct rp_device_desc {
    * and every one after it fail with RP_EDEVICE, as a device that is
    * lost mid-session does. 0: never. */
   uint32_t fail_at_render;
+  /* The same for AO jobs (rp_device_compute_ao): the fail_at_ao-th and
+   * every later one fail with RP_EDEVICE. 0: never. */
+  uint32_t fail_at_ao;
   /* Testing a stall: the stall_at_render-th render (counting from 1)
    * takes stall_ms longer, in wall time and in the time reported, as a
    * thread descheduled on a shared machine does. 0: never; stall_ms

@@ -21,7 +21,7 @@ extern "C" {
 
 /* Bumped whenever rp_backend_ops, rp_backend_bootstrap or rp_frame_params
  * change layout. */
-#define RP_BACKEND_ABI 3
+#define RP_BACKEND_ABI 4
 
 /* Coarse ERT pre-pass geometry (DESIGN section 3). */
 #define RP_ERT_RAY_STRIDE 4    /* one pre-pass ray per 4x4 pixels */
@@ -57,6 +57,24 @@ typedef struct rp_frame_params {
   uint32_t occupied_lo[3], occupied_end[3];
 } rp_frame_params;
 
+/* One ambient-occlusion job (raypace_ao.h, backends/README.md): voxels
+ * [lo, end) of the uploaded volume, under the uploaded TF's LUT. */
+typedef struct rp_ao_job {
+  uint32_t lo[3], end[3];
+  uint32_t directions;     /* L */
+  uint32_t samples;        /* M */
+  float offset, step;      /* a and D = (R - a) / M, voxels */
+  float ref_step;          /* the TF's Delta_0: alpha is corrected to step */
+  float value_min, value_max; /* TF position x = (v - min) / (max - min) */
+  uint32_t lut_size;
+  const float *dirs;       /* L x 4 floats: (x, y, z, 0) per direction */
+  /* One byte per 4^3 brick of the whole grid, x fastest (1: full), over
+   * bricks[3] = ceil(dims / 4) per axis; NULL: every brick is full. A
+   * voxel of an empty brick is written as 255 without sampling. */
+  const uint8_t *bricks;
+  uint32_t brick_grid[3];
+} rp_ao_job;
+
 typedef struct rp_backend_ops {
   void (*destroy)(void *impl);
   /* Voxels in their native type, x fastest. */
@@ -84,6 +102,12 @@ typedef struct rp_backend_ops {
    * counts (a variant built for counting; used by tests). */
   int (*raycast)(void *impl, const rp_frame_params *p, const rp_region *r,
                  uint8_t *rgba, rp_tile_stats *tiles, uint64_t *fetches);
+  /* AO of job->lo .. job->end into `out` ((end - lo) product bytes, x
+   * fastest). */
+  int (*compute_ao)(void *impl, const rp_ao_job *job, uint8_t *out);
+  /* The AO volume (one byte per voxel of the uploaded volume) raycasts
+   * with RP_EFFECT_AO read; NULL releases it. */
+  int (*upload_ao)(void *impl, const uint8_t *ao);
   /* Device time of the last operation, nanoseconds. */
   uint64_t (*last_time_ns)(void *impl);
 } rp_backend_ops;

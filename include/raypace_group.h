@@ -23,6 +23,7 @@
 #include <stdint.h>
 
 #include "raypace.h"
+#include "raypace_ao.h"
 #include "raypace_balance.h"
 #include "raypace_pace.h"
 
@@ -127,6 +128,17 @@ RP_API int rp_device_group_set_volume(rp_device_group *g,
                                       const rp_volume *vol);
 RP_API int rp_device_group_set_tf(rp_device_group *g, const rp_tf *tf,
                                   const rp_occupancy *occ);
+/** AO on every live device (raypace_ao.h): computed with rp_ao_compute
+ *  over the live devices (each already has a context of its own; a
+ *  device lost doing it is dropped), and set for RP_EFFECT_AO renders
+ *  (NULL releases every device's AO memory); the bytes they hold. Not
+ *  while a frame is in flight. \since 0.2 */
+RP_API int rp_device_group_compute_ao(rp_device_group *g,
+                                      const rp_ao_plan *plan,
+                                      const rp_ao_schedule *schedule,
+                                      rp_ao **out, rp_ao_report *report);
+RP_API int rp_device_group_set_ao(rp_device_group *g, const rp_ao *ao);
+RP_API uint64_t rp_device_group_ao_bytes(const rp_device_group *g);
 
 /** The shares the next frame renders with (`count` values, 0 for dropped
  *  devices), for a frame of probe `p` at (step, scale). \since 0.1 */

@@ -206,8 +206,9 @@ typedef struct rp_frame_probe {
   double depth_max;        /* largest L */
   double ert_cut;          /* share of the span that ERT removes, [0, 1]
                               (0 with ERT off) */
-  /* With RP_EFFECT_SHADING (0 otherwise): the samples expected to show
-   * (opacity above 0), the only ones the raycast shades. lit_span: sum
+  /* With RP_EFFECT_SHADING or RP_EFFECT_AO (0 otherwise): the samples
+   * expected to show (opacity above 0), the only ones the raycast shades
+   * and reads AO for. lit_span: sum
    * over probe rays of L times the share of voxels that show in the
    * blocks along L (rp_occupancy); lit_ends: of the samples the lattice
    * adds to L / h (1/2 a ray, 1 a ray ERT ends), those that show, the
@@ -240,9 +241,9 @@ RP_API int rp_frame_probe_compute(rp_context *ctx, const rp_volume *vol,
                                   uint32_t frame, rp_frame_probe *out);
 
 /** The most volume fetches a sample takes with an effect set:
- *  1 + 6 * shading + 1 * AO. Only samples with opacity above 0 are
- *  shaded; the cost model's k (rp_cost_estimate.fetches) takes the
- *  probe's shaded share. \since 0.1 */
+ *  1 + 6 * shading + 1 * AO. Only samples with opacity above 0 take the
+ *  shading and AO fetches; the cost model's k (rp_cost_estimate.fetches)
+ *  takes the probe's share of them. \since 0.1 */
 RP_API uint32_t rp_fetches_per_sample(uint32_t effects);
 
 #define RP_COST_FEATURES 8

@@ -10,7 +10,9 @@
  *   TF          -> H-alpha + occupancy, device upload, then as for a camera
  *   camera, viewport, ERT/skip toggled -> the probe (depth pass and ERT
  *                  pre-pass on the host, the cost model's input)
- *   target, shading/AO toggled, controller -> nothing derived
+ *   AO turned on -> the AO volume; turned off -> the AO memory freed
+ *   (with AO on, a volume or TF change recomputes it too)
+ *   target, shading toggled, controller -> nothing derived
  *
  * Events between two frames coalesce: the latest value of each kind wins
  * and each recompute runs at most once per frame. A frame is: recompute
@@ -40,6 +42,7 @@
 #include <uv.h>
 
 #include "raypace.h"
+#include "raypace_ao.h"
 #include "raypace_balance.h"
 #include "raypace_pace.h"
 
@@ -71,6 +74,10 @@ typedef struct rp_runtime_counters {
   uint64_t volume_uploads;
   uint64_t occupancies;     /* H-alpha + occupancy builds (TF changed) */
   uint64_t tf_uploads;
+  uint64_t ao_computes;     /* AO volumes computed (AO on and the TF or
+                               volume changed, or AO turned on) */
+  uint64_t ao_bytes;        /* AO memory the devices hold now: 0 while
+                               AO is off */
   uint64_t probes;          /* host depth pass + ERT pre-pass */
   uint64_t device_depth;    /* device depth passes */
   uint64_t renders;         /* render passes (two-pass frames count 2) */
@@ -129,6 +136,7 @@ typedef struct rp_frame_stats {
   double volume_upload_ms;
   double occupancy_ms;     /* H-alpha + occupancy */
   double tf_upload_ms;
+  double ao_ms;            /* AO plan, computation and upload */
   double probe_ms;         /* host depth pass + ERT pre-pass */
   double predict_ms;       /* the controller's decision (tune and every
                               prediction it made) and the prediction
@@ -190,6 +198,11 @@ typedef struct rp_runtime_desc {
                              with its defaults */
   rp_cost_model_desc model; /* zero: defaults */
   uint32_t ert_seed;      /* ERT pre-pass random stream */
+  rp_ao_desc ao;          /* ambient occlusion (RP_EFFECT_AO); zero:
+                             defaults */
+  rp_ao_schedule ao_schedule; /* how AO is spread over the devices; its
+                             progress callback runs on the runtime's
+                             worker thread */
 } rp_runtime_desc;
 
 /** Creates the runtime, opens its device and starts its worker thread

@@ -10,6 +10,7 @@
 #include <string.h>
 #include <time.h>
 
+#include "ao.h"
 #include "passes.h"
 #include "raypace_backend.h"
 
@@ -49,6 +50,11 @@ struct rp_device {
   rp_volume *ref_vol;
   rp_tf ref_tf;
   uint8_t *ref_grid, *ref_alpha;
+  /* The AO volume set for RP_EFFECT_AO renders: what it was computed
+   * for, and its size on the device (0: none, and no AO memory). The
+   * reference device keeps a copy in ref_ao. */
+  uint64_t ao_vol_id, ao_tf_id, ao_bytes;
+  rp_ao *ref_ao;
   /* The uploaded occupancy's box of occupied blocks. */
   uint32_t box_lo[3], box_end[3];
   /* The frame the device's current depth-pass result belongs to. */
@@ -58,6 +64,7 @@ struct rp_device {
   /* rp_device_desc's testing knobs, and renders so far. */
   double slowdown;
   uint32_t fail_at_render, renders;
+  uint32_t fail_at_ao, ao_jobs;
   uint32_t stall_at_render;
   double stall_ms;
 };
@@ -114,7 +121,8 @@ static void reference_caps(rp_caps *caps) {
   memset(caps, 0, sizeof *caps);
   strcpy(caps->backend, REFERENCE);
   strcpy(caps->device, "scalar C reference (one thread)");
-  caps->effects = RP_EFFECT_SHADING | RP_EFFECT_ERT | RP_EFFECT_SKIP;
+  caps->effects =
+      RP_EFFECT_SHADING | RP_EFFECT_ERT | RP_EFFECT_SKIP | RP_EFFECT_AO;
   caps->voxel_types = (1u << RP_U8) | (1u << RP_U16) | (1u << RP_F32);
   caps->global_mem_bytes = UINT64_MAX;
   caps->max_alloc_bytes = SIZE_MAX;
@@ -197,6 +205,7 @@ int rp_device_create(rp_context *ctx, const rp_device_desc *desc,
   dev->ctx = ctx;
   dev->slowdown = d.slowdown;
   dev->fail_at_render = d.fail_at_render;
+  dev->fail_at_ao = d.fail_at_ao;
   dev->stall_at_render = d.stall_at_render;
   dev->stall_ms = d.stall_ms;
   if (name != NULL && strcmp(name, REFERENCE) == 0) {
@@ -247,6 +256,8 @@ static void drop_reference_scene(rp_device *dev) {
   rp__free(dev->ctx, dev->ref_grid);
   rp__free(dev->ctx, dev->ref_alpha);
   dev->ref_grid = dev->ref_alpha = NULL;
+  rp_ao_destroy(dev->ref_ao);
+  dev->ref_ao = NULL;
 }
 
 void rp_device_destroy(rp_device *dev) {
@@ -342,7 +353,13 @@ int rp_device_set_volume(rp_device *dev, const rp_volume *vol) {
   }
   if (err != 0)
     return err;
-  /* A new volume invalidates the TF upload: occupancy is per volume. */
+  /* A new volume invalidates the TF upload (occupancy is per volume) and
+   * the AO volume, whose memory goes with it. */
+  if (dev->ao_bytes != 0 && dev->ops != NULL)
+    (void)dev->ops->upload_ao(dev->impl, NULL); /* a release cannot fail */
+  rp_ao_destroy(dev->ref_ao);
+  dev->ref_ao = NULL;
+  dev->ao_bytes = 0;
   dev->have_volume = 1;
   dev->have_tf = 0;
   dev->depth_valid = 0;
@@ -614,6 +631,14 @@ int rp__device_render(rp_device *dev, const rp_camera *cam,
     region = &all;
   else if ((err = check_region(dev->ctx, region, rg.width, rg.height)) != 0)
     return err;
+  if ((d.effects & RP_EFFECT_AO) &&
+      (dev->ao_bytes == 0 || dev->ao_vol_id != dev->vol_id ||
+       dev->ao_tf_id != dev->tf_id))
+    return rp__fail(dev->ctx, RP_ESTATE, "rp_device_render: RP_EFFECT_AO "
+                    "needs an AO volume computed for the device's current "
+                    "volume and transfer function (rp_device_set_ao): %s",
+                    dev->ao_bytes == 0 ? "none is set"
+                                       : "the one set is for another");
   dev->renders++;
   if (dev->fail_at_render != 0 && dev->renders >= dev->fail_at_render)
     return rp__fail(dev->ctx, RP_EDEVICE, "rp_device_render: device '%s' "
@@ -621,8 +646,12 @@ int rp__device_render(rp_device *dev, const rp_camera *cam,
                     dev->caps.backend, dev->fail_at_render);
   t0 = now_ns();
   if (dev->ops == NULL) {
+    rp_volume ao_view;
+    if (dev->ref_ao != NULL)
+      rp__ao_view(dev->ref_ao, &ao_view);
     rp__reference_render(dev->ref_vol, &dev->ref_tf, dev->ref_grid,
-                         dev->blocks, &rg, &d, region, rgba, tiles, fetches);
+                         dev->blocks, dev->ref_ao != NULL ? &ao_view : NULL,
+                         &rg, &d, region, rgba, tiles, fetches);
     record_time(dev, t0);
     injected_stall(dev);
     return 0;
@@ -647,4 +676,128 @@ int rp_device_render(rp_device *dev, const rp_camera *cam,
                      const rp_render_desc *desc, const rp_region *region,
                      uint8_t *rgba, rp_tile_stats *tiles) {
   return rp__device_render(dev, cam, desc, region, rgba, tiles, NULL);
+}
+
+/* ---- Ambient occlusion ---------------------------------------------------- */
+
+int rp_device_compute_ao(rp_device *dev, const rp_ao_plan *plan,
+                         const uint32_t lo[3], const uint32_t end[3],
+                         uint8_t *out) {
+  static const char *fn = "rp_device_compute_ao";
+  rp_context *ctx;
+  uint64_t t0 = now_ns();
+  int a, err = 0;
+  if (dev == NULL)
+    return RP_EINVAL;
+  ctx = dev->ctx;
+  if (plan == NULL || lo == NULL || end == NULL || out == NULL)
+    return rp__fail(ctx, RP_EINVAL, "%s: plan, lo, end and out are "
+                    "required", fn);
+  if (!dev->have_volume || !dev->have_tf)
+    return rp__fail(ctx, RP_ESTATE, "%s: the device has no %s yet", fn,
+                    dev->have_volume ? "transfer function (rp_device_set_tf)"
+                                     : "volume (rp_device_set_volume)");
+  if (plan->vol_id != dev->vol_id || plan->tf_id != dev->tf_id)
+    return rp__fail(ctx, RP_ESTATE, "%s: the plan was made for another %s "
+                    "than the device holds", fn,
+                    plan->vol_id != dev->vol_id ? "volume"
+                                                : "transfer function");
+  for (a = 0; a < 3; a++)
+    if (!(lo[a] < end[a] && end[a] <= dev->shape.dims[a]))
+      return rp__fail(ctx, RP_EINVAL, "%s: box [%u, %u) along axis %d is "
+                      "empty or outside the volume's %u voxels", fn, lo[a],
+                      end[a], a, dev->shape.dims[a]);
+  if (!(dev->caps.effects & RP_EFFECT_AO))
+    return rp__fail(ctx, RP_EUNSUPPORTED, "%s: device '%s' (%s) cannot "
+                    "compute ambient occlusion", fn, dev->caps.device,
+                    dev->caps.backend);
+  dev->ao_jobs++;
+  if (dev->fail_at_ao != 0 && dev->ao_jobs >= dev->fail_at_ao)
+    return rp__fail(ctx, RP_EDEVICE, "%s: device '%s' (%s) failed "
+                    "(injected at AO job %u)", fn, dev->caps.device,
+                    dev->caps.backend, dev->fail_at_ao);
+  if (dev->ops != NULL) {
+    rp_ao_job job;
+    rp__ao_job(plan, lo, end, dev->ref_step, dev->shape.min, dev->shape.max,
+               dev->lut_size, &job);
+    err = dev->ops->compute_ao(dev->impl, &job, out);
+  } else {
+    rp__ao_reference_box(dev->ref_vol, &dev->ref_tf, plan, lo, end, lo[2],
+                         end[2], out);
+  }
+  if (err != 0)
+    return err;
+  record_time(dev, t0);
+  return 0;
+}
+
+int rp_device_set_ao(rp_device *dev, const rp_ao *ao) {
+  static const char *fn = "rp_device_set_ao";
+  rp_context *ctx;
+  size_t bytes;
+  int err = 0;
+  if (dev == NULL)
+    return RP_EINVAL;
+  ctx = dev->ctx;
+  if (ao == NULL) {
+    if (dev->ops != NULL && dev->ao_bytes != 0)
+      err = dev->ops->upload_ao(dev->impl, NULL);
+    rp_ao_destroy(dev->ref_ao);
+    dev->ref_ao = NULL;
+    dev->ao_bytes = 0;
+    return err;
+  }
+  if (!dev->have_volume)
+    return rp__fail(ctx, RP_ESTATE, "%s: no volume on the device yet", fn);
+  if (ao->vol_id != dev->vol_id)
+    return rp__fail(ctx, RP_EINVAL, "%s: the AO volume was computed for "
+                    "another volume than the device holds", fn);
+  if (!(dev->caps.effects & RP_EFFECT_AO))
+    return rp__fail(ctx, RP_EUNSUPPORTED, "%s: device '%s' (%s) cannot "
+                    "render ambient occlusion", fn, dev->caps.device,
+                    dev->caps.backend);
+  bytes = (size_t)ao->dims[0] * ao->dims[1] * ao->dims[2];
+  if (bytes > dev->caps.max_alloc_bytes)
+    return rp__fail(ctx, RP_ENOMEM, "%s: %zu bytes exceed the device's "
+                    "largest buffer (%llu bytes)", fn, bytes,
+                    (unsigned long long)dev->caps.max_alloc_bytes);
+  if (dev->ops != NULL) {
+    err = dev->ops->upload_ao(dev->impl, ao->data);
+  } else {
+    rp_ao *copy = rp__calloc(ctx, 1, sizeof *copy);
+    uint8_t *data = rp__malloc(ctx, bytes);
+    if (copy == NULL || data == NULL) {
+      rp__free(ctx, copy);
+      rp__free(ctx, data);
+      err = rp__fail(ctx, RP_ENOMEM, "%s: out of memory", fn);
+    } else {
+      *copy = *ao;
+      copy->ctx = ctx;
+      copy->data = data;
+      memcpy(data, ao->data, bytes);
+      rp_ao_destroy(dev->ref_ao);
+      dev->ref_ao = copy;
+    }
+  }
+  if (err != 0) {
+    /* What the device holds now is unknown: no AO render until a set
+     * succeeds. */
+    dev->ao_tf_id = 0;
+    return err;
+  }
+  dev->ao_vol_id = ao->vol_id;
+  dev->ao_tf_id = ao->tf_id;
+  dev->ao_bytes = bytes;
+  return 0;
+}
+
+uint64_t rp_device_ao_bytes(const rp_device *dev) {
+  return dev != NULL ? dev->ao_bytes : 0;
+}
+
+rp_context *rp__device_context(const rp_device *dev) { return dev->ctx; }
+
+int rp__device_holds(const rp_device *dev, uint64_t vol_id, uint64_t tf_id) {
+  return dev->have_volume && dev->have_tf && dev->vol_id == vol_id &&
+         dev->tf_id == tf_id;
 }

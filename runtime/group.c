@@ -18,10 +18,11 @@
 #include <uv.h>
 
 #include "internal.h"
+#include "raypace_ao.h"
 #include "passes.h"
 #include "raypace_group.h"
 
-enum { JOB_NONE, JOB_VOLUME, JOB_TF, JOB_RENDER, JOB_QUIT };
+enum { JOB_NONE, JOB_VOLUME, JOB_TF, JOB_AO, JOB_RENDER, JOB_QUIT };
 
 #define DEFAULT_DEADLINE_FACTOR 4.0
 /* A stall a shared machine can produce (a descheduled thread) must not
@@ -75,6 +76,7 @@ typedef struct member {
   const rp_volume *vol;
   const rp_tf *tf;
   const rp_occupancy *occ;
+  const rp_ao *ao;      /* JOB_AO: NULL releases the device's AO */
   rp_camera cam;
   rp_render_desc desc;
   rp_region region;
@@ -209,6 +211,9 @@ static void run_job(member *w, int job) {
   case JOB_TF:
     w->key_valid = 0;
     err = rp_device_set_tf(w->dev, w->tf, w->occ);
+    break;
+  case JOB_AO:
+    err = rp_device_set_ao(w->dev, w->ao);
     break;
   case JOB_RENDER:
     err = do_render(w);
@@ -604,6 +609,58 @@ int rp_device_group_set_tf(rp_device_group *g, const rp_tf *tf,
     g->m[i].tf_gen = g->tf_gen;
   }
   return upload(g, JOB_TF, "rp_device_group_set_tf");
+}
+
+int rp_device_group_set_ao(rp_device_group *g, const rp_ao *ao) {
+  uint32_t i;
+  if (g == NULL)
+    return RP_EINVAL;
+  for (i = 0; i < g->count; i++)
+    g->m[i].ao = ao;
+  return upload(g, JOB_AO, "rp_device_group_set_ao");
+}
+
+uint64_t rp_device_group_ao_bytes(const rp_device_group *g) {
+  uint64_t sum = 0;
+  uint32_t i;
+  if (g == NULL)
+    return 0;
+  for (i = 0; i < g->count; i++)
+    sum += rp_device_ao_bytes(g->m[i].dev);
+  return sum;
+}
+
+/* Between frames every live member's worker waits for a job, so the
+ * devices are free for rp_ao_compute's threads; each has a context of
+ * its own, as rp_ao_compute requires. A device the computation lost is
+ * dropped, as a lost upload would drop it. */
+int rp_device_group_compute_ao(rp_device_group *g, const rp_ao_plan *plan,
+                               const rp_ao_schedule *schedule, rp_ao **out,
+                               rp_ao_report *report) {
+  rp_device *devs[RP_AO_MAX_DEVICES];
+  uint32_t idx[RP_AO_MAX_DEVICES] = {0}, n = 0, i;
+  rp_ao_report rep;
+  int err;
+  if (g == NULL)
+    return RP_EINVAL;
+  memset(&rep, 0, sizeof rep);
+  for (i = 0; i < g->count && n < RP_AO_MAX_DEVICES; i++)
+    if (!g->m[i].dropped) {
+      idx[n] = i;
+      devs[n++] = g->m[i].dev;
+    }
+  if (n == 0)
+    return rp__fail(g->ctx, RP_ENODEV, "rp_device_group_compute_ao: no "
+                    "device left");
+  err = rp_ao_compute(g->ctx, devs, n, plan, schedule, out, &rep);
+  for (i = 0; i < n; i++)
+    if (loses_device(rep.devices[i].status, 0) || err == RP_EDEVICE) {
+      g->m[idx[i]].dropped = 1;
+      g->have_prev = 0;
+    }
+  if (err == 0 && report != NULL)
+    *report = rep;
+  return err;
 }
 
 /* ---- Shares and prediction ----------------------------------------------- */

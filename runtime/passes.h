@@ -74,12 +74,13 @@ int rp__check_render_desc(rp_context *ctx, const char *fn,
 /* The reference raycast of `region` of rg's (scaled) image; `d` resolved
  * and checked, `grid` NULL when not skipping. Writes only the region's
  * pixels, tiles and fetches (each of the latter two: the whole image's
- * grid, row-major, or NULL). A tile's fetches are its samples plus six
- * per shaded sample, and only samples with opacity above 0 are shaded:
- * the count the backends' counting variants report. */
+ * grid, row-major, or NULL). `ao`, the AO volume as 8-bit voxels, is
+ * read with RP_EFFECT_AO. A tile's fetches are its samples plus, per
+ * sample with opacity above 0, six with shading and one with AO: the
+ * count the backends' counting variants report. */
 void rp__reference_render(const rp_volume *vol, const rp_tf *tf,
                           const uint8_t *grid, const uint32_t blocks[3],
-                          const rp__raygen *rg, const rp_render_desc *d,
+                          const rp_volume *ao, const rp__raygen *rg, const rp_render_desc *d,
                           const rp_region *region, uint8_t *rgba,
                           rp_tile_stats *tiles, uint64_t *fetches);
 

@@ -359,8 +359,10 @@ int rp_frame_probe_compute(rp_context *ctx, const rp_volume *vol,
   job.rg = &rg;
   job.grid = occ->grid;
   job.alpha_hist = occ->alpha_hist;
-  /* The shaded share is needed only when something is shaded. */
-  job.visible = (d.effects & RP_EFFECT_SHADING) ? occ->visible : NULL;
+  /* The visible share is needed only when something is shaded or
+   * occluded. */
+  job.visible =
+      (d.effects & (RP_EFFECT_SHADING | RP_EFFECT_AO)) ? occ->visible : NULL;
   rp__ert_corrected(occ->bin_alpha, tf->reference_step, job.corr);
   job.blocks = occ->h->blocks;
   job.skip = (d.effects & RP_EFFECT_SKIP) != 0;
@@ -640,16 +642,17 @@ static double estimate_samples(const rp_frame_probe *p, float step,
   return (double)w * (double)h / (double)p->rays * probe_samples(p, step);
 }
 
-/* k at `step`: a fetch per sample, six more per shaded one, and only the
- * samples that show are shaded (the probe's share of them), one more
- * with AO. A frame with no sample gets the shaded share 1: its k prices
- * nothing, and the most is the safe side. */
+/* k at `step`: a fetch per sample, and per sample that shows (the
+ * probe's share of them) six more with shading and one more with AO:
+ * transparent samples take neither. A frame with no sample gets the
+ * share 1: its k prices nothing, and the most is the safe side. */
 static double fetches_per_sample(const rp_frame_probe *p, float step) {
-  double k = (p->effects & RP_EFFECT_AO) ? 2.0 : 1.0;
-  if (p->effects & RP_EFFECT_SHADING) {
+  double k = 1.0, extra = ((p->effects & RP_EFFECT_SHADING) ? 6.0 : 0.0) +
+                          ((p->effects & RP_EFFECT_AO) ? 1.0 : 0.0);
+  if (extra > 0.0) {
     double all = probe_samples(p, step);
     double lit = p->lit_span / (double)step + p->lit_ends;
-    k += 6.0 * (all > 0.0 ? clamp01(lit / all) : 1.0);
+    k += extra * (all > 0.0 ? clamp01(lit / all) : 1.0);
   }
   return k;
 }

@@ -29,6 +29,7 @@
  * floor(clamp(C, 0, 1) * 255 + 0.5). */
 #include <math.h>
 
+#include "ao.h"
 #include "passes.h"
 
 #define RP__DEFAULT_STEP 1.0f
@@ -78,13 +79,15 @@ typedef struct render_ctx {
   float step_f, ref_step;
   int shading, ert;
   double ert_threshold; /* the float from the desc, widened exactly */
+  const rp_volume *ao;  /* the AO volume as 8-bit voxels; NULL: no AO */
 } render_ctx;
 
 /* What one ray produced. */
 typedef struct ray_result {
   double rgba[4];   /* premultiplied */
   uint64_t samples; /* lattice samples taken */
-  uint64_t lit;     /* of those, shaded ones (opacity above 0) */
+  uint64_t lit;     /* of those, visible ones (opacity above 0) that
+                       took shading or AO fetches */
   double last_depth; /* depth of the last one; meaningless if none */
 } ray_result;
 
@@ -170,9 +173,15 @@ static void cast(const render_ctx *rc, const rp__ray *ray, ray_result *out) {
     for (c = 0; c < 3; c++)
       rgb[c] = tf[c];
     /* A transparent sample adds exactly 0 whatever its colour, so its
-     * six gradient fetches can be spared without changing a bit. */
-    if (rc->shading && alpha > 0.0) {
-      shade(rc, ray, p, rgb);
+     * gradient and AO fetches can be spared without changing a bit. */
+    if ((rc->shading || rc->ao != NULL) && alpha > 0.0) {
+      if (rc->shading)
+        shade(rc, ray, p, rgb);
+      if (rc->ao != NULL) {
+        double occlusion = rp__sample_trilinear(rc->ao, p) / 255.0;
+        for (c = 0; c < 3; c++)
+          rgb[c] *= occlusion;
+      }
       out->lit++;
     }
     w = (1.0 - A) * alpha;
@@ -260,8 +269,8 @@ int rp__check_render_desc(rp_context *ctx, const char *fn,
 /* `desc` has its defaults filled in; NULL when the caller passed none. */
 static int check_args(rp_context *ctx, const rp_volume *vol,
                       const rp_tf *tf, const rp_occupancy *occ,
-                      const rp_camera *cam, const rp_render_desc *desc,
-                      const uint8_t *rgba) {
+                      const rp_ao *ao, const rp_camera *cam,
+                      const rp_render_desc *desc, const uint8_t *rgba) {
   const char *missing = vol == NULL    ? "vol"
                         : tf == NULL   ? "tf"
                         : cam == NULL  ? "cam"
@@ -279,9 +288,15 @@ static int check_args(rp_context *ctx, const rp_volume *vol,
                     "RP_EFFECT_SKIP but occ is NULL");
   /* An occupancy passed without SKIP is unused, but a mismatched one is
    * still a caller bug worth reporting before it bites with SKIP on. */
-  if (occ != NULL)
-    return rp__occupancy_check(ctx, "rp_render_reference", occ, tf->id,
-                               vol->id);
+  if (occ != NULL &&
+      (err = rp__occupancy_check(ctx, "rp_render_reference", occ, tf->id,
+                                 vol->id)) != 0)
+    return err;
+  if ((desc->effects & RP_EFFECT_AO) && ao == NULL)
+    return rp__fail(ctx, RP_EINVAL, "rp_render_reference: desc->effects has "
+                    "RP_EFFECT_AO but ao is NULL");
+  if (ao != NULL)
+    return rp__ao_check(ctx, "rp_render_reference", ao, vol->id, tf->id);
   return 0;
 }
 
@@ -322,11 +337,12 @@ static void render_tile(const render_ctx *rc, const rp__raygen *rg,
     stats->mean_depth = hits > 0 ? (float)(depth_sum / (double)hits) : 0.0f;
   }
   if (fetches != NULL)
-    *fetches = samples + 6u * lit;
+    *fetches = samples + ((rc->shading ? 6u : 0u) + (rc->ao ? 1u : 0u)) * lit;
 }
 
 void rp__reference_render(const rp_volume *vol, const rp_tf *tf,
                           const uint8_t *grid, const uint32_t blocks[3],
+                          const rp_volume *ao,
                           const rp__raygen *rg, const rp_render_desc *d,
                           const rp_region *region, uint8_t *rgba,
                           rp_tile_stats *tiles, uint64_t *fetches) {
@@ -346,6 +362,7 @@ void rp__reference_render(const rp_volume *vol, const rp_tf *tf,
   rc.shading = (d->effects & RP_EFFECT_SHADING) != 0;
   rc.ert = (d->effects & RP_EFFECT_ERT) != 0;
   rc.ert_threshold = d->ert_threshold;
+  rc.ao = (d->effects & RP_EFFECT_AO) ? ao : NULL;
   rp_tile_grid(rg->width, rg->height, &tiles_x, NULL);
   /* Region corners lie on the tile grid or the image edge, so the tiles
    * it touches are exactly its own. */
@@ -361,9 +378,11 @@ void rp__reference_render(const rp_volume *vol, const rp_tf *tf,
 
 int rp_render_reference(rp_context *ctx, const rp_volume *vol,
                         const rp_tf *tf, const rp_occupancy *occ,
-                        const rp_camera *cam, const rp_render_desc *desc,
-                        uint8_t *rgba, rp_tile_stats *tiles) {
+                        const rp_ao *ao, const rp_camera *cam,
+                        const rp_render_desc *desc, uint8_t *rgba,
+                        rp_tile_stats *tiles) {
   rp__raygen rg;
+  rp_volume ao_view;
   rp_render_desc d = {0};
   rp_region all = {0, 0, 0, 0};
   int err;
@@ -371,21 +390,20 @@ int rp_render_reference(rp_context *ctx, const rp_volume *vol,
     return RP_EINVAL;
   if (desc != NULL)
     d = rp__render_desc_defaults(desc);
-  if ((err = check_args(ctx, vol, tf, occ, cam, desc != NULL ? &d : NULL,
-                        rgba)) != 0)
+  if ((err = check_args(ctx, vol, tf, occ, ao, cam,
+                        desc != NULL ? &d : NULL, rgba)) != 0)
     return err;
   if ((err = rp__raygen_init(ctx, cam, vol, d.width, d.height, &rg)) != 0)
     return err;
-  if (d.effects & RP_EFFECT_AO)
-    return rp__fail(ctx, RP_EUNSUPPORTED, "rp_render_reference: "
-                    "RP_EFFECT_AO: ambient occlusion arrives with the AO "
-                    "volume (M7)");
   /* Rays on the scaled grid, frustum of the full output. */
   rp_scaled_size(&d, &rg.width, &rg.height);
   all.x1 = rg.width;
   all.y1 = rg.height;
+  if (ao != NULL)
+    rp__ao_view(ao, &ao_view);
   rp__reference_render(vol, tf, occ != NULL ? occ->grid : NULL,
-                       occ != NULL ? occ->h->blocks : NULL, &rg, &d, &all,
-                       rgba, tiles, NULL);
+                       occ != NULL ? occ->h->blocks : NULL,
+                       ao != NULL ? &ao_view : NULL, &rg, &d, &all, rgba,
+                       tiles, NULL);
   return 0;
 }

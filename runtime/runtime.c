@@ -19,6 +19,7 @@
 #include <string.h>
 #include <time.h>
 
+#include "ao.h"
 #include "internal.h"
 #include "passes.h"
 #include "raypace_group.h"
@@ -43,7 +44,8 @@ enum {
   STALE_OCCUPANCY = 1u << 2,
   STALE_TF_UPLOAD = 1u << 3,
   STALE_PROBE = 1u << 4,
-  STALE_CONTROLLER = 1u << 5
+  STALE_CONTROLLER = 1u << 5,
+  STALE_AO = 1u << 6 /* the AO volume, or (AO off) its memory */
 };
 
 /* The effects the probe depends on: ERT cuts the span, skipping moves
@@ -201,13 +203,13 @@ static void take_events(rp_runtime *rt) {
     s->vol = in->vol;
     in->vol = NULL;
     s->stale |= STALE_HISTOGRAMS | STALE_VOLUME_UPLOAD | STALE_OCCUPANCY |
-                STALE_TF_UPLOAD | STALE_PROBE;
+                STALE_TF_UPLOAD | STALE_AO | STALE_PROBE;
   }
   if (in->marks & POSTED_TF) {
     rp_tf_destroy(s->tf);
     s->tf = in->tf;
     in->tf = NULL;
-    s->stale |= STALE_OCCUPANCY | STALE_TF_UPLOAD | STALE_PROBE;
+    s->stale |= STALE_OCCUPANCY | STALE_TF_UPLOAD | STALE_AO | STALE_PROBE;
   }
   if (in->marks & POSTED_CAMERA) {
     s->cam = in->cam;
@@ -218,6 +220,8 @@ static void take_events(rp_runtime *rt) {
   if (in->marks & POSTED_EFFECTS) {
     if ((s->effects ^ in->effects) & PROBE_EFFECTS)
       s->stale |= STALE_PROBE;
+    if ((s->effects ^ in->effects) & RP_EFFECT_AO)
+      s->stale |= STALE_AO;
     s->effects = in->effects;
   }
   if (in->marks & POSTED_TARGET)
@@ -228,6 +232,38 @@ static void take_events(rp_runtime *rt) {
     s->stale |= STALE_CONTROLLER;
   }
   in->marks = 0;
+}
+
+/* AO on: computed over the devices for the current volume and TF, then
+ * set on each; the host copy is dropped, the devices hold theirs. AO
+ * off: the devices' AO memory is released, so an effect that is off
+ * costs neither time nor memory. */
+static int update_ao(rp_runtime *rt) {
+  scene *s = &rt->s;
+  rp_ao_plan *plan = NULL;
+  rp_ao *ao = NULL;
+  uint64_t bytes;
+  int err = 0;
+  if (!(s->effects & RP_EFFECT_AO)) {
+    if (rp_device_group_ao_bytes(rt->group) != 0)
+      err = rp_device_group_set_ao(rt->group, NULL);
+  } else {
+    err = rp_ao_plan_create(rt->ctx, s->vol, s->tf, &rt->desc.ao, &plan);
+    if (err == 0)
+      err = rp_device_group_compute_ao(rt->group, plan, &rt->desc.ao_schedule,
+                                       &ao, NULL);
+    if (err == 0)
+      err = rp_device_group_set_ao(rt->group, ao);
+    rp_ao_destroy(ao);
+    rp_ao_plan_destroy(plan);
+    if (err == 0)
+      count(rt, &rt->counters.ao_computes);
+  }
+  bytes = rp_device_group_ao_bytes(rt->group);
+  uv_mutex_lock(&rt->lock);
+  rt->counters.ao_bytes = bytes;
+  uv_mutex_unlock(&rt->lock);
+  return err;
 }
 
 /* Runs the stale stages in dependency order: H, then the volume upload,
@@ -271,6 +307,13 @@ static int recompute(rp_runtime *rt) {
     st->tf_upload_ms = now_ms() - t0;
     s->stale &= ~(uint32_t)STALE_TF_UPLOAD;
     count(rt, &rt->counters.tf_uploads);
+  }
+  if (s->stale & STALE_AO) {
+    t0 = now_ms();
+    if ((err = update_ao(rt)) != 0)
+      return err;
+    st->ao_ms = now_ms() - t0;
+    s->stale &= ~(uint32_t)STALE_AO;
   }
   if (s->stale & STALE_PROBE) {
     rp_render_desc d = {0};
@@ -745,6 +788,9 @@ static void loop_main(void *arg) {
 
 static int check_desc(rp_context *ctx, const rp_runtime_desc *d) {
   static const char fn[] = "rp_runtime_create";
+  rp_ao_desc ao = {0};
+  rp_ao_schedule sched;
+  int err;
   if (d->on_frame == NULL)
     return rp__fail(ctx, RP_EINVAL, "%s: desc->on_frame is NULL", fn);
   if (d->pacing != RP_PACE_TIMER && d->pacing != RP_PACE_ON_REQUEST)
@@ -770,6 +816,9 @@ static int check_desc(rp_context *ctx, const rp_runtime_desc *d) {
                     d->device_count, RP_RUNTIME_MAX_DEVICES);
   if (d->device_count > 0 && d->devices == NULL)
     return rp__fail(ctx, RP_EINVAL, "%s: desc->devices is NULL", fn);
+  if ((err = rp__ao_desc_resolve(ctx, fn, &d->ao, &ao)) != 0 ||
+      (err = rp__ao_schedule_resolve(ctx, fn, &d->ao_schedule, &sched)) != 0)
+    return err;
   return 0;
 }
 

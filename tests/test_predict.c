@@ -138,7 +138,7 @@ static uint64_t reference_samples(scene *s, const rp_render_desc *d) {
   tiles = calloc((size_t)tx * ty, sizeof(*tiles));
   assert_non_null(rgba);
   assert_non_null(tiles);
-  assert_int_equal(rp_render_reference(s->ctx, s->vol, s->tf, s->occ,
+  assert_int_equal(rp_render_reference(s->ctx, s->vol, s->tf, s->occ, NULL,
                                        &s->cam, d, rgba, tiles), 0);
   for (i = 0; i < tx * ty; i++)
     n += tiles[i].samples;
@@ -386,7 +386,7 @@ static void test_probe_shaded_share(void **state) {
         assert_non_null(rgba);
         assert_int_equal(rp__raygen_init(s.ctx, &s.cam, s.vol, 96, 96, &rg),
                          0);
-        rp__reference_render(s.vol, s.tf, s.occ->grid, s.h->blocks, &rg, &d,
+        rp__reference_render(s.vol, s.tf, s.occ->grid, s.h->blocks, NULL, &rg, &d,
                              &all, rgba, tiles, fetches);
         for (k = 0; k < 12 * 12; k++)
           n += tiles[k].samples, f += fetches[k];

@@ -134,7 +134,7 @@ static void render(rp_context *ctx, const rp_volume *vol, const rp_tf *tf,
                    const rp_occupancy *occ, const rp_camera *cam,
                    float step, uint32_t effects, image *im) {
   rp_render_desc d = {im->w, im->h, step, effects, 0.0f, 0.0f};
-  int err = rp_render_reference(ctx, vol, tf, occ, cam, &d, im->rgba,
+  int err = rp_render_reference(ctx, vol, tf, occ, NULL, cam, &d, im->rgba,
                                 im->tiles);
   if (err != 0)
     fail_msg("render failed: %s: %s", rp_err_name(err), rp_last_error(ctx));
@@ -816,7 +816,7 @@ static void test_ert_bound(void **state) {
       double thr = thresholds[k] != 0.0f ? thresholds[k] : 0.99f;
       double bound = (1.0 - thr) * 255.0 + 1.0;
       size_t i;
-      assert_int_equal(rp_render_reference(ctx, ph, tf, NULL, &cam, &d,
+      assert_int_equal(rp_render_reference(ctx, ph, tf, NULL, NULL, &cam, &d,
                                            cut.rgba, cut.tiles),
                        0);
       for (i = 0; i < (size_t)cut.w * cut.h * 4; i++)
@@ -1136,7 +1136,7 @@ static void expect_fail(rp_context *ctx, const rp_volume *vol,
   if (rgba != NULL)
     memcpy(before, rgba, sizeof before);
   memset(tiles, 0x5A, sizeof tiles);
-  err = rp_render_reference(ctx, vol, tf, occ, cam, desc, rgba, tiles);
+  err = rp_render_reference(ctx, vol, tf, occ, NULL, cam, desc, rgba, tiles);
   if (err != bc->want)
     fail_msg("%s: got %s, want %s (%s)", bc->what, rp_err_name(err),
              rp_err_name(bc->want), rp_last_error(ctx));
@@ -1162,7 +1162,7 @@ static void test_bad_arguments(void **state) {
   uint32_t tx, ty;
   (void)state;
   memset(rgba, 0x33, sizeof rgba);
-  assert_int_equal(rp_render_reference(NULL, vol, tf, NULL, &good, &ok, rgba,
+  assert_int_equal(rp_render_reference(NULL, vol, tf, NULL, NULL, &good, &ok, rgba,
                                        NULL),
                    RP_EINVAL);
   {
@@ -1201,7 +1201,7 @@ static void test_bad_arguments(void **state) {
   DESC_CASE(ert_threshold, 1.5f, RP_EINVAL, "ert_threshold");
   DESC_CASE(ert_threshold, NAN, RP_EINVAL, "ert_threshold");
   DESC_CASE(effects, 1u << 9, RP_EINVAL, "effects");
-  DESC_CASE(effects, RP_EFFECT_AO, RP_EUNSUPPORTED, "ambient occlusion");
+  DESC_CASE(effects, RP_EFFECT_AO, RP_EINVAL, "ao is NULL");
 #undef DESC_CASE
   {
     bad_case bc = {"width*height*4 overflow", RP_EINVAL, "overflow"};
@@ -1270,7 +1270,7 @@ static void test_bad_arguments(void **state) {
     expect_fail(ctx, vol, tf, NULL, &good, &d, rgba, &bc);
   }
   /* The valid call still works, and tiles may be NULL. */
-  assert_int_equal(rp_render_reference(ctx, vol, tf, NULL, &good, &ok, rgba,
+  assert_int_equal(rp_render_reference(ctx, vol, tf, NULL, NULL, &good, &ok, rgba,
                                        NULL),
                    0);
 

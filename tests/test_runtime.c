@@ -13,6 +13,7 @@
 #include <time.h>
 #include <uv.h>
 
+#include "raypace_ao.h"
 #include "raypace_runtime.h"
 #include "test_util.h"
 
@@ -81,10 +82,11 @@ static rp_tf *post_scene(rp_runtime *rt, rp_context *ctx, rp_volume *vol,
   return tf;
 }
 
-/* The oracle: the reference raycaster at full quality. */
-static void expect_reference(rp_context *ctx, const rp_volume *vol,
-                             const rp_tf *tf, const rp_camera *cam,
-                             const uint8_t *got) {
+/* The oracle: the reference raycaster at full quality, with `ao` (NULL:
+ * without AO). */
+static void expect_reference_ao(rp_context *ctx, const rp_volume *vol,
+                                const rp_tf *tf, const rp_ao *ao,
+                                const rp_camera *cam, const uint8_t *got) {
   rp_histograms *h = NULL;
   rp_occupancy *occ = NULL;
   rp_render_desc rd = {0};
@@ -94,13 +96,19 @@ static void expect_reference(rp_context *ctx, const rp_volume *vol,
   assert_int_equal(rp_occupancy_build(ctx, h, tf, &occ), 0);
   rd.width = W;
   rd.height = H;
-  rd.effects = EFFECTS;
+  rd.effects = EFFECTS | (ao != NULL ? RP_EFFECT_AO : 0u);
   assert_int_equal(
-      rp_render_reference(ctx, vol, tf, occ, cam, &rd, want, NULL), 0);
+      rp_render_reference(ctx, vol, tf, occ, ao, cam, &rd, want, NULL), 0);
   assert_memory_equal(got, want, W * H * 4);
   free(want);
   rp_occupancy_destroy(occ);
   rp_histograms_destroy(h);
+}
+
+static void expect_reference(rp_context *ctx, const rp_volume *vol,
+                             const rp_tf *tf, const rp_camera *cam,
+                             const uint8_t *got) {
+  expect_reference_ao(ctx, vol, tf, NULL, cam, got);
 }
 
 /* ---- App loop, on-request pacing --------------------------------------- */
@@ -310,9 +318,8 @@ static void test_requests(void **state) {
   rp_context_destroy(a.ctx);
 }
 
-/* Refused events change nothing and leave the caller's data alone; a
- * frame the device cannot render is delivered as an error, and the next
- * good frame renders. */
+/* Refused events change nothing and leave the caller's data alone, and
+ * the next good frame renders. */
 static void test_bad_input(void **state) {
   app a;
   rp_volume *vol;
@@ -349,21 +356,84 @@ static void test_bad_input(void **state) {
   rp_runtime_get_counters(a.rt, &c);
   assert_int_equal(c.events, 0);
 
-  /* AO is not something the reference device renders: the frame comes
-   * back as an error with the reason, no image. */
   tf = post_scene(a.rt, a.ctx, vol, "ct-bone", &cam);
-  assert_int_equal(rp_runtime_set_effects(a.rt, EFFECTS | RP_EFFECT_AO),
-                   0);
-  (void)frame(&a);
-  assert_int_equal(a.s.last.status, RP_EUNSUPPORTED);
-  assert_non_null(strstr(a.s.last.error, "effects"));
-  assert_false(a.s.has_image);
-  assert_int_equal(rp_runtime_set_effects(a.rt, EFFECTS), 0);
   (void)frame(&a);
   assert_int_equal(a.s.last.status, 0);
   assert_true(a.s.has_image);
   app_close(&a);
   rp_tf_destroy(tf);
+  rp_context_destroy(a.ctx);
+}
+
+/* AO costs nothing while off: no computation, no AO memory. Turned on,
+ * it is computed once (not per frame) and the frame is the reference's
+ * with the reference AO; a TF change recomputes it; turned off, its
+ * memory goes, and TF changes no longer recompute it. */
+static void test_ao_only_when_on(void **state) {
+  app a;
+  rp_volume *vol, *copy;
+  rp_tf *tf, *tf2 = NULL;
+  rp_camera cam;
+  rp_runtime_counters c;
+  rp_ao *ao = NULL;
+  rp_volume_info info;
+  (void)state;
+  app_open(&a);
+  vol = make_volume(a.ctx, 24, 2);
+  {
+    rp_volume_desc vd = {{24, 24, 24}, RP_U8, {0, 0, 0}, NULL};
+    vd.data = rp_volume_data(vol);
+    assert_int_equal(rp_volume_create(a.ctx, &vd, &copy), 0);
+  }
+  rp_volume_get_info(vol, &info);
+  cam = orbit(vol, 40.0f);
+  tf = post_scene(a.rt, a.ctx, vol, "ct-soft", &cam);
+  (void)frame(&a);
+  (void)frame(&a);
+  rp_runtime_get_counters(a.rt, &c);
+  assert_int_equal(c.ao_computes, 0);
+  assert_int_equal(c.ao_bytes, 0);
+  assert_true(a.s.last.ao_ms == 0.0);
+
+  assert_int_equal(rp_runtime_set_effects(a.rt, EFFECTS | RP_EFFECT_AO), 0);
+  (void)frame(&a);
+  assert_int_equal(a.s.last.status, 0);
+  assert_true(a.s.last.effects & RP_EFFECT_AO);
+  assert_true(a.s.last.ao_ms > 0.0);
+  rp_runtime_get_counters(a.rt, &c);
+  assert_int_equal(c.ao_computes, 1);
+  assert_int_equal(c.ao_bytes, 24 * 24 * 24);
+  assert_int_equal(rp_ao_compute_reference(a.ctx, copy, tf, NULL, NULL, NULL,
+                                           &ao),
+                   0);
+  expect_reference_ao(a.ctx, copy, tf, ao, &cam, a.s.image);
+  rp_ao_destroy(ao);
+  (void)frame(&a);
+  rp_runtime_get_counters(a.rt, &c);
+  assert_int_equal(c.ao_computes, 1);
+  assert_true(a.s.last.ao_ms == 0.0);
+
+  assert_int_equal(rp_tf_create_preset(a.ctx, "ct-bone", &tf2), 0);
+  assert_int_equal(rp_runtime_set_tf(a.rt, tf2), 0);
+  (void)frame(&a);
+  rp_runtime_get_counters(a.rt, &c);
+  assert_int_equal(c.ao_computes, 2);
+
+  assert_int_equal(rp_runtime_set_effects(a.rt, EFFECTS), 0);
+  (void)frame(&a);
+  rp_runtime_get_counters(a.rt, &c);
+  assert_int_equal(c.ao_bytes, 0);
+  assert_int_equal(rp_runtime_set_tf(a.rt, tf), 0);
+  (void)frame(&a);
+  rp_runtime_get_counters(a.rt, &c);
+  assert_int_equal(c.ao_computes, 2);
+  assert_int_equal(c.ao_bytes, 0);
+  assert_int_equal(a.s.last.status, 0);
+  expect_reference(a.ctx, copy, tf, &cam, a.s.image);
+  app_close(&a);
+  rp_tf_destroy(tf);
+  rp_tf_destroy(tf2);
+  rp_volume_destroy(copy);
   rp_context_destroy(a.ctx);
 }
 
@@ -690,6 +760,7 @@ int main(void) {
       cmocka_unit_test(test_passes_per_event),
       cmocka_unit_test(test_requests),
       cmocka_unit_test(test_bad_input),
+      cmocka_unit_test(test_ao_only_when_on),
       cmocka_unit_test(test_several_devices),
       cmocka_unit_test(test_volume_other_allocator),
       cmocka_unit_test(test_close_in_flight),

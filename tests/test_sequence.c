@@ -483,7 +483,7 @@ static void camera_helper_orbits_and_pans(void **state) {
   }
   assert_float_equal(cam.fov_y_deg, 35, 0);
   assert_float_equal(cam.ortho_height, 0, 0);
-  assert_int_equal(rp_render_reference(ctx, vol, tf, NULL, &cam, &rd, px,
+  assert_int_equal(rp_render_reference(ctx, vol, tf, NULL, NULL, &cam, &rd, px,
                                        NULL), 0);
 
   /* Azimuth 0: right is +x, up is +y; pan moves both points. */
@@ -503,7 +503,7 @@ static void camera_helper_orbits_and_pans(void **state) {
   assert_float_equal(cam.eye[2], -0.5 * R, 1e-4);
   assert_float_equal(cam.center[2], -0.5 * R, 1e-4);
   assert_float_equal(cam.center[0], 0, 1e-4);
-  assert_int_equal(rp_render_reference(ctx, vol, tf, NULL, &cam, &rd, px,
+  assert_int_equal(rp_render_reference(ctx, vol, tf, NULL, NULL, &cam, &rd, px,
                                        NULL), 0);
   /* Straight down: the default up becomes +z; pan stays a valid
    * camera, moved by pan * R perpendicular to the view. */
@@ -511,7 +511,7 @@ static void camera_helper_orbits_and_pans(void **state) {
   rp_sequence_camera(&st, vol, &cam);
   assert_float_equal(cam.center[1], 0, 1e-4);
   assert_float_equal(hypot(cam.center[0], cam.center[2]), R, 1e-3);
-  assert_int_equal(rp_render_reference(ctx, vol, tf, NULL, &cam, &rd, px,
+  assert_int_equal(rp_render_reference(ctx, vol, tf, NULL, NULL, &cam, &rd, px,
                                        NULL), 0);
   /* Orthographic: the height a perspective camera sees at the centre. */
   st.projection = RP_ORTHOGRAPHIC;
@@ -520,7 +520,7 @@ static void camera_helper_orbits_and_pans(void **state) {
   assert_int_equal(cam.projection, RP_ORTHOGRAPHIC);
   assert_float_equal(cam.ortho_height, 2 * 2 * R * tan(20 * PI / 180),
                      1e-3);
-  assert_int_equal(rp_render_reference(ctx, vol, tf, NULL, &cam, &rd, px,
+  assert_int_equal(rp_render_reference(ctx, vol, tf, NULL, NULL, &cam, &rd, px,
                                        NULL), 0);
   rp_sequence_camera(NULL, vol, &cam); /* no-ops */
   rp_sequence_camera(&st, NULL, &cam);

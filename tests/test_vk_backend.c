@@ -17,7 +17,9 @@
 #include <string.h>
 #include <unistd.h>
 
+#include "ao.h"
 #include "passes.h"
+#include "raypace_ao.h"
 #include "vk_internal.h"
 
 static rp_context *g_ctx;
@@ -208,8 +210,8 @@ static void vk_render(void *impl, const frame *f, const rp_region *r,
 static void ref_render(const scene *s, const frame *f, uint8_t *rgba,
                        rp_tile_stats *tiles, uint64_t *fetches) {
   rp_region all = {0, 0, f->p.width, f->p.height};
-  rp__reference_render(s->vol, s->tf, s->occ->grid, s->h->blocks, &f->rg,
-                       &f->d, &all, rgba, tiles, fetches);
+  rp__reference_render(s->vol, s->tf, s->occ->grid, s->h->blocks, NULL,
+                       &f->rg, &f->d, &all, rgba, tiles, fetches);
 }
 
 /* ---- comparisons --------------------------------------------------------- */
@@ -467,6 +469,389 @@ static void test_layouts_agree(void **state) {
   free(b);
 }
 
+/* ---- tests: ambient occlusion -------------------------------------------- */
+
+/* The job runtime/backend.c hands a backend for box [lo, end) of `plan`
+ * on the uploaded scene. */
+static void ao_job_init(const scene *s, const rp_ao_plan *plan,
+                        const uint32_t lo[3], const uint32_t end[3],
+                        rp_ao_job *job) {
+  int lut_size = 0;
+  rp_tf_lut(s->tf, &lut_size);
+  rp__ao_job(plan, lo, end, rp_tf_reference_step(s->tf), s->vol->min,
+             s->vol->max, (uint32_t)lut_size, job);
+}
+
+/* AO of box [lo, end) on the device, into a new buffer. */
+static uint8_t *vk_ao_box(const scene *s, const rp_ao_plan *plan,
+                          const uint32_t lo[3], const uint32_t end[3]) {
+  size_t n = (size_t)(end[0] - lo[0]) * (end[1] - lo[1]) * (end[2] - lo[2]);
+  uint8_t *out = malloc(n);
+  rp_ao_job job;
+  assert_non_null(out);
+  memset(out, 0xcd, n);
+  ao_job_init(s, plan, lo, end, &job);
+  assert_int_equal(g_ops->compute_ao(g_impl, &job, out), 0);
+  /* Its buffers live only during the call. */
+  assert_int_equal(((rp_vk_impl *)g_impl)->ao_out.buf, VK_NULL_HANDLE);
+  assert_int_equal(((rp_vk_impl *)g_impl)->ao_dirs.buf, VK_NULL_HANDLE);
+  return out;
+}
+
+/* The contract's AO tolerance: within 2/255 on >= 99.9 % of voxels, none
+ * over 8/255. With `need_dark`, at least 2 % of the reference's voxels
+ * must be clearly occluded (below 224). */
+static void check_ao(const uint8_t *got, const uint8_t *want, size_t n,
+                     int need_dark, const char *what) {
+  size_t i, over2 = 0, over8 = 0, dark = 0;
+  int worst = 0;
+  for (i = 0; i < n; i++) {
+    int d = abs((int)got[i] - (int)want[i]);
+    over2 += d > 2;
+    over8 += d > 8;
+    worst = d > worst ? d : worst;
+    dark += want[i] < 224;
+  }
+  if (getenv("RP_VK_TEST_VERBOSE"))
+    print_message("%s: %zu voxels, %zu over 2/255, worst %d, %zu below "
+                  "224\n", what, n, over2, worst, dark);
+  if (over8 > 0 || over2 * 1000 > n)
+    fail_msg("%s: %zu of %zu voxels over 2/255, %zu over 8/255 (worst %d)",
+             what, over2, n, over8, worst);
+  /* Occlusion there is, or nothing was tested. */
+  if (need_dark)
+    assert_true(dark * 50 > n);
+}
+
+/* Whole-volume AO, bricked and unbricked, against the reference (with
+ * `need_dark`, also: the voxels of empty bricks are 255 on both sides);
+ * boxes of it (unaligned, one voxel thick, computed in slabs of one brick
+ * layer) equal to the same voxels of the whole, bit for bit. */
+static void check_ao_scene(const scene *s, int need_dark,
+                           const char *what) {
+  static const uint32_t boxes[4][2][3] = {
+      {{5, 3, 7}, {29, 30, 26}},
+      {{13, 0, 1}, {14, 37, 2}},
+      {{0, 0, 0}, {1, 1, 1}},
+      {{3, 6, 2}, {38, 35, 31}},
+  };
+  int bricked, b;
+  char label[128];
+  scene_upload(s, NULL);
+  for (bricked = 0; bricked < 2; bricked++) {
+    rp_ao_desc d = {0};
+    rp_ao_plan *plan = NULL;
+    rp_ao *ref = NULL;
+    uint32_t dims[3], zero[3] = {0, 0, 0};
+    const uint8_t *want;
+    uint8_t *got;
+    uint64_t full, total;
+    d.unbricked = !bricked;
+    assert_int_equal(rp_ao_compute_reference(g_ctx, s->vol, s->tf, &d, NULL,
+                                             NULL, &ref),
+                     0);
+    assert_int_equal(rp_ao_plan_create(g_ctx, s->vol, s->tf, &d, &plan), 0);
+    want = rp_ao_data(ref, dims);
+    rp_ao_bricks(ref, &full, &total);
+    /* Unbricked computes every brick; bricked has some to skip in the
+     * scenes with air. */
+    if (!bricked)
+      assert_true(full == total);
+    else if (need_dark)
+      assert_true(full < total);
+    assert_int_equal(bricked, plan->bricks != NULL);
+    got = vk_ao_box(s, plan, zero, dims);
+    snprintf(label, sizeof label, "%s AO %s", what,
+             bricked ? "bricked" : "unbricked");
+    check_ao(got, want, s->vol->voxel_count, need_dark, label);
+    if (bricked && need_dark) {
+      size_t i, skipped = 0;
+      for (i = 0; i < s->vol->voxel_count; i++) {
+        uint32_t x = (uint32_t)(i % dims[0]);
+        uint32_t y = (uint32_t)(i / dims[0] % dims[1]);
+        uint32_t z = (uint32_t)(i / dims[0] / dims[1]);
+        size_t bi = ((size_t)(z / 4) * plan->brick_grid[1] + y / 4) *
+                        plan->brick_grid[0] + x / 4;
+        if (plan->bricks[bi] == 0) {
+          assert_int_equal(got[i], 255);
+          assert_int_equal(want[i], 255);
+          skipped++;
+        }
+      }
+      assert_true(skipped > 0);
+    }
+    for (b = 0; b < 4; b++) {
+      uint32_t lo[3], end[3], x, y, z;
+      uint8_t *part;
+      int a, empty = 0;
+      for (a = 0; a < 3; a++) {
+        lo[a] = boxes[b][0][a] < dims[a] ? boxes[b][0][a] : dims[a] - 1;
+        end[a] = boxes[b][1][a] < dims[a] ? boxes[b][1][a] : dims[a];
+        empty |= lo[a] >= end[a];
+      }
+      if (empty)
+        continue;
+      /* The last box in slabs of one brick layer. */
+      rp_vk_hooks.ao_chunk_bytes = b == 3 ? 1 : 0;
+      part = vk_ao_box(s, plan, lo, end);
+      rp_vk_hooks.ao_chunk_bytes = 0;
+      for (z = lo[2]; z < end[2]; z++)
+        for (y = lo[1]; y < end[1]; y++)
+          for (x = lo[0]; x < end[0]; x++) {
+            uint8_t pv = part[((size_t)(z - lo[2]) * (end[1] - lo[1]) +
+                               (y - lo[1])) * (end[0] - lo[0]) +
+                              (x - lo[0])];
+            uint8_t wv = got[((size_t)z * dims[1] + y) * dims[0] + x];
+            if (pv != wv)
+              fail_msg("%s box %d: voxel (%u,%u,%u) is %u, %u in the "
+                       "whole volume", label, b, x, y, z, pv, wv);
+          }
+      free(part);
+    }
+    free(got);
+    rp_ao_plan_destroy(plan);
+    rp_ao_destroy(ref);
+  }
+}
+
+static void test_ao_volume(void **state) {
+  scene s;
+  (void)state;
+  scene_init(&s, generate(RP_GEN_PHANTOM, 40, 37, 33, RP_U8),
+             preset("ct-bone"));
+  check_ao_scene(&s, 1, "phantom u8 40x37x33");
+  scene_free(&s);
+  scene_init(&s, generate(RP_GEN_PHANTOM, 39, 34, 37, RP_U16),
+             preset("ct-soft"));
+  check_ao_scene(&s, 1, "phantom u16 39x34x37");
+  scene_free(&s);
+  /* The plain layout reads the same voxels. */
+  scene_init(&s, generate(RP_GEN_PHANTOM, 40, 37, 33, RP_U8),
+             preset("ct-soft"));
+  rp_vk_hooks.force_plain = 1;
+  check_ao_scene(&s, 1, "phantom u8 plain layout");
+  rp_vk_hooks.force_plain = 0;
+  scene_free(&s);
+  /* Float voxels, and an alpha corrected from a reference step of 2. */
+  scene_init(&s, float_volume(), ramp_tf(2.0f));
+  check_ao_scene(&s, 0, "float32");
+  scene_free(&s);
+  /* Volumes thinner than a brick. */
+  {
+    static const uint32_t dims[2][3] = {{19, 1, 2}, {1, 7, 3}};
+    int v;
+    for (v = 0; v < 2; v++) {
+      uint16_t data[19 * 7 * 3];
+      rp_volume_desc d = {{dims[v][0], dims[v][1], dims[v][2]}, RP_U16,
+                          {1.0f, 0.5f, 2.0f}, data};
+      rp_volume *vol = NULL;
+      size_t i, n = (size_t)dims[v][0] * dims[v][1] * dims[v][2];
+      for (i = 0; i < n; i++)
+        data[i] = (uint16_t)(1000 + 7919 * i % 50000);
+      assert_int_equal(rp_volume_create(g_ctx, &d, &vol), 0);
+      scene_init(&s, vol, solid_tf());
+      check_ao_scene(&s, 0, "thin volume");
+      scene_free(&s);
+    }
+  }
+}
+
+/* Renders `effects` on both devices and holds them to the contract
+ * (images, tiles' fetches); returns the Vulkan image (malloc). */
+static uint8_t *ao_render_pair(rp_device *vk, rp_device *ref,
+                               const rp_camera *cam, uint32_t effects,
+                               const char *what) {
+  const uint32_t w = 64, h = 56;
+  rp_render_desc d = {0};
+  uint32_t tx, ty;
+  size_t nt;
+  uint8_t *got = calloc((size_t)w * h, 4), *want = calloc((size_t)w * h, 4);
+  rp_tile_stats *tg, *tw;
+  uint64_t *fg, *fw, total = 0, off = 0;
+  char label[128];
+  rp_tile_grid(w, h, &tx, &ty);
+  nt = (size_t)tx * ty;
+  tg = calloc(nt, sizeof *tg);
+  tw = calloc(nt, sizeof *tw);
+  fg = calloc(nt, sizeof *fg);
+  fw = calloc(nt, sizeof *fw);
+  assert_true(got && want && tg && tw && fg && fw);
+  d.width = w;
+  d.height = h;
+  d.effects = effects;
+  assert_int_equal(rp__device_render(vk, cam, &d, NULL, got, tg, fg), 0);
+  assert_int_equal(rp__device_render(ref, cam, &d, NULL, want, tw, fw), 0);
+  snprintf(label, sizeof label, "%s effects 0x%x", what, (unsigned)effects);
+  check_image(got, want, (size_t)w * h, label);
+  rp_test_check_fetches(label, tg, fg, tw, fw, nt,
+                        rp_test_visible_fetches(effects), &total, &off);
+  free(want);
+  free(tg);
+  free(tw);
+  free(fg);
+  free(fw);
+  return got;
+}
+
+/* Share of lit pixels whose colour differs by more than 8/255. */
+static double changed_share(const uint8_t *a, const uint8_t *b, size_t px) {
+  size_t i, lit = 0, changed = 0;
+  for (i = 0; i < px; i++) {
+    int c, m = 0;
+    if (a[4 * i + 3] == 0 && b[4 * i + 3] == 0)
+      continue;
+    lit++;
+    for (c = 0; c < 3; c++) {
+      int dd = abs((int)a[4 * i + c] - (int)b[4 * i + c]);
+      m = dd > m ? dd : m;
+    }
+    changed += m > 8;
+  }
+  return lit > 0 ? (double)changed / (double)lit : 0.0;
+}
+
+/* RP_EFFECT_AO renders against the reference device holding the same AO
+ * volume, with and without shading; and AO visibly darkens the image. */
+static void test_ao_render(void **state) {
+  static const uint32_t sets[] = {
+      RP_EFFECT_AO,
+      RP_EFFECT_AO | RP_EFFECT_SHADING,
+      RP_EFFECT_AO | RP_EFFECT_SHADING | RP_EFFECT_SKIP | RP_EFFECT_ERT,
+      RP_EFFECT_AO | RP_EFFECT_SKIP,
+  };
+  rp_device_desc dv = {0}, dr = {0};
+  rp_device *vk = NULL, *ref = NULL;
+  rp_camera cams[3];
+  rp_ao *ao = NULL;
+  scene s;
+  size_t e;
+  int c, g;
+  (void)state;
+  dv.backend = "vulkan";
+  dr.backend = "reference";
+  assert_int_equal(rp_device_create(g_ctx, &dv, &vk), 0);
+  assert_int_equal(rp_device_create(g_ctx, &dr, &ref), 0);
+  for (g = 0; g < 2; g++) {
+    scene_init(&s, g == 0 ? generate(RP_GEN_PHANTOM, 40, 37, 33, RP_U8)
+                          : generate(RP_GEN_PHANTOM, 39, 34, 37, RP_U16),
+               preset(g == 0 ? "ct-bone" : "ct-soft"));
+    assert_int_equal(rp_ao_compute_reference(g_ctx, s.vol, s.tf, NULL, NULL,
+                                             NULL, &ao),
+                     0);
+    assert_int_equal(rp_device_set_volume(vk, s.vol), 0);
+    assert_int_equal(rp_device_set_tf(vk, s.tf, s.occ), 0);
+    assert_int_equal(rp_device_set_volume(ref, s.vol), 0);
+    assert_int_equal(rp_device_set_tf(ref, s.tf, s.occ), 0);
+    assert_int_equal(rp_device_set_ao(vk, ao), 0);
+    assert_int_equal(rp_device_set_ao(ref, ao), 0);
+    cameras(s.vol, cams);
+    for (c = 0; c < 2; c++)
+      for (e = 0; e < sizeof sets / sizeof sets[0]; e++) {
+        uint8_t *with, *without;
+        double share;
+        with = ao_render_pair(vk, ref, &cams[c], sets[e], "AO render");
+        without = ao_render_pair(vk, ref, &cams[c],
+                                 sets[e] & ~(uint32_t)RP_EFFECT_AO,
+                                 "AO render (off)");
+        share = changed_share(with, without, 64 * 56);
+        if (getenv("RP_VK_TEST_VERBOSE"))
+          print_message("AO scene %d camera %d effects 0x%x: %.1f %% of "
+                        "lit pixels changed by AO\n", g, c,
+                        (unsigned)sets[e], 100.0 * share);
+        /* An AO ignored would leave the image as it is without. */
+        if (share < 0.2)
+          fail_msg("AO changed only %.1f %% of lit pixels (scene %d camera "
+                   "%d effects 0x%x)", 100.0 * share, g, c,
+                   (unsigned)sets[e]);
+        free(with);
+        free(without);
+      }
+    assert_int_equal(rp_device_set_ao(vk, NULL), 0);
+    assert_int_equal(rp_device_set_ao(ref, NULL), 0);
+    rp_ao_destroy(ao);
+    ao = NULL;
+    scene_free(&s);
+  }
+  rp_device_destroy(vk);
+  rp_device_destroy(ref);
+}
+
+/* AO memory exists only while an AO volume is uploaded; a raycast with
+ * RP_EFFECT_AO without one is refused, and so is an AO volume before a
+ * volume; a volume of another shape drops the AO volume. */
+static void test_ao_state(void **state) {
+  rp_vk_impl *impl = g_impl;
+  rp_camera cams[3];
+  rp_region all;
+  rp_vk_stats st;
+  scene s;
+  frame f;
+  frame_desc fd = {16, 16, 1.0f, 1.0f, RP_EFFECT_AO | RP_EFFECT_SHADING};
+  uint8_t rgba[16 * 16 * 4];
+  uint8_t *ao;
+  const rp_backend_ops *ops = NULL;
+  void *fresh = NULL;
+  rp_caps caps;
+  (void)state;
+  /* A device with nothing uploaded. */
+  assert_int_equal(rp_vk_bootstrap.create(g_ctx, 0, 0, &ops, &fresh, &caps),
+                   0);
+  ao = calloc(1, 1);
+  assert_non_null(ao);
+  assert_int_equal(ops->upload_ao(fresh, ao), RP_ESTATE);
+  assert_int_equal(ops->upload_ao(fresh, NULL), 0);
+  free(ao);
+  ops->destroy(fresh);
+
+  scene_init(&s, generate(RP_GEN_PHANTOM, 24, 20, 18, RP_U8),
+             preset("ct-soft"));
+  scene_upload(&s, NULL);
+  cameras(s.vol, cams);
+  frame_init(&s, &cams[0], &fd, &f);
+  all.x0 = all.y0 = 0;
+  all.x1 = f.p.width;
+  all.y1 = f.p.height;
+  assert_int_equal(g_ops->upload_ao(g_impl, NULL), 0);
+  assert_int_equal(impl->ao.buf, VK_NULL_HANDLE);
+  assert_int_equal(g_ops->raycast(g_impl, &f.p, &all, rgba, NULL, NULL),
+                   RP_ESTATE);
+  assert_non_null(strstr(rp_last_error(g_ctx), "RP_EFFECT_AO"));
+
+  ao = malloc(s.vol->voxel_count);
+  assert_non_null(ao);
+  memset(ao, 128, s.vol->voxel_count);
+  assert_int_equal(g_ops->upload_ao(g_impl, ao), 0);
+  rp_vk_get_stats(g_impl, &st);
+  assert_int_equal(st.ao_bytes, s.vol->voxel_count);
+  vk_render(NULL, &f, NULL, rgba, NULL, NULL);
+  /* Uploaded again, into the same buffer. */
+  assert_int_equal(g_ops->upload_ao(g_impl, ao), 0);
+  vk_render(NULL, &f, NULL, rgba, NULL, NULL);
+  assert_int_equal(g_ops->upload_ao(g_impl, NULL), 0);
+  rp_vk_get_stats(g_impl, &st);
+  assert_int_equal(st.ao_bytes, 0);
+  assert_int_equal(impl->ao.buf, VK_NULL_HANDLE);
+  assert_int_equal(impl->ao_view, VK_NULL_HANDLE);
+  /* Renders without AO are unaffected by its absence. */
+  fd.effects = RP_EFFECT_SHADING;
+  check_frame(&s, &cams[0], &fd, "after AO released");
+
+  /* Same shape kept, another shape dropped. */
+  assert_int_equal(g_ops->upload_ao(g_impl, ao), 0);
+  assert_int_equal(g_ops->upload_volume(g_impl, s.vol), 0);
+  rp_vk_get_stats(g_impl, &st);
+  assert_int_equal(st.ao_bytes, s.vol->voxel_count);
+  free(ao);
+  scene_free(&s);
+  scene_init(&s, generate(RP_GEN_PHANTOM, 20, 20, 18, RP_U8),
+             preset("ct-soft"));
+  scene_upload(&s, NULL);
+  rp_vk_get_stats(g_impl, &st);
+  assert_int_equal(st.ao_bytes, 0);
+  assert_int_equal(impl->ao.buf, VK_NULL_HANDLE);
+  scene_free(&s);
+}
+
 /* ---- tests: counting, regions, passes ------------------------------------ */
 
 /* Renders `f` with the counting variant and holds every tile's fetches
@@ -485,7 +870,7 @@ static uint64_t counted(const scene *s, const frame *f, uint64_t *samples) {
   vk_render(NULL, f, NULL, rgba, tiles, fetches);
   ref_render(s, f, rgba, want, want_fetches);
   rp_test_check_fetches("counted", tiles, fetches, want, want_fetches, nt,
-                        (f->d.effects & RP_EFFECT_SHADING) != 0, &ref_total,
+                        rp_test_visible_fetches(f->d.effects), &ref_total,
                         &off);
   *samples = 0;
   for (i = 0; i < nt; i++) {
@@ -738,8 +1123,8 @@ static void test_caps(void **state) {
   (void)state;
   assert_string_equal(g_caps.backend, "vulkan");
   assert_true(g_caps.device[0] != '\0');
-  assert_int_equal(g_caps.effects,
-                   RP_EFFECT_SHADING | RP_EFFECT_ERT | RP_EFFECT_SKIP);
+  assert_int_equal(g_caps.effects, RP_EFFECT_SHADING | RP_EFFECT_ERT |
+                                       RP_EFFECT_SKIP | RP_EFFECT_AO);
   assert_int_equal(g_caps.voxel_types,
                    (1u << RP_U8) | (1u << RP_U16) | (1u << RP_F32));
   assert_true(g_caps.max_alloc_bytes > 0);
@@ -903,7 +1288,7 @@ static void test_bad_kernel(void **state) {
     rp_vk_hooks.corrupt_kernel = 0;
     assert_non_null(strstr(rp_last_error(g_ctx), "SPIR-V"));
   }
-  assert_non_null(strstr(rp_last_error(g_ctx), "'ert'"));
+  assert_non_null(strstr(rp_last_error(g_ctx), "'ao'"));
 }
 
 static void test_too_big(void **state) {
@@ -998,6 +1383,9 @@ int main(void) {
       cmocka_unit_test(test_odd_viewports),
       cmocka_unit_test(test_thin_volumes),
       cmocka_unit_test(test_layouts_agree),
+      cmocka_unit_test(test_ao_volume),
+      cmocka_unit_test(test_ao_render),
+      cmocka_unit_test(test_ao_state),
       cmocka_unit_test(test_fetch_counts),
       cmocka_unit_test(test_regions),
       cmocka_unit_test(test_depth_pass),

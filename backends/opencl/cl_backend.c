@@ -16,18 +16,23 @@
  * on PoCL that is what puts the CPU's SIMD units to work, one local size
  * means one compile per kernel (PoCL compiles again for each new local
  * size), and a tile per work-group lets the raycast reduce its tile
- * statistics in local memory without atomics. */
+ * statistics in local memory without atomics. The AO kernel (kernels/
+ * ao.cl) is the exception: a packet of 16 voxels per work-item, one
+ * work-item per work-group. */
 #include <math.h>
 #include <stdio.h>
 #include <string.h>
 
 #include "cl_internal.h"
 #include "passes.h"
+#include "raypace_ao.h"
 
+#include "ao_cl.h"
 #include "common_cl.h"
 #include "depth_cl.h"
 #include "ert_cl.h"
 #include "raycast_cl.h"
+#include "sample_cl.h"
 
 /* Rays per work-item (RP_CL_W in common.cl): two tile rows in the
  * sixteen float lanes of an AVX-512 register; eight (one row) measured
@@ -35,7 +40,7 @@
 #define RP_CL_PACKET 16
 #define RP_CL_PACKETS_PER_TILE (RP_TILE_SIZE * RP_TILE_SIZE / RP_CL_PACKET)
 #define RP_CL_EFFECT_BITS                                                     \
-  (RP_EFFECT_SHADING | RP_EFFECT_ERT | RP_EFFECT_SKIP)
+  (RP_EFFECT_SHADING | RP_EFFECT_ERT | RP_EFFECT_SKIP | RP_EFFECT_AO)
 /* Zero bytes after the last voxel (and grid byte): kernels read voxel
  * pairs and grid bytes as unaligned words, and trilinear reads two voxels
  * along x even on a one-voxel-wide axis (the second with weight zero). */
@@ -46,10 +51,13 @@ _Static_assert(sizeof(rp_frame_params) == 45 * 4,
                "rp_frame_params must stay 45 packed 4-byte fields");
 _Static_assert(sizeof(rp_tile_stats) == 12,
                "rp_tile_stats must match the kernel's rp_cl_tile");
+_Static_assert(sizeof(rp_cl_ao_args) == 24 * 4,
+               "rp_cl_ao_args must stay 24 packed 4-byte fields");
 
-static const char *const kind_names[] = {"raycast", "depth", "ert"};
+static const char *const kind_names[] = {"raycast", "depth", "ert",
+                                         "ambient occlusion"};
 static const char *const kind_kernels[] = {"rp_cl_raycast", "rp_cl_depth",
-                                           "rp_cl_ert"};
+                                           "rp_cl_ert", "rp_cl_ao"};
 
 /* ---- programs ------------------------------------------------------------ */
 
@@ -62,14 +70,15 @@ static void key_options(rp_cl_kind kind, uint32_t key, char *buf,
   static const char *const types[] = {"uchar", "uchar", "ushort", "float"};
   static const int bytes[] = {1, 1, 2, 4};
   uint32_t type = (key >> RP_CL_KEY_TYPE_SHIFT) & 3u;
-  if (kind != RP_CL_RAYCAST)
+  if (kind != RP_CL_RAYCAST && kind != RP_CL_AO)
     type = 0;
   snprintf(buf, n,
-           "-cl-std=CL1.2 -cl-mad-enable%s%s%s%s -DRP_VOXEL_T=%s "
+           "-cl-std=CL1.2 -cl-mad-enable%s%s%s%s%s -DRP_VOXEL_T=%s "
            "-DRP_VOXEL_BYTES=%d -DRP_INDEX_T=%s -DRP_CL_W=%d",
            (key & RP_EFFECT_SHADING) ? " -DRP_SHADING" : "",
            (key & RP_EFFECT_ERT) ? " -DRP_ERT" : "",
            (key & RP_EFFECT_SKIP) ? " -DRP_SKIP" : "",
+           (key & RP_EFFECT_AO) ? " -DRP_AO" : "",
            (key & RP_CL_KEY_COUNT) ? " -DRP_COUNT_FETCHES" : "",
            types[type], bytes[type], (key & RP_CL_KEY_BIG) ? "long" : "int",
            RP_CL_PACKET);
@@ -86,7 +95,8 @@ static void release_program(rp_cl_program *p) {
 
 int rp_cl__kernel(rp_cl_impl *impl, rp_cl_kind kind, uint32_t key,
                   cl_kernel *out) {
-  const char *sources[2];
+  const char *sources[3];
+  cl_uint count = 0;
   char options[192];
   rp_cl_program *slot = &impl->cache[0];
   cl_program prog;
@@ -106,12 +116,15 @@ int rp_cl__kernel(rp_cl_impl *impl, rp_cl_kind kind, uint32_t key,
   for (i = 1; i < RP_CL_CACHE_SIZE; i++)
     if (impl->cache[i].last_use < slot->last_use)
       slot = &impl->cache[i];
-  sources[0] = rp_cl_src_common;
-  sources[1] = kind == RP_CL_RAYCAST ? rp_cl_src_raycast
-               : kind == RP_CL_DEPTH ? rp_cl_src_depth
-                                     : rp_cl_src_ert;
+  sources[count++] = rp_cl_src_common;
+  if (kind == RP_CL_RAYCAST || kind == RP_CL_AO)
+    sources[count++] = rp_cl_src_sample;
+  sources[count++] = kind == RP_CL_RAYCAST ? rp_cl_src_raycast
+                     : kind == RP_CL_DEPTH ? rp_cl_src_depth
+                     : kind == RP_CL_ERT   ? rp_cl_src_ert
+                                           : rp_cl_src_ao;
   key_options(kind, key, options, sizeof options);
-  if ((rc = rp_cl__build(impl, kind_names[kind], sources, 2, options,
+  if ((rc = rp_cl__build(impl, kind_names[kind], sources, count, options,
                          &prog)) != 0)
     return rc;
   kernel = clCreateKernel(prog, kind_kernels[kind], &err);
@@ -214,16 +227,17 @@ static int set_mem(rp_cl_impl *impl, cl_kernel k, cl_uint i,
 
 static size_t round_up(size_t v, size_t m) { return (v + m - 1) / m * m; }
 
-/* Runs `k` over global[0] x global[1] work-items in groups of local[0] x
- * local[1], waits, and keeps its device time in last_ns. */
-static int launch(rp_cl_impl *impl, cl_kernel k, const size_t global[2],
-                  const size_t local[2], const char *kernel) {
+/* Runs `k` over the global[0] x ... x global[dims - 1] work-items in
+ * groups of local[0] x ..., waits, and keeps its device time in last_ns. */
+static int launch_nd(rp_cl_impl *impl, cl_kernel k, cl_uint dims,
+                     const size_t *global, const size_t *local,
+                     const char *kernel) {
   cl_event ev = NULL;
   cl_ulong t0 = 0, t1 = 0;
   cl_int err;
   char op[80];
-  err = clEnqueueNDRangeKernel(impl->queue, k, 2, NULL, global, local, 0,
-                               NULL, &ev);
+  err = clEnqueueNDRangeKernel(impl->queue, k, dims, NULL, global, local,
+                               0, NULL, &ev);
   if (err == CL_SUCCESS)
     err = clWaitForEvents(1, &ev);
   if (err == CL_SUCCESS) {
@@ -237,9 +251,14 @@ static int launch(rp_cl_impl *impl, cl_kernel k, const size_t global[2],
     clReleaseEvent(ev);
   if (err == CL_SUCCESS)
     return 0;
-  snprintf(op, sizeof op, "running %s (%zux%zu)", kernel, global[0],
-           global[1]);
+  snprintf(op, sizeof op, "running %s (%zux%zux%zu)", kernel, global[0],
+           dims > 1 ? global[1] : 1, dims > 2 ? global[2] : 1);
   return rp_cl__fail(impl->ctx, err, op);
+}
+
+static int launch(rp_cl_impl *impl, cl_kernel k, const size_t global[2],
+                  const size_t local[2], const char *kernel) {
+  return launch_nd(impl, k, 2, global, local, kernel);
 }
 
 /* A kernel over a w x h grid of rays: one work-group per 8x8 tile, its
@@ -302,6 +321,7 @@ static void cl_destroy(void *p) {
   release_buffer(&impl->lut);
   release_buffer(&impl->grid);
   release_buffer(&impl->alpha_hist);
+  release_buffer(&impl->ao);
   release_buffer(&impl->front_back);
   release_buffer(&impl->d_ert);
   release_buffer(&impl->rgba);
@@ -317,6 +337,8 @@ static int cl_upload_volume(void *p, const rp_volume *vol) {
   int rc = upload(impl, &impl->volume, vol->data, bytes, RP_CL_VOLUME_PAD,
                   "the volume");
   if (rc == 0) {
+    memcpy(impl->dims, vol->dims, sizeof impl->dims);
+    impl->voxels = vol->voxel_count;
     impl->voxel_type = vol->type;
     /* Kernels index voxels with signed 32-bit integers (that is what
      * lets gathers use 32-bit offsets) unless the volume is too big. */
@@ -410,6 +432,12 @@ static uint32_t raycast_key(const rp_cl_impl *impl, uint32_t effects,
          ((uint32_t)impl->voxel_type << RP_CL_KEY_TYPE_SHIFT);
 }
 
+/* The AO program's key: the voxel type and index width. */
+static uint32_t ao_key(const rp_cl_impl *impl) {
+  return (impl->big_volume ? RP_CL_KEY_BIG : 0u) |
+         ((uint32_t)impl->voxel_type << RP_CL_KEY_TYPE_SHIFT);
+}
+
 static int cl_raycast(void *p, const rp_frame_params *fp, const rp_region *r,
                       uint8_t *rgba, rp_tile_stats *tiles,
                       uint64_t *fetches) {
@@ -432,6 +460,11 @@ static int cl_raycast(void *p, const rp_frame_params *fp, const rp_region *r,
       impl->front_back.mem == NULL)
     return rp__fail(impl->ctx, RP_ESTATE, "opencl: raycast before the "
                     "volume, transfer function or depth pass");
+  if ((fp->effects & RP_EFFECT_AO) &&
+      (impl->ao.mem == NULL || impl->ao_voxels != impl->voxels))
+    return rp__fail(impl->ctx, RP_ESTATE, "opencl: raycast with "
+                    "RP_EFFECT_AO but no AO volume uploaded for this "
+                    "volume");
   if ((rc = rp_cl__kernel(impl, RP_CL_RAYCAST,
                           raycast_key(impl, fp->effects, fetches != NULL),
                           &k)) != 0 ||
@@ -455,6 +488,7 @@ static int cl_raycast(void *p, const rp_frame_params *fp, const rp_region *r,
       (rc = set_mem(impl, k, 9, &impl->rgba, name)) != 0 ||
       (rc = set_mem(impl, k, 10, &impl->tiles, name)) != 0 ||
       (rc = set_mem(impl, k, 11, &impl->fetches, name)) != 0 ||
+      (rc = set_mem(impl, k, 12, &impl->ao, name)) != 0 ||
       (rc = launch_tiles(impl, k, rw, rh, name)) != 0)
     return rc;
   if ((rc = read_rect(impl, &impl->rgba, rgba, (size_t)r->x0 * 4, r->y0,
@@ -475,13 +509,126 @@ static int cl_raycast(void *p, const rp_frame_params *fp, const rp_region *r,
   return 0;
 }
 
+/* A read-only buffer holding a copy of `size` bytes at `data`. */
+static int upload_copy(rp_cl_impl *impl, rp_cl_buffer *b, const void *data,
+                       size_t size, const char *what) {
+  cl_int err;
+  char op[96];
+  b->mem = clCreateBuffer(impl->context,
+                          CL_MEM_READ_ONLY | CL_MEM_COPY_HOST_PTR, size,
+                          (void *)data, &err);
+  b->size = size;
+  if (b->mem != NULL)
+    return 0;
+  snprintf(op, sizeof op, "clCreateBuffer for %s (%zu bytes)", what, size);
+  return rp_cl__fail(impl->ctx, err, op);
+}
+
+/* Computes the job's box on the device. Its buffers (directions, brick
+ * mask, result) live for this call only: AO is computed once per volume
+ * and transfer function, and memory for it must not outlive it. */
+static int cl_compute_ao(void *p, const rp_ao_job *job, uint8_t *out) {
+  rp_cl_impl *impl = p;
+  const char *name = "rp_cl_ao";
+  rp_cl_buffer dirs = {NULL, 0}, bricks = {NULL, 0}, res = {NULL, 0};
+  rp_cl_ao_args a;
+  size_t n[3], global[3], local[3] = {1, 1, 1};
+  size_t cols = RP_AO_BRICK, rows = RP_CL_PACKET / RP_AO_BRICK, total;
+  cl_kernel k;
+  int rc, i;
+  impl->last_ns = 0;
+  if (impl->volume.mem == NULL || impl->lut.mem == NULL)
+    return rp__fail(impl->ctx, RP_ESTATE, "opencl: compute_ao before the "
+                    "volume or transfer function");
+  for (i = 0; i < 3; i++)
+    n[i] = job->end[i] > job->lo[i] ? job->end[i] - job->lo[i] : 0;
+  total = n[0] * n[1] * n[2];
+  if (total == 0)
+    return 0;
+  memset(&a, 0, sizeof a);
+  for (i = 0; i < 3; i++) {
+    a.dims[i] = (float)impl->dims[i];
+    a.idims[i] = impl->dims[i];
+    a.lo[i] = job->lo[i];
+    a.end[i] = job->end[i];
+    a.brick_grid[i] = job->brick_grid[i];
+  }
+  a.directions = job->directions;
+  a.samples = job->samples;
+  a.offset = job->offset;
+  a.step = job->step;
+  a.ref_step = job->ref_step;
+  a.value_min = job->value_min;
+  a.value_max = job->value_max;
+  a.lut_size = job->lut_size;
+  a.bricked = job->bricks != NULL;
+  /* Packets of cols x rows voxels aligned to the whole grid's bricks,
+   * from the one holding lo to the one holding end - 1. */
+  global[0] = (job->end[0] - 1) / cols - job->lo[0] / cols + 1;
+  global[1] = (job->end[1] - 1) / rows - job->lo[1] / rows + 1;
+  global[2] = n[2];
+  rc = rp_cl__kernel(impl, RP_CL_AO, ao_key(impl), &k);
+  if (rc == 0)
+    rc = upload_copy(impl, &dirs, job->dirs,
+                     (size_t)job->directions * 4 * sizeof(float),
+                     "the AO directions");
+  /* Without a mask the kernel never reads it, but needs a buffer. */
+  if (rc == 0)
+    rc = job->bricks != NULL
+             ? upload_copy(impl, &bricks, job->bricks,
+                           (size_t)job->brick_grid[0] * job->brick_grid[1] *
+                               job->brick_grid[2],
+                           "the AO brick mask")
+             : ensure_buffer(impl, &bricks, 1, CL_MEM_READ_ONLY,
+                             "the AO brick mask");
+  if (rc == 0)
+    rc = ensure_buffer(impl, &res, total, CL_MEM_WRITE_ONLY, "the AO box");
+  if (rc == 0 && (rc = set_arg(impl, k, 0, sizeof a, &a, name)) == 0 &&
+      (rc = set_mem(impl, k, 1, &impl->volume, name)) == 0 &&
+      (rc = set_mem(impl, k, 2, &impl->lut, name)) == 0 &&
+      (rc = set_mem(impl, k, 3, &bricks, name)) == 0 &&
+      (rc = set_mem(impl, k, 4, &dirs, name)) == 0 &&
+      (rc = set_mem(impl, k, 5, &res, name)) == 0 &&
+      (rc = launch_nd(impl, k, 3, global, local, name)) == 0) {
+    uint64_t ns = impl->last_ns;
+    rc = read_back(impl, &res, out, total, "the AO box");
+    impl->last_ns = ns;
+  }
+  release_buffer(&dirs);
+  release_buffer(&bricks);
+  release_buffer(&res);
+  return rc;
+}
+
+/* The AO volume raycasts read; NULL releases it. */
+static int cl_upload_ao(void *p, const uint8_t *ao) {
+  rp_cl_impl *impl = p;
+  int rc;
+  if (ao == NULL) {
+    release_buffer(&impl->ao);
+    impl->ao_voxels = 0;
+    impl->last_ns = 0;
+    return 0;
+  }
+  if (impl->volume.mem == NULL)
+    return rp__fail(impl->ctx, RP_ESTATE, "opencl: upload_ao before the "
+                    "volume");
+  /* Padded as the volume is: trilinear reads bytes in 32-bit words. */
+  rc = upload(impl, &impl->ao, ao, impl->voxels, RP_CL_VOLUME_PAD,
+              "the AO volume");
+  if (rc == 0)
+    impl->ao_voxels = impl->voxels;
+  return rc;
+}
+
 static uint64_t cl_last_time_ns(void *p) {
   return ((const rp_cl_impl *)p)->last_ns;
 }
 
 static const rp_backend_ops cl_ops = {
-    cl_destroy,     cl_upload_volume, cl_upload_tf, cl_upload_occupancy,
-    cl_depth_pass,  cl_ert_prepass,   cl_raycast,   cl_last_time_ns};
+    cl_destroy,    cl_upload_volume, cl_upload_tf,  cl_upload_occupancy,
+    cl_depth_pass, cl_ert_prepass,   cl_raycast,    cl_compute_ao,
+    cl_upload_ao,  cl_last_time_ns};
 
 /* ---- bootstrap ----------------------------------------------------------- */
 
@@ -536,7 +683,7 @@ int rp_cl__prepare_raycast(void *p, uint32_t effects, int count_fetches) {
 }
 
 /* A kernel that applies the raycast's opacity correction to an array;
- * built after common.cl and raycast.cl, so it calls the very function
+ * built after common.cl and sample.cl, so it calls the very function
  * frames use. */
 static const char correct_test_src[] =
     "__kernel void rp_cl_correct_test(__global const float *a, float r,\n"
@@ -549,7 +696,7 @@ static const char correct_test_src[] =
 int rp_cl__correct_for_test(void *p, const float *alpha, size_t n,
                             float ratio, float *out) {
   rp_cl_impl *impl = p;
-  const char *sources[3] = {rp_cl_src_common, rp_cl_src_raycast,
+  const char *sources[3] = {rp_cl_src_common, rp_cl_src_sample,
                             correct_test_src};
   size_t groups = (n + RP_CL_PACKET - 1) / RP_CL_PACKET;
   size_t bytes = groups * RP_CL_PACKET * sizeof(float);

@@ -13,16 +13,18 @@
 
 extern const rp_backend_bootstrap rp_cl_bootstrap;
 
-/* The three programs; each is built per option set (below). */
+/* The four programs; each is built per option set (below). */
 typedef enum rp_cl_kind {
   RP_CL_RAYCAST = 0,
   RP_CL_DEPTH = 1,
-  RP_CL_ERT = 2
+  RP_CL_ERT = 2,
+  RP_CL_AO = 3
 } rp_cl_kind;
 
 /* Option set of a program, the key of the program cache: the effect bits
- * it was specialised for (RP_EFFECT_SHADING | ERT | SKIP), the fetch
- * counting variant, and the voxel type and index width (raycast only). */
+ * it was specialised for (RP_EFFECT_SHADING | ERT | SKIP | AO), the fetch
+ * counting variant, and the voxel type and index width (raycast and AO
+ * only). */
 #define RP_CL_KEY_COUNT (1u << 8)
 #define RP_CL_KEY_BIG (1u << 9) /* 2^31 voxels or more: 64-bit indices */
 #define RP_CL_KEY_TYPE_SHIFT 10
@@ -43,6 +45,20 @@ typedef struct rp_cl_buffer {
   size_t size;
 } rp_cl_buffer;
 
+/* The AO kernel's first argument (rp_cl_ao_args in kernels/ao.cl): an
+ * rp_ao_job without its pointers, plus the volume's dims. */
+typedef struct rp_cl_ao_args {
+  float dims[3];
+  uint32_t idims[3];
+  uint32_t lo[3], end[3];
+  uint32_t directions, samples;
+  float offset, step, ref_step;
+  float value_min, value_max;
+  uint32_t lut_size;
+  uint32_t brick_grid[3];
+  uint32_t bricked;
+} rp_cl_ao_args;
+
 typedef struct rp_cl_impl {
   rp_context *ctx;
   cl_device_id device; /* the one kernels run on */
@@ -54,7 +70,11 @@ typedef struct rp_cl_impl {
   uint32_t builds, hits; /* program cache counters (tests read them) */
   rp_voxel_type voxel_type; /* 0 until a volume is uploaded */
   int big_volume;           /* see RP_CL_KEY_BIG */
+  uint32_t dims[3];         /* of the uploaded volume */
+  size_t voxels;            /* its voxel count */
+  size_t ao_voxels;         /* the AO volume's, when one is uploaded */
   rp_cl_buffer volume, lut, grid, alpha_hist;
+  rp_cl_buffer ao; /* the AO volume (RP_EFFECT_AO); none when AO is off */
   rp_cl_buffer front_back, d_ert, rgba, tiles, fetches;
   uint64_t last_ns;
 } rp_cl_impl;

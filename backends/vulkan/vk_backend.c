@@ -2,17 +2,17 @@
  * with a compute queue (developed on Mesa's lavapipe).
  *
  * Design, in short:
- * - Three kernels (kernels/NAME.comp), compiled to SPIR-V by glslc at build
- *   time and embedded. The effects, the counting variant, the voxel type,
- *   the volume layout and whether opacity needs correcting are
- *   specialization constants: a pipeline is made the first time a
- *   combination is used and kept for the device's life, and a
+ * - Four kernels (kernels/NAME.comp: raycast, depth, ert, ao), compiled to
+ *   SPIR-V by glslc at build time and embedded. The effects, the counting
+ *   variant, the voxel type, the volume layout and whether opacity needs
+ *   correcting are specialization constants: a pipeline is made the first
+ *   time a combination is used and kept for the device's life, and a
  *   VkPipelineCache file carries what the driver is willing to store
  *   between runs (lavapipe stores only a header; its compiled code goes
  *   to Mesa's own shader cache).
  * - Everything a kernel reads per sample or per block is a uniform texel
  *   buffer read with texelFetch: exact values, no filtering, hand-written
- *   trilinear (why: kernels/raycast.comp). When memory allows, each volume
+ *   trilinear (why: kernels/common.glsl). When memory allows, each volume
  *   texel holds a 2x2 voxel footprint ("quad" layout, 4x the volume's
  *   bytes) so that a trilinear sample is two fetches, not eight.
  * - The frame parameters are a storage buffer, not a uniform buffer or
@@ -24,7 +24,12 @@
  *   depth buffer a depth pass writes is visible to the raycast that reads
  *   it, in the same submission or a later one.
  * - Outputs live in host-visible memory sized to the largest request so
- *   far and reused, so a steady frame loop allocates nothing. */
+ *   far and reused, so a steady frame loop allocates nothing.
+ * - Ambient occlusion: compute_ao runs kernels/ao.comp over the job's box
+ *   in slabs of whole bricks, through buffers that live only during the
+ *   call; upload_ao keeps one byte per voxel in an R8 texel buffer that
+ *   the raycast's RP_AO variant reads, and nothing AO-sized while no AO
+ *   volume is uploaded (its binding then holds the 256-byte stand-in). */
 #include <math.h>
 #include <stdio.h>
 #include <string.h>
@@ -33,6 +38,7 @@
 #include "passes.h"
 #include "vk_internal.h"
 
+#include "ao.spv.h"
 #include "depth.spv.h"
 #include "ert.spv.h"
 #include "raycast.spv.h"
@@ -47,6 +53,7 @@ static const struct {
     {"raycast", rp_vk_spv_raycast, sizeof rp_vk_spv_raycast},
     {"depth", rp_vk_spv_depth, sizeof rp_vk_spv_depth},
     {"ert", rp_vk_spv_ert, sizeof rp_vk_spv_ert},
+    {"ao", rp_vk_spv_ao, sizeof rp_vk_spv_ao},
 };
 
 _Static_assert(sizeof(rp_vk_params) == 288,
@@ -100,13 +107,22 @@ static int make_modules(rp_vk_impl *impl) {
   return 0;
 }
 
+/* Everything the kernels read per sample or per block is a texel buffer:
+ * on lavapipe a texel fetch is a vector gather, a storage buffer load in
+ * divergent code a loop over the lanes. The rest are storage buffers. */
+static int is_texel(int binding) {
+  return (binding >= RP_VK_BIND_VOLUME && binding <= RP_VK_BIND_ALPHA) ||
+         binding == RP_VK_BIND_AO || binding == RP_VK_BIND_AO_DIRS ||
+         binding == RP_VK_BIND_AO_BRICKS;
+}
+
 static int make_layout(rp_vk_impl *impl) {
   VkDescriptorSetLayoutBinding b[RP_VK_BIND_COUNT];
   VkDescriptorSetLayoutCreateInfo sinfo = {0};
   VkPipelineLayoutCreateInfo linfo = {0};
   VkDescriptorPoolSize sizes[2] = {
-      {VK_DESCRIPTOR_TYPE_UNIFORM_TEXEL_BUFFER, 4},
-      {VK_DESCRIPTOR_TYPE_STORAGE_BUFFER, RP_VK_BIND_COUNT - 4}};
+      {VK_DESCRIPTOR_TYPE_UNIFORM_TEXEL_BUFFER, 0},
+      {VK_DESCRIPTOR_TYPE_STORAGE_BUFFER, 0}};
   VkDescriptorPoolCreateInfo pinfo = {0};
   VkDescriptorSetAllocateInfo ainfo = {0};
   VkResult r;
@@ -116,13 +132,11 @@ static int make_layout(rp_vk_impl *impl) {
     b[i].binding = (uint32_t)i;
     b[i].descriptorCount = 1;
     b[i].stageFlags = VK_SHADER_STAGE_COMPUTE_BIT;
-    b[i].descriptorType = VK_DESCRIPTOR_TYPE_STORAGE_BUFFER;
+    b[i].descriptorType = is_texel(i)
+                              ? VK_DESCRIPTOR_TYPE_UNIFORM_TEXEL_BUFFER
+                              : VK_DESCRIPTOR_TYPE_STORAGE_BUFFER;
+    sizes[is_texel(i) ? 0 : 1].descriptorCount++;
   }
-  /* Everything the kernels read per sample or per block is a texel
-   * buffer: on lavapipe a texel fetch is a vector gather, a storage
-   * buffer load in divergent code a loop over the lanes. */
-  for (i = RP_VK_BIND_VOLUME; i <= RP_VK_BIND_ALPHA; i++)
-    b[i].descriptorType = VK_DESCRIPTOR_TYPE_UNIFORM_TEXEL_BUFFER;
   sinfo.sType = VK_STRUCTURE_TYPE_DESCRIPTOR_SET_LAYOUT_CREATE_INFO;
   sinfo.bindingCount = RP_VK_BIND_COUNT;
   sinfo.pBindings = b;
@@ -174,36 +188,41 @@ static void free_view(rp_vk_impl *impl, VkBufferView *v) {
   *v = VK_NULL_HANDLE;
 }
 
+static VkBufferView view_or(VkBufferView v, VkBufferView stand_in) {
+  return v != VK_NULL_HANDLE ? v : stand_in;
+}
+
 /* Points every binding at its buffer, or at the stand-in while the real
  * one does not exist yet. Called after any buffer is (re)made; the set is
  * never in use then, since every operation waits for its work. */
 static void bind_all(rp_vk_impl *impl) {
   const rp_vk_buffer *bufs[RP_VK_BIND_COUNT] = {
-      &impl->params, &impl->volume, &impl->lut,   &impl->grid, &impl->alpha,
-      &impl->depth,  &impl->image,  &impl->tiles, &impl->ert};
+      &impl->params, &impl->volume, &impl->lut,    &impl->grid,
+      &impl->alpha,  &impl->depth,  &impl->image,  &impl->tiles,
+      &impl->ert,    &impl->ao,     &impl->ao_out, &impl->ao_dirs,
+      &impl->ao_bricks};
   VkDescriptorBufferInfo info[RP_VK_BIND_COUNT];
   VkWriteDescriptorSet w[RP_VK_BIND_COUNT];
   VkBufferView views[RP_VK_BIND_COUNT];
   int i;
   memset(w, 0, sizeof w);
-  views[RP_VK_BIND_VOLUME] = impl->volume_view != VK_NULL_HANDLE
-                                 ? impl->volume_view
-                                 : impl->dummy_u_view;
-  views[RP_VK_BIND_LUT] =
-      impl->lut_view != VK_NULL_HANDLE ? impl->lut_view : impl->dummy_f_view;
-  views[RP_VK_BIND_GRID] = impl->grid_view != VK_NULL_HANDLE
-                               ? impl->grid_view
-                               : impl->dummy_u_view;
-  views[RP_VK_BIND_ALPHA] = impl->alpha_view != VK_NULL_HANDLE
-                                ? impl->alpha_view
-                                : impl->dummy_u_view;
+  views[RP_VK_BIND_VOLUME] = view_or(impl->volume_view, impl->dummy_u_view);
+  views[RP_VK_BIND_LUT] = view_or(impl->lut_view, impl->dummy_f_view);
+  views[RP_VK_BIND_GRID] = view_or(impl->grid_view, impl->dummy_u_view);
+  views[RP_VK_BIND_ALPHA] = view_or(impl->alpha_view, impl->dummy_u_view);
+  /* While AO is off the raycast's AO binding holds the 256-byte stand-in,
+   * never an AO-volume-sized buffer. */
+  views[RP_VK_BIND_AO] = view_or(impl->ao_view, impl->dummy_u_view);
+  views[RP_VK_BIND_AO_DIRS] = view_or(impl->ao_dirs_view, impl->dummy_f_view);
+  views[RP_VK_BIND_AO_BRICKS] =
+      view_or(impl->ao_bricks_view, impl->dummy_u_view);
   for (i = 0; i < RP_VK_BIND_COUNT; i++) {
     const rp_vk_buffer *b = bufs[i];
     w[i].sType = VK_STRUCTURE_TYPE_WRITE_DESCRIPTOR_SET;
     w[i].dstSet = impl->set;
     w[i].dstBinding = (uint32_t)i;
     w[i].descriptorCount = 1;
-    if (i >= RP_VK_BIND_VOLUME && i <= RP_VK_BIND_ALPHA) {
+    if (is_texel(i)) {
       w[i].descriptorType = VK_DESCRIPTOR_TYPE_UNIFORM_TEXEL_BUFFER;
       w[i].pTexelBufferView = &views[i];
       continue;
@@ -258,6 +277,9 @@ static void vk_destroy(void *p) {
     free_view(impl, &impl->lut_view);
     free_view(impl, &impl->grid_view);
     free_view(impl, &impl->alpha_view);
+    free_view(impl, &impl->ao_view);
+    free_view(impl, &impl->ao_dirs_view);
+    free_view(impl, &impl->ao_bricks_view);
     free_view(impl, &impl->dummy_u_view);
     free_view(impl, &impl->dummy_f_view);
     rp_vk__buffer_free(impl, &impl->params);
@@ -269,6 +291,10 @@ static void vk_destroy(void *p) {
     rp_vk__buffer_free(impl, &impl->image);
     rp_vk__buffer_free(impl, &impl->tiles);
     rp_vk__buffer_free(impl, &impl->ert);
+    rp_vk__buffer_free(impl, &impl->ao);
+    rp_vk__buffer_free(impl, &impl->ao_out);
+    rp_vk__buffer_free(impl, &impl->ao_dirs);
+    rp_vk__buffer_free(impl, &impl->ao_bricks);
     rp_vk__buffer_free(impl, &impl->dummy);
     if (impl->desc_pool != VK_NULL_HANDLE)
       vkDestroyDescriptorPool(impl->dev, impl->desc_pool, NULL);
@@ -328,7 +354,8 @@ static uint32_t pipeline_key(rp_vk_kernel k, const rp_frame_params *p,
   uint32_t key = (uint32_t)k << RP_VK_KEY_KERNEL_SHIFT;
   uint32_t effects = p->effects;
   if (k == RP_VK_RAYCAST) {
-    key |= effects & (RP_EFFECT_SHADING | RP_EFFECT_ERT | RP_EFFECT_SKIP);
+    key |= effects & (RP_EFFECT_SHADING | RP_EFFECT_ERT | RP_EFFECT_SKIP |
+                      RP_EFFECT_AO);
     key |= p->step != p->ref_step ? RP_VK_KEY_CORRECT : 0;
     key |= counting ? RP_VK_KEY_COUNT : 0;
     key |= quad ? RP_VK_KEY_QUAD : 0;
@@ -374,7 +401,7 @@ static int get_pipeline(rp_vk_impl *impl, uint32_t key, VkPipeline *out) {
   values[RP_VK_SPEC_ERT] = (key & RP_EFFECT_ERT) != 0;
   values[RP_VK_SPEC_SKIP] = (key & RP_EFFECT_SKIP) != 0;
   values[RP_VK_SPEC_COUNT] = (key & RP_VK_KEY_COUNT) != 0;
-  values[RP_VK_SPEC_AO] = 0;
+  values[RP_VK_SPEC_AO] = (key & RP_EFFECT_AO) != 0;
   values[RP_VK_SPEC_VOXEL] = (key >> RP_VK_KEY_TYPE_SHIFT) & 3u;
   if (values[RP_VK_SPEC_VOXEL] == 0)
     values[RP_VK_SPEC_VOXEL] = RP_U8;
@@ -647,6 +674,16 @@ static uint64_t quad_budget(const rp_vk_impl *impl) {
   return best / 2;
 }
 
+/* Releases the AO volume: no AO memory while AO is off. */
+static void drop_ao(rp_vk_impl *impl) {
+  if (impl->ao.buf == VK_NULL_HANDLE && impl->ao_view == VK_NULL_HANDLE)
+    return;
+  free_view(impl, &impl->ao_view);
+  rp_vk__buffer_free(impl, &impl->ao);
+  impl->stats.ao_bytes = 0;
+  bind_all(impl);
+}
+
 static int vk_upload_volume(void *p, const rp_volume *vol) {
   static const VkFormat quad_fmt[4] = {
       VK_FORMAT_UNDEFINED, VK_FORMAT_R8G8B8A8_UINT,
@@ -679,6 +716,12 @@ static int vk_upload_volume(void *p, const rp_volume *vol) {
   rp_vk__buffer_free(impl, &impl->volume);
   impl->voxel_type = 0;
   impl->depth_ok = 0;
+  /* An AO volume is one byte per voxel of the volume it was uploaded
+   * for: it cannot survive a change of shape (whether it still fits the
+   * new voxels is the front end's to judge). */
+  if (memcmp(impl->dims, vol->dims, sizeof impl->dims) != 0)
+    drop_ao(impl);
+  memset(impl->dims, 0, sizeof impl->dims);
   err = rp_vk__buffer(impl, "volume", (quad ? 4 : 1) * es * n,
                       VK_BUFFER_USAGE_UNIFORM_TEXEL_BUFFER_BIT |
                           VK_BUFFER_USAGE_TRANSFER_DST_BIT,
@@ -696,11 +739,13 @@ static int vk_upload_volume(void *p, const rp_volume *vol) {
   if (err != 0) {
     free_view(impl, &impl->volume_view);
     rp_vk__buffer_free(impl, &impl->volume);
+    drop_ao(impl);
     bind_all(impl);
     return err;
   }
   bind_all(impl);
   impl->voxel_type = vol->type;
+  memcpy(impl->dims, vol->dims, sizeof impl->dims);
   impl->quad = quad;
   impl->stats.quad_layout = quad;
   return 0;
@@ -740,8 +785,12 @@ static int vk_upload_tf(void *p, const float *lut, uint32_t lut_size) {
     }
     bind_all(impl);
   }
-  return write_buffer(impl, &impl->lut, "transfer function staging",
-                      fill_copy, &c);
+  impl->have_lut = 0;
+  if ((err = write_buffer(impl, &impl->lut, "transfer function staging",
+                          fill_copy, &c)) != 0)
+    return err;
+  impl->have_lut = 1;
+  return 0;
 }
 
 static int vk_upload_occupancy(void *p, const uint8_t *grid,
@@ -979,8 +1028,13 @@ static int vk_raycast(void *ip, const rp_frame_params *p, const rp_region *r,
   VkPipeline cast = VK_NULL_HANDLE, depth = VK_NULL_HANDLE;
   const uint32_t *tile_words;
   const uint8_t *px;
-  if ((err = alive(impl)) != 0 ||
-      (err = check_groups(impl, "raycast", ntx, nty)) != 0 ||
+  if ((err = alive(impl)) != 0)
+    return err;
+  if ((p->effects & RP_EFFECT_AO) && impl->ao.buf == VK_NULL_HANDLE)
+    return rp__fail(impl->ctx, RP_ESTATE, "vulkan: a raycast with "
+                    "RP_EFFECT_AO needs an AO volume, and none is uploaded "
+                    "(upload_ao)");
+  if ((err = check_groups(impl, "raycast", ntx, nty)) != 0 ||
       (skip && (err = check_groups(impl, "depth pass",
                                    div_up(p->width, RP_TILE_SIZE),
                                    div_up(p->height, RP_TILE_SIZE))) != 0))
@@ -1047,6 +1101,238 @@ static int vk_raycast(void *ip, const rp_frame_params *p, const rp_region *r,
   return 0;
 }
 
+/* ---- ambient occlusion --------------------------------------------------- */
+
+/* Bytes of compute_ao's output buffer per submission at most: a box whose
+ * words need more is computed in slabs of whole brick layers. */
+#define RP_VK_AO_CHUNK ((VkDeviceSize)64 << 20)
+
+static int vk_upload_ao(void *p, const uint8_t *ao) {
+  rp_vk_impl *impl = p;
+  uint64_t n = (uint64_t)impl->dims[0] * impl->dims[1] * impl->dims[2];
+  copy_fill c;
+  int err;
+  if (ao == NULL) {
+    drop_ao(impl);
+    return 0;
+  }
+  if ((err = alive(impl)) != 0)
+    return err;
+  if (impl->voxel_type == 0)
+    return rp__fail(impl->ctx, RP_ESTATE, "vulkan: an AO volume needs the "
+                    "volume it belongs to uploaded first");
+  if (!format_ok(impl, VK_FORMAT_R8_UINT))
+    return rp__fail(impl->ctx, RP_EUNSUPPORTED, "vulkan: device cannot "
+                    "read bytes from a texel buffer (AO volume)");
+  if (impl->ao.buf == VK_NULL_HANDLE || impl->ao.size != n) {
+    drop_ao(impl);
+    if ((err = rp_vk__buffer(impl, "AO volume", n,
+                             VK_BUFFER_USAGE_UNIFORM_TEXEL_BUFFER_BIT |
+                                 VK_BUFFER_USAGE_TRANSFER_DST_BIT,
+                             0, &impl->ao)) != 0 ||
+        (err = make_view(impl, impl->ao.buf, VK_FORMAT_R8_UINT,
+                         &impl->ao_view)) != 0) {
+      drop_ao(impl);
+      return err;
+    }
+    impl->stats.ao_bytes = n;
+    bind_all(impl);
+  }
+  c.src = ao;
+  c.bytes = (size_t)n;
+  if ((err = write_buffer(impl, &impl->ao, "AO volume staging", fill_copy,
+                          &c)) != 0) {
+    /* Half-written data must not be rendered with. */
+    drop_ao(impl);
+    return err;
+  }
+  return 0;
+}
+
+/* compute_ao's buffers exist only during the call. */
+static void ao_scratch_free(rp_vk_impl *impl) {
+  free_view(impl, &impl->ao_dirs_view);
+  free_view(impl, &impl->ao_bricks_view);
+  rp_vk__buffer_free(impl, &impl->ao_out);
+  rp_vk__buffer_free(impl, &impl->ao_dirs);
+  rp_vk__buffer_free(impl, &impl->ao_bricks);
+  bind_all(impl);
+}
+
+/* The directions, the brick mask (when there is one) and an output
+ * buffer of `out_bytes`. */
+static int ao_scratch(rp_vk_impl *impl, const rp_ao_job *job,
+                      VkDeviceSize out_bytes) {
+  const VkBufferUsageFlags usage = VK_BUFFER_USAGE_UNIFORM_TEXEL_BUFFER_BIT |
+                                   VK_BUFFER_USAGE_TRANSFER_DST_BIT;
+  copy_fill c;
+  int err;
+  c.src = job->dirs;
+  c.bytes = (size_t)job->directions * 4 * sizeof(float);
+  if ((err = rp_vk__buffer(impl, "AO directions", c.bytes, usage, 0,
+                           &impl->ao_dirs)) != 0 ||
+      (err = make_view(impl, impl->ao_dirs.buf,
+                       VK_FORMAT_R32G32B32A32_SFLOAT,
+                       &impl->ao_dirs_view)) != 0 ||
+      (err = write_buffer(impl, &impl->ao_dirs, "AO directions staging",
+                          fill_copy, &c)) != 0)
+    return err;
+  if (job->bricks != NULL) {
+    c.src = job->bricks;
+    c.bytes = (size_t)job->brick_grid[0] * job->brick_grid[1] *
+              job->brick_grid[2];
+    if ((err = rp_vk__buffer(impl, "AO brick mask", c.bytes, usage, 0,
+                             &impl->ao_bricks)) != 0 ||
+        (err = make_view(impl, impl->ao_bricks.buf, VK_FORMAT_R8_UINT,
+                         &impl->ao_bricks_view)) != 0 ||
+        (err = write_buffer(impl, &impl->ao_bricks, "AO brick staging",
+                            fill_copy, &c)) != 0)
+      return err;
+  }
+  if ((err = rp_vk__buffer(impl, "AO output", out_bytes,
+                           VK_BUFFER_USAGE_STORAGE_BUFFER_BIT, 1,
+                           &impl->ao_out)) != 0)
+    return err;
+  bind_all(impl);
+  return 0;
+}
+
+/* The Params block as kernels/ao.comp reads it, for layers [z0, z1) of
+ * the job's box. */
+static void set_ao_params(rp_vk_impl *impl, const rp_ao_job *job,
+                          uint32_t z0, uint32_t z1, uint32_t words) {
+  rp_vk_params *u = impl->params.map;
+  double range = (double)job->value_max - (double)job->value_min;
+  int a;
+  memset(u, 0, sizeof *u);
+  for (a = 0; a < 3; a++) {
+    u->dims[a] = (float)impl->dims[a];
+    u->idims[a] = impl->dims[a];
+    u->blocks[a] = job->bricks != NULL ? job->brick_grid[a] : 0;
+    u->rect[a] = job->lo[a];
+    u->misc[a] = job->end[a];
+  }
+  u->rect[2] = z0;
+  u->misc[2] = z1;
+  u->rect[3] = job->directions;
+  u->misc[3] = job->samples;
+  u->blocks[3] = job->bricks != NULL;
+  u->idims[3] = job->lut_size;
+  u->eye[0] = job->offset;
+  u->eye[1] = job->step;
+  u->vrange[0] = job->value_min;
+  u->vrange[1] = range > 0.0 ? (float)(1.0 / range) : 0.0f;
+  u->vrange[2] = range > 0.0 ? (float)range : 0.0f;
+  u->vrange[3] = (float)((double)job->step / (double)job->ref_step);
+  u->seed[0] = words;
+}
+
+static int check_ao_job(rp_vk_impl *impl, const rp_ao_job *job) {
+  int a;
+  if (impl->voxel_type == 0 || !impl->have_lut)
+    return rp__fail(impl->ctx, RP_ESTATE, "vulkan: compute_ao needs the "
+                    "volume and the transfer function uploaded");
+  for (a = 0; a < 3; a++) {
+    if (job->lo[a] > job->end[a] || job->end[a] > impl->dims[a])
+      return rp__fail(impl->ctx, RP_EINVAL, "vulkan: AO box [%u, %u) on "
+                      "axis %d is outside the volume's %u voxels",
+                      job->lo[a], job->end[a], a, impl->dims[a]);
+    if (job->bricks != NULL &&
+        job->brick_grid[a] != div_up(impl->dims[a], 4))
+      return rp__fail(impl->ctx, RP_EINVAL, "vulkan: AO brick grid %u on "
+                      "axis %d does not fit %u voxels", job->brick_grid[a],
+                      a, impl->dims[a]);
+  }
+  if (job->directions == 0 || job->samples == 0 || job->lut_size < 2 ||
+      job->dirs == NULL)
+    return rp__fail(impl->ctx, RP_EINVAL, "vulkan: AO job with %u "
+                    "directions, %u samples, LUT of %u", job->directions,
+                    job->samples, job->lut_size);
+  return 0;
+}
+
+static int vk_compute_ao(void *p, const rp_ao_job *job, uint8_t *out) {
+  rp_vk_impl *impl = p;
+  const uint32_t *lo = job->lo, *end = job->end;
+  uint32_t nx, ny, nz, words, bricks_y, layers, z0, z1, y, z;
+  VkDeviceSize row_bytes, slab, cap, range, fit;
+  uint64_t ns = 0;
+  VkPipeline pipe;
+  uint32_t key;
+  int err;
+  if ((err = alive(impl)) != 0 || (err = check_ao_job(impl, job)) != 0)
+    return err;
+  impl->last_ns = 0;
+  nx = end[0] - lo[0];
+  ny = end[1] - lo[1];
+  nz = end[2] - lo[2];
+  if (nx == 0 || ny == 0 || nz == 0)
+    return 0;
+  /* A workgroup per brick, an output word per brick row: rows run from
+   * the first brick's first voxel to the last brick's last. */
+  words = (end[0] - 1) / 4 - lo[0] / 4 + 1;
+  bricks_y = (end[1] - 1) / 4 - lo[1] / 4 + 1;
+  row_bytes = (VkDeviceSize)words * 4;
+  slab = row_bytes * ny;
+  range = impl->props.limits.maxStorageBufferRange;
+  cap = range < RP_VK_AO_CHUNK ? range : RP_VK_AO_CHUNK;
+  if (rp_vk_hooks.ao_chunk_bytes > 0 && rp_vk_hooks.ao_chunk_bytes < cap)
+    cap = rp_vk_hooks.ao_chunk_bytes;
+  /* Whole brick layers per submission, at least one brick's worth, at
+   * most what covers the box in one. */
+  fit = cap / slab;
+  if (fit < 4)
+    layers = 4;
+  else if (fit > (VkDeviceSize)nz + 4)
+    layers = (nz + 7) / 4 * 4;
+  else
+    layers = (uint32_t)(fit / 4 * 4);
+  if ((VkDeviceSize)layers * slab > range)
+    return rp__fail(impl->ctx, RP_EUNSUPPORTED, "vulkan: AO of a %ux%u "
+                    "slab needs %llu bytes per brick layer; a kernel can "
+                    "address at most %llu (maxStorageBufferRange)", nx, ny,
+                    (unsigned long long)(4 * slab),
+                    (unsigned long long)range);
+  if ((err = check_groups(impl, "AO", words, bricks_y)) != 0)
+    return err;
+  if (layers / 4 + 1 > impl->props.limits.maxComputeWorkGroupCount[2])
+    layers = (impl->props.limits.maxComputeWorkGroupCount[2] - 1) * 4;
+  key = ((uint32_t)RP_VK_AO << RP_VK_KEY_KERNEL_SHIFT) |
+        (job->step != job->ref_step ? RP_VK_KEY_CORRECT : 0) |
+        (impl->quad ? RP_VK_KEY_QUAD : 0) |
+        ((uint32_t)impl->voxel_type << RP_VK_KEY_TYPE_SHIFT);
+  if ((err = get_pipeline(impl, key, &pipe)) != 0)
+    return err;
+  if ((err = ao_scratch(impl, job, slab * (layers < nz ? layers : nz))) !=
+      0) {
+    ao_scratch_free(impl);
+    return err;
+  }
+  for (z0 = lo[2]; z0 < end[2] && err == 0; z0 = z1) {
+    const uint8_t *src = impl->ao_out.map;
+    /* Layers [z0, z1): brick layers z0 / 4 .. (z1 - 1) / 4. */
+    z1 = z0 / 4 * 4 + layers;
+    z1 = z1 < end[2] ? z1 : end[2];
+    set_ao_params(impl, job, z0, z1, words);
+    if ((err = begin(impl)) != 0)
+      break;
+    bind(impl, pipe);
+    vkCmdDispatch(impl->cmd, words, bricks_y, (z1 - 1) / 4 - z0 / 4 + 1);
+    after_dispatch(impl);
+    if ((err = finish(impl, "ambient occlusion")) != 0)
+      break;
+    ns += impl->last_ns;
+    for (z = z0; z < z1; z++)
+      for (y = 0; y < ny; y++)
+        memcpy(out + ((size_t)(z - lo[2]) * ny + y) * nx,
+               src + ((size_t)(z - z0) * ny + y) * row_bytes + lo[0] % 4,
+               nx);
+  }
+  ao_scratch_free(impl);
+  impl->last_ns = ns;
+  return err;
+}
+
 static uint64_t vk_last_time_ns(void *ip) {
   return ((rp_vk_impl *)ip)->last_ns;
 }
@@ -1056,8 +1342,16 @@ void rp_vk_get_stats(void *ip, rp_vk_stats *out) {
 }
 
 static const rp_backend_ops vk_ops = {
-    vk_destroy,     vk_upload_volume, vk_upload_tf,   vk_upload_occupancy,
-    vk_depth_pass,  vk_ert_prepass,   vk_raycast,     vk_last_time_ns};
+    .destroy = vk_destroy,
+    .upload_volume = vk_upload_volume,
+    .upload_tf = vk_upload_tf,
+    .upload_occupancy = vk_upload_occupancy,
+    .depth_pass = vk_depth_pass,
+    .ert_prepass = vk_ert_prepass,
+    .raycast = vk_raycast,
+    .compute_ao = vk_compute_ao,
+    .upload_ao = vk_upload_ao,
+    .last_time_ns = vk_last_time_ns};
 
 const rp_backend_bootstrap rp_vk_bootstrap = {"vulkan", vk_probe, vk_create,
                                               NULL};

@@ -13,12 +13,13 @@
 
 extern const rp_backend_bootstrap rp_vk_bootstrap;
 
-/* The three kernels, one SPIR-V module each. */
+/* The four kernels, one SPIR-V module each. */
 typedef enum rp_vk_kernel {
   RP_VK_RAYCAST = 0,
   RP_VK_DEPTH = 1,
   RP_VK_ERT = 2,
-  RP_VK_KERNEL_COUNT = 3
+  RP_VK_AO = 3,
+  RP_VK_KERNEL_COUNT = 4
 } rp_vk_kernel;
 
 /* Specialization constant ids, as declared in kernels/common.glsl. */
@@ -45,12 +46,16 @@ enum {
   RP_VK_BIND_IMAGE = 6,
   RP_VK_BIND_TILES = 7,
   RP_VK_BIND_ERT = 8,
-  RP_VK_BIND_COUNT = 9
+  RP_VK_BIND_AO = 9,        /* the AO volume the raycast reads */
+  RP_VK_BIND_AO_OUT = 10,   /* compute_ao: its output words */
+  RP_VK_BIND_AO_DIRS = 11,  /* compute_ao: the directions */
+  RP_VK_BIND_AO_BRICKS = 12, /* compute_ao: the brick mask */
+  RP_VK_BIND_COUNT = 13
 };
 
 /* Pipeline key: the kernel, the effect bits it was specialised for, the
  * counting variant, the voxel type, the layout and whether opacity needs
- * correcting (raycast only). Bits that do not change a kernel are cleared
+ * correcting (raycast and AO). Bits that do not change a kernel are cleared
  * so that variants are shared. */
 #define RP_VK_KEY_CORRECT (1u << 7)
 #define RP_VK_KEY_COUNT (1u << 8)
@@ -59,7 +64,8 @@ enum {
 #define RP_VK_KEY_KERNEL_SHIFT 12
 
 /* The Params block of kernels/common.glsl (a storage buffer, vec4-packed:
- * see there for why it is not a uniform buffer). */
+ * see there for why it is not a uniform buffer). The AO kernel reads some
+ * fields with other meanings (kernels/ao.comp). */
 typedef struct rp_vk_params {
   float eye[4];    /* w: 1 for orthographic */
   float fwd[4];    /* w: half_w */
@@ -103,6 +109,9 @@ typedef struct rp_vk_stats {
   uint32_t pipeline_cache_hits; /* driver-reported, when it reports */
   uint64_t pipeline_create_ns;  /* host time in vkCreateComputePipelines */
   int quad_layout;           /* the volume's layout (1: quad) */
+  uint64_t ao_bytes;         /* device memory held for AO now: the AO
+                                volume (compute_ao's buffers are freed
+                                before it returns) */
   int timestamps;            /* 1: last_time_ns is device time */
 } rp_vk_stats;
 
@@ -136,11 +145,17 @@ typedef struct rp_vk_impl {
   VkBufferView volume_view, lut_view, grid_view, alpha_view;
   /* Outputs, host-visible: read back after the fence. */
   rp_vk_buffer depth, image, tiles, ert;
+  /* The AO volume (upload_ao): one R8 texel per voxel; no buffer while AO
+   * is off. compute_ao's inputs and output exist only during the call. */
+  rp_vk_buffer ao, ao_out, ao_dirs, ao_bricks;
+  VkBufferView ao_view, ao_dirs_view, ao_bricks_view;
   /* Stand-ins bound before the real data exists, so that every binding
    * of the set is always valid. */
   rp_vk_buffer dummy;
   VkBufferView dummy_u_view, dummy_f_view;
   rp_voxel_type voxel_type;  /* 0 until a volume is uploaded */
+  uint32_t dims[3];          /* the uploaded volume's */
+  int have_lut;              /* a transfer function was uploaded */
   int quad;                  /* the uploaded volume's layout */
   /* The frame the device's depth buffer holds (valid when depth_ok). */
   rp_frame_params depth_frame;
@@ -158,6 +173,8 @@ typedef struct rp_vk_test_hooks {
   int force_plain;     /* 1: one voxel per texel even when quad fits */
   int force_staging;   /* 1: upload through a staging copy even into
                           host-visible memory */
+  uint32_t ao_chunk_bytes; /* > 0: compute_ao's output bytes per
+                              submission at most (slabs tested small) */
 } rp_vk_test_hooks;
 
 extern rp_vk_test_hooks rp_vk_hooks;

@@ -7,17 +7,20 @@
  * image scales. The tolerance (backends/README.md): per volume, at most
  * 0.1 % of pixels more than 2/255 off in any channel and none more than
  * 8/255; tile sample counts within one per ray; volume fetches (one
- * per sample, six more per shaded sample: only samples with opacity
- * above 0 are shaded) held to the reference's count as
+ * per sample, six more per shaded sample and one more with AO: only
+ * samples with opacity above 0 take them) held to the reference's count as
  * rp_test_check_fetches states; the ERT pre-pass
  * equal to the C evaluation of the same generator and seed, a ray's
- * termination differing by one coarse step on at most 0.1 % of rays. */
+ * termination differing by one coarse step on at most 0.1 % of rays; the
+ * AO volume the device computes within 2/255 of the reference's on
+ * >= 99.9 % of voxels and none over 8/255. */
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 #include <time.h>
 
+#include "ao.h"
 #include "passes.h"
 #include "raypace_backend.h"
 #include "test_util.h"
@@ -157,14 +160,15 @@ static void frame_free(frame *f) {
  * per tile: then what rp_render_reference does, through the internal
  * entry that also counts. */
 static void reference(const scene *s, const rp_tf *tf,
-                      const rp_occupancy *occ, const rp_camera *cam,
-                      const rp_render_desc *desc, frame *f,
-                      uint64_t *fetches, const char *what) {
+                      const rp_occupancy *occ, const rp_ao *ao,
+                      const rp_camera *cam, const rp_render_desc *desc,
+                      frame *f, uint64_t *fetches, const char *what) {
   rp_render_desc d = rp__render_desc_defaults(desc);
   rp__raygen rg;
   rp_region all = {0, 0, 0, 0};
+  rp_volume ao_view;
   if (fetches == NULL) {
-    if (rp_render_reference(ctx, s->vol, tf, occ, cam, desc, f->want,
+    if (rp_render_reference(ctx, s->vol, tf, occ, ao, cam, desc, f->want,
                             f->wt) != 0)
       fail_msg("%s: reference: %s", what, rp_last_error(ctx));
     return;
@@ -174,15 +178,19 @@ static void reference(const scene *s, const rp_tf *tf,
   rp_scaled_size(&d, &rg.width, &rg.height);
   all.x1 = rg.width;
   all.y1 = rg.height;
+  if (ao != NULL)
+    rp__ao_view(ao, &ao_view);
   rp__reference_render(s->vol, tf,
                        (d.effects & RP_EFFECT_SKIP) ? occ->grid : NULL,
-                       occ != NULL ? occ->h->blocks : NULL, &rg, &d, &all,
-                       f->want, f->wt, fetches);
+                       occ != NULL ? occ->h->blocks : NULL,
+                       ao != NULL ? &ao_view : NULL, &rg, &d, &all, f->want,
+                       f->wt, fetches);
 }
 
 /* One render on the device and on the reference, compared. */
 static void check_render(tally *t, const scene *s, const rp_tf *tf,
-                         const rp_occupancy *occ, const rp_camera *cam,
+                         const rp_occupancy *occ, const rp_ao *ao,
+                         const rp_camera *cam,
                          const rp_render_desc *d, const char *what,
                          int count_fetches) {
   frame f;
@@ -196,7 +204,7 @@ static void check_render(tally *t, const scene *s, const rp_tf *tf,
     want_fetches = calloc((size_t)tx * ty, sizeof *want_fetches);
     assert_non_null(want_fetches);
   }
-  reference(s, tf, occ, cam, d, &f, want_fetches, what);
+  reference(s, tf, occ, ao, cam, d, &f, want_fetches, what);
   err = rp__device_render(dev, cam, d, NULL, f.got, f.gt,
                           count_fetches ? f.fetches : NULL);
   if (err == RP_EUNSUPPORTED && count_fetches) {
@@ -210,7 +218,7 @@ static void check_render(tally *t, const scene *s, const rp_tf *tf,
   if (count_fetches)
     rp_test_check_fetches(what, f.gt, f.fetches, f.wt, want_fetches,
                           (size_t)tx * ty,
-                          (d->effects & RP_EFFECT_SHADING) != 0, &t->fetches,
+                          rp_test_visible_fetches(d->effects), &t->fetches,
                           &t->fetches_off);
   free(want_fetches);
   frame_free(&f);
@@ -221,12 +229,95 @@ static const char *const tfs[] = {"ct-bone", "transparent", "opaque",
 #define TFS 5
 static const uint32_t effect_sets[] = {
     0, RP_EFFECT_SHADING, RP_EFFECT_ERT, RP_EFFECT_SKIP,
-    RP_EFFECT_SHADING | RP_EFFECT_ERT | RP_EFFECT_SKIP};
-#define EFFECT_SETS 5
+    RP_EFFECT_SHADING | RP_EFFECT_ERT | RP_EFFECT_SKIP, RP_EFFECT_AO,
+    RP_EFFECT_AO | RP_EFFECT_SHADING | RP_EFFECT_ERT | RP_EFFECT_SKIP};
+#define EFFECT_SETS 7
+#define EFFECT_SETS_NO_AO 5 /* the first five */
 
-static void run_matrix(scene *s, uint32_t w, uint32_t h, int full) {
+/* AO settings small enough for the reference to compute per TF. */
+static const rp_ao_desc conformance_ao = {6, 4, 4.0f, 1.0f, 0};
+
+/* The device's AO of the scene under `tf` against the reference's, by
+ * the contract's tolerance (backends/README.md): within 2/255 on at
+ * least 99.9 % of voxels, none over 8/255. Returns the reference's, the
+ * one both sides then render with, so that image differences are the
+ * raycast's alone. */
+static rp_ao *check_ao(const scene *s, const rp_tf *tf) {
+  rp_ao_plan *plan = NULL;
+  rp_ao *want = NULL, *got = NULL;
+  const uint8_t *a, *b;
+  size_t n = s->vol->voxel_count, i, over2 = 0;
+  int worst = 0;
+  assert_int_equal(rp_ao_compute_reference(ctx, s->vol, tf, &conformance_ao,
+                                           NULL, NULL, &want),
+                   0);
+  assert_int_equal(rp_ao_plan_create(ctx, s->vol, tf, &conformance_ao,
+                                     &plan),
+                   0);
+  if (rp_ao_compute(ctx, &dev, 1, plan, NULL, &got, NULL) != 0)
+    fail_msg("%s: AO on %s: %s", s->name, backend_name(),
+             rp_last_error(ctx));
+  a = rp_ao_data(got, NULL);
+  b = rp_ao_data(want, NULL);
+  for (i = 0; i < n; i++) {
+    int d = abs((int)a[i] - (int)b[i]);
+    over2 += d > 2;
+    worst = d > worst ? d : worst;
+  }
+  if (worst > 8 || over2 * 1000 > n)
+    fail_msg("%s: AO: worst %d/255, %zu of %zu voxels over 2/255", s->name,
+             worst, over2, n);
+  rp_ao_destroy(got);
+  rp_ao_plan_destroy(plan);
+  if (rp_device_set_ao(dev, want) != 0)
+    fail_msg("%s: set_ao: %s", s->name, rp_last_error(ctx));
+  return want;
+}
+
+/* The device's AO of the box [lo, end) against the reference's voxels,
+ * for volumes too large for the reference to compute whole per TF. */
+static void check_ao_box(const scene *s, const rp_tf *tf) {
+  rp_ao_plan *plan = NULL;
+  uint32_t lo[3], end[3], a;
+  size_t n, i, over2 = 0;
+  uint8_t *got, *want;
+  int worst = 0;
+  for (a = 0; a < 3; a++) {
+    uint32_t d = s->vol->dims[a], len = d < 24 ? d : 24;
+    lo[a] = (d - len) / 2;
+    end[a] = lo[a] + len;
+  }
+  n = (size_t)(end[0] - lo[0]) * (end[1] - lo[1]) * (end[2] - lo[2]);
+  got = malloc(n);
+  want = malloc(n);
+  assert_true(got && want);
+  assert_int_equal(rp_ao_plan_create(ctx, s->vol, tf, &conformance_ao,
+                                     &plan),
+                   0);
+  if (rp_device_compute_ao(dev, plan, lo, end, got) != 0)
+    fail_msg("%s: AO on %s: %s", s->name, backend_name(),
+             rp_last_error(ctx));
+  rp__ao_reference_box(s->vol, tf, plan, lo, end, lo[2], end[2], want);
+  for (i = 0; i < n; i++) {
+    int d = abs((int)got[i] - (int)want[i]);
+    over2 += d > 2;
+    worst = d > worst ? d : worst;
+  }
+  if (worst > 8 || over2 * 1000 > n)
+    fail_msg("%s: AO box: worst %d/255, %zu of %zu voxels over 2/255",
+             s->name, worst, over2, n);
+  free(got);
+  free(want);
+  rp_ao_plan_destroy(plan);
+}
+
+/* with_ao: 1 the AO volume compared and the AO effect sets rendered; 0
+ * only a central box of AO compared (large volumes). */
+static void run_matrix(scene *s, uint32_t w, uint32_t h, int full,
+                       int with_ao) {
   tally t = {0};
   int ti, e, c;
+  rp_ao *ao = NULL;
   assert_int_equal(rp_device_set_volume(dev, s->vol), 0);
   for (ti = 0; ti < TFS; ti++) {
     rp_tf *tf = NULL;
@@ -235,7 +326,11 @@ static void run_matrix(scene *s, uint32_t w, uint32_t h, int full) {
     assert_int_equal(rp_occupancy_build(ctx, s->h, tf, &occ), 0);
     if (rp_device_set_tf(dev, tf, occ) != 0)
       fail_msg("set_tf: %s", rp_last_error(ctx));
-    for (e = 0; e < EFFECT_SETS; e++) {
+    if (with_ao)
+      ao = check_ao(s, tf);
+    else
+      check_ao_box(s, tf);
+    for (e = 0; e < (with_ao ? EFFECT_SETS : EFFECT_SETS_NO_AO); e++) {
       for (c = 0; c < CAMERAS; c++) {
         rp_camera cam = camera(s->vol, c);
         rp_render_desc d = {0};
@@ -249,12 +344,15 @@ static void run_matrix(scene *s, uint32_t w, uint32_t h, int full) {
         d.width = w, d.height = h, d.effects = effect_sets[e];
         snprintf(what, sizeof what, "%s tf %s effects 0x%x camera %s",
                  s->name, tfs[ti], effect_sets[e], camera_name(c));
-        check_render(&t, s, tf, occ, &cam, &d, what, c == 0);
+        check_render(&t, s, tf, occ, ao, &cam, &d, what, c == 0);
       }
     }
+    rp_ao_destroy(ao);
+    ao = NULL;
     rp_occupancy_destroy(occ);
     rp_tf_destroy(tf);
   }
+  assert_int_equal(rp_device_set_ao(dev, NULL), 0);
   finish(&t, s->name);
 }
 
@@ -277,7 +375,7 @@ static void drop_scene(scene *s) {
 static void matrix_phantom_u8(void **state) {
   scene s = make_scene("phantom 48^3 u8", RP_GEN_PHANTOM, 48, 48, 48, RP_U8);
   (void)state;
-  run_matrix(&s, 32, 24, 1);
+  run_matrix(&s, 32, 24, 1, 1);
   drop_scene(&s);
 }
 
@@ -285,14 +383,14 @@ static void matrix_marschner_lobb_u16(void **state) {
   scene s = make_scene("Marschner-Lobb 41x37x29 u16", RP_GEN_MARSCHNER_LOBB,
                        41, 37, 29, RP_U16);
   (void)state;
-  run_matrix(&s, 24, 20, 1);
+  run_matrix(&s, 24, 20, 1, 1);
   drop_scene(&s);
 }
 
 static void matrix_noise(void **state) {
   scene s = make_scene("noise 23x17x30 u8", RP_GEN_NOISE, 23, 17, 30, RP_U8);
   (void)state;
-  run_matrix(&s, 20, 16, 0);
+  run_matrix(&s, 20, 16, 0, 1);
   drop_scene(&s);
 }
 
@@ -317,7 +415,7 @@ static void matrix_float(void **state) {
   drop_scene(&s);
   s.vol = fv;
   assert_int_equal(rp_histograms_build(ctx, fv, &s.h), 0);
-  run_matrix(&s, 24, 18, 0);
+  run_matrix(&s, 24, 18, 0, 1);
   drop_scene(&s);
 }
 
@@ -338,7 +436,7 @@ static void odd_viewports_and_scales(void **state) {
   assert_int_equal(rp_occupancy_build(ctx, s.h, tf, &occ), 0);
   assert_int_equal(rp_device_set_tf(dev, tf, occ), 0);
   for (v = 0; v < sizeof sizes / sizeof sizes[0]; v++)
-    for (e = 0; e < EFFECT_SETS; e++)
+    for (e = 0; e < EFFECT_SETS_NO_AO; e++)
       for (c = 0; c < CAMERAS; c += 2) {
         rp_camera cam = camera(s.vol, c);
         rp_render_desc d = {0};
@@ -352,7 +450,7 @@ static void odd_viewports_and_scales(void **state) {
         snprintf(what, sizeof what, "%ux%u scale %g step %g effects 0x%x "
                  "camera %s", d.width, d.height, (double)d.image_scale,
                  (double)d.step, d.effects, camera_name(c));
-        check_render(&t, &s, tf, occ, &cam, &d, what, 1);
+        check_render(&t, &s, tf, occ, NULL, &cam, &d, what, 1);
       }
   finish(&t, "odd viewports");
   rp_occupancy_destroy(occ);
@@ -376,7 +474,7 @@ static void matrix_real_volumes(void **state) {
     if (rp_volume_load(ctx, path, &s.vol) != 0)
       fail_msg("%s: %s", path, rp_last_error(ctx));
     assert_int_equal(rp_histograms_build(ctx, s.vol, &s.h), 0);
-    run_matrix(&s, 24, 24, 0);
+    run_matrix(&s, 24, 24, 0, 0);
     drop_scene(&s);
   }
   if (!any)

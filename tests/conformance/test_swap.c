@@ -81,7 +81,7 @@ static void swap_mid_sequence(void **state) {
     }
     assert_int_equal(rp_device_render(dev, &cam, &rd, NULL, got, NULL), 0);
     assert_int_equal(
-        rp_render_reference(ctx, vol, tf, occ, &cam, &rd, want, NULL), 0);
+        rp_render_reference(ctx, vol, tf, occ, NULL, &cam, &rd, want, NULL), 0);
     w = diff(got, want, &over2);
     total_over2 += over2;
     worst = w > worst ? w : worst;

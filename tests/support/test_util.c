@@ -88,22 +88,24 @@ void rp_test_check_fetches(const char *what, const rp_tile_stats *got,
                            const uint64_t *got_fetches,
                            const rp_tile_stats *want,
                            const uint64_t *want_fetches, size_t tiles,
-                           int shading, uint64_t *total, uint64_t *off) {
-  uint64_t sum = 0, away = 0, explained = 0;
+                           unsigned per_visible, uint64_t *total,
+                           uint64_t *off) {
+  uint64_t sum = 0, away = 0, explained = 0, per = per_visible;
   size_t k;
   for (k = 0; k < tiles; k++) {
     uint64_t f = got_fetches[k], n = got[k].samples, w = want_fetches[k];
     int64_t ds = (int64_t)got[k].samples - (int64_t)want[k].samples;
-    uint64_t slack = 7u * (uint64_t)(ds < 0 ? -ds : ds);
+    uint64_t slack = (1u + per) * (uint64_t)(ds < 0 ? -ds : ds);
     uint64_t d = f > w ? f - w : w - f;
-    if (f < n || (f - n) % 6u != 0 || f > 7u * n || (!shading && f != n))
+    if (f < n || f > (1u + per) * n || (per == 0 && f != n) ||
+        (per != 0 && (f - n) % per != 0))
       fail_msg("%s: tile %zu: %llu fetches for %llu samples", what, k,
                (unsigned long long)f, (unsigned long long)n);
-    if (d > slack + 6u * RP_TILE_SIZE * RP_TILE_SIZE)
+    if (d > slack + per * RP_TILE_SIZE * RP_TILE_SIZE)
       fail_msg("%s: tile %zu: %llu fetches, reference %llu (samples %u vs "
                "%u)", what, k, (unsigned long long)f, (unsigned long long)w,
                got[k].samples, want[k].samples);
-    sum += w;
+  sum += w;
     away += d;
     explained += slack;
   }
@@ -114,4 +116,9 @@ void rp_test_check_fetches(const char *what, const rp_tile_stats *got,
              (unsigned long long)away, (unsigned long long)sum);
   *total += sum;
   *off += away;
+}
+
+unsigned rp_test_visible_fetches(uint32_t effects) {
+  return ((effects & RP_EFFECT_SHADING) ? 6u : 0u) +
+         ((effects & RP_EFFECT_AO) ? 1u : 0u);
 }

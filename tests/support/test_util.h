@@ -31,13 +31,16 @@ rp_context *rp_test_context(void);
 
 /* Holds a device's per-tile volume fetches (its counting variant) to the
  * reference's (rp__reference_render), failing the test with `what` and
- * the tile otherwise:
- * - structure: one fetch per sample, six more per shaded sample (none
- *   without `shading`), so samples <= fetches <= 7 samples and the
- *   excess is a multiple of 6;
- * - per tile: within 7 per sample the tile's sample count differs from
- *   the reference's by (a tile's samples are within one per ray), plus 6
- *   per ray (a sample whose opacity is 0 in float and not in double);
+ * the tile otherwise. `per_visible` is the fetches each sample with
+ * opacity above 0 adds: 6 with shading, 1 with AO, 7 with both, 0 with
+ * neither.
+ * - structure: one fetch per sample, per_visible more per visible one,
+ *   so samples <= fetches <= (1 + per_visible) samples and the excess is
+ *   a multiple of per_visible;
+ * - per tile: within (1 + per_visible) per sample the tile's sample count
+ *   differs from the reference's by (a tile's samples are within one per
+ *   ray), plus per_visible per ray (a sample whose opacity is 0 in float
+ *   and not in double);
  * - per frame: within 0.1 % of the reference's fetches beyond what the
  *   sample differences explain.
  * Adds the reference's fetches to *total and the excess to *off. */
@@ -45,6 +48,10 @@ void rp_test_check_fetches(const char *what, const rp_tile_stats *got,
                            const uint64_t *got_fetches,
                            const rp_tile_stats *want,
                            const uint64_t *want_fetches, size_t tiles,
-                           int shading, uint64_t *total, uint64_t *off);
+                           unsigned per_visible, uint64_t *total,
+                           uint64_t *off);
+
+/* The per_visible of rp_test_check_fetches for an effects set. */
+unsigned rp_test_visible_fetches(uint32_t effects);
 
 #endif

@@ -8,7 +8,8 @@
  *
  * Memory reads per lane (voxel pairs, LUT entries, grid bytes) are
  * written as short loops over private arrays, the form LLVM turns into
- * AVX-512 gathers; on a GPU they are plain loads.
+ * AVX-512 gathers; on a GPU they are plain loads. Trilinear sampling,
+ * classification and opacity correction are sample.cl's.
  *
  * Options (each compiles code in or out; nothing is a run-time test on a
  * uniform):
@@ -19,111 +20,17 @@
  *   RP_CL_W           rays per work-item (common.cl)
  *   RP_SHADING        headlight gradient shading (six more fetches per
  *                     sample with opacity above 0)
+ *   RP_AO             darken each sample with opacity above 0 by the AO
+ *                     volume at its point (one more fetch for those)
  *   RP_ERT            early ray termination at fp.ert_threshold
  *   RP_SKIP           refine the depth pass's limits on the block grid
  *   RP_COUNT_FETCHES  also count volume fetches per tile */
-
-#ifndef RP_INDEX_T
-#define RP_INDEX_T int
-#endif
-#ifndef RP_VOXEL_BYTES
-#define RP_VOXEL_BYTES 1
-#endif
-
-typedef RP_CL_VEC(RP_INDEX_T) vindex;
-#define to_vindex RP_CL_CONVERT(RP_INDEX_T)
 
 typedef struct rp_cl_tile {
   uint samples;
   uint rays_hit;
   float mean_depth;
 } rp_cl_tile;
-
-/* What trilinear sampling needs of the volume. The low corner is clamped
- * to dims - 2 (0 for a one-voxel axis) with the weight then reaching 1,
- * so the two voxels along x are always adjacent and come in one load;
- * along y and z the upper neighbour is one row or slice on, or the same
- * one for a one-voxel axis. */
-typedef struct rp_cl_grid {
-  float topx, topy, topz; /* dims - 1: where coordinates clamp */
-  int lomx, lomy, lomz;   /* max(dims - 2, 0) */
-  RP_INDEX_T row, slice, dy, dz; /* strides; upper y and z neighbours */
-} rp_cl_grid;
-
-rp_cl_grid rp_cl_grid_of(const rp_cl_frame *fp) {
-  rp_cl_grid g;
-  g.topx = fp->dims[0] - 1.0f;
-  g.topy = fp->dims[1] - 1.0f;
-  g.topz = fp->dims[2] - 1.0f;
-  g.lomx = fp->idims[0] > 1u ? (int)fp->idims[0] - 2 : 0;
-  g.lomy = fp->idims[1] > 1u ? (int)fp->idims[1] - 2 : 0;
-  g.lomz = fp->idims[2] > 1u ? (int)fp->idims[2] - 2 : 0;
-  g.row = fp->idims[0];
-  g.slice = (RP_INDEX_T)fp->idims[0] * fp->idims[1];
-  g.dy = fp->idims[1] > 1u ? g.row : 0u;
-  g.dz = fp->idims[2] > 1u ? g.slice : 0u;
-  return g;
-}
-
-/* Two x-adjacent voxels read as one unaligned integer: the unit the
- * gathers below move. uchar reads four bytes and keeps two (the buffer is
- * padded past its end for that). */
-#if RP_VOXEL_BYTES == 4
-#define RP_CL_PAIR_T ulong
-#else
-#define RP_CL_PAIR_T uint
-#endif
-typedef RP_CL_VEC(RP_CL_PAIR_T) vpair;
-typedef struct __attribute__((packed)) rp_cl_pair {
-  RP_CL_PAIR_T v;
-} rp_cl_pair;
-
-/* The voxel pair at each lane's index (a gather: per-lane inserts into a
- * vector cost twice as much on PoCL). */
-vpair rp_cl_gather(__global const RP_VOXEL_T *vol, vindex at) {
-  RP_CL_PAIR_T out[RP_CL_W];
-  RP_INDEX_T idx[RP_CL_W];
-  int j;
-  vstore_w(at, 0, idx);
-#pragma clang loop vectorize(enable) vectorize_width(RP_CL_W)
-  for (j = 0; j < RP_CL_W; j++)
-    out[j] = ((__global const rp_cl_pair *)(vol + idx[j]))->v;
-  return vload_w(0, out);
-}
-
-/* Linear interpolation along x within each lane's voxel pair. */
-vfloat rp_cl_lerp_pair(vpair q, vfloat w) {
-#if RP_VOXEL_BYTES == 1
-  vfloat lo = to_vfloat(q & 0xffu), hi = to_vfloat((q >> 8) & 0xffu);
-#elif RP_VOXEL_BYTES == 2
-  vfloat lo = to_vfloat(q & 0xffffu), hi = to_vfloat(q >> 16);
-#else
-  vfloat lo = as_vfloat(RP_CL_CONVERT(uint)(q));
-  vfloat hi = as_vfloat(RP_CL_CONVERT(uint)(q >> 32));
-#endif
-  return mix(lo, hi, w);
-}
-
-/* Trilinear interpolation of the packet's points: clamp to [0, dims - 1],
- * interpolate along x, then y, then z. Clamped coordinates are >= 0, so
- * truncation is floor. */
-vfloat rp_cl_sample(__global const RP_VOXEL_T *vol, const rp_cl_grid *g,
-                    vfloat px, vfloat py, vfloat pz) {
-  vfloat cx = min(max(px, 0.0f), g->topx);
-  vfloat cy = min(max(py, 0.0f), g->topy);
-  vfloat cz = min(max(pz, 0.0f), g->topz);
-  vint ix = min(to_vint(cx), g->lomx), iy = min(to_vint(cy), g->lomy);
-  vint iz = min(to_vint(cz), g->lomz);
-  vfloat wx = cx - to_vfloat(ix), wy = cy - to_vfloat(iy);
-  vfloat wz = cz - to_vfloat(iz);
-  vindex base = to_vindex(ix) + to_vindex(iy) * g->row +
-                to_vindex(iz) * g->slice;
-  vfloat e0 = rp_cl_lerp_pair(rp_cl_gather(vol, base), wx);
-  vfloat e1 = rp_cl_lerp_pair(rp_cl_gather(vol, base + g->dy), wx);
-  vfloat e2 = rp_cl_lerp_pair(rp_cl_gather(vol, base + g->dz), wx);
-  vfloat e3 = rp_cl_lerp_pair(rp_cl_gather(vol, base + g->dy + g->dz), wx);
-  return mix(mix(e0, e1, wy), mix(e2, e3, wy), wz);
-}
 
 #ifdef RP_COUNT_FETCHES
 /* Counts one fetch in each lane of `used` (the lanes that use the
@@ -137,8 +44,11 @@ vfloat rp_cl_counted(__global const RP_VOXEL_T *vol, const rp_cl_grid *g,
 }
 #define RP_CL_FETCH(x, y, z, used)                                            \
   rp_cl_counted(vol, &g, x, y, z, used, &fetches)
+/* Counts a fetch made by other means than RP_CL_FETCH. */
+#define RP_CL_COUNT(used) (fetches += to_vuint((used) & 1))
 #else
 #define RP_CL_FETCH(x, y, z, used) rp_cl_sample(vol, &g, x, y, z)
+#define RP_CL_COUNT(used) ((void)0)
 #endif
 
 /* Index of the last lattice sample s + i * step <= t1 in each lane (as a
@@ -164,77 +74,6 @@ vint rp_cl_occupied(const rp_cl_frame *fp, __global const uchar *grid,
                            k->p0y + t * k->dpy, k->p0z + t * k->dpz);
 }
 #endif
-
-/* Opacity for `step` from opacity a over the reference step:
- * 1 - (1 - a)^ratio = -expm1(ratio * log1p(-a)), exact at 0 and 1.
- *
- * Written out rather than calling log1p and expm1: the library versions
- * cost a third of a CPU frame. Both halves keep relative precision where
- * it matters. log1p(-a) = 2 atanh(s), s = t / (2 + t), with t = -a
- * itself for a < 1/4 (no rounding of 1 - a), else t = m - 1 for the
- * mantissa m in [0.71, 1.41) of 1 - a (exact there); |s| <= 0.172, so
- * the series to s^7 is good to 1e-7. expm1(x) = 2^n (expm1(y) + 1) - 1
- * with x = n ln 2 + y, |y| <= ln 2 / 2, and a Taylor series to y^7; for
- * small x, n = 0 and the result is expm1(y) itself. Relative error about
- * 2e-7, far below what an 8-bit pixel can show. */
-vfloat rp_cl_correct(vfloat a, float ratio) {
-  vint small = a < 0.25f;
-  vint bits = as_vint(1.0f - a);
-  vint e = ((bits >> 23) & 0xff) - 127;
-  vfloat m = as_vfloat((bits & 0x7fffff) | 0x3f800000);
-  vint top = m > 1.41421356f;
-  vfloat t, s, s2, ln, x, y, em, p2;
-  vint n;
-  m = select(m, 0.5f * m, top);
-  e -= top; /* top is -1 where true */
-  t = select(m - 1.0f, -a, small);
-  s = t / (2.0f + t);
-  s2 = s * s;
-  ln = 2.0f * s * (1.0f + s2 * (1.0f / 3.0f +
-                                 s2 * (1.0f / 5.0f + s2 * (1.0f / 7.0f)))) +
-       select(to_vfloat(e), (vfloat)(0.0f), small) * 0.693147181f;
-  /* e^-87 is below the smallest normal float: the result is 1 there. */
-  x = max(ratio * ln, -87.0f);
-  n = RP_CL_CAT(to_vint, _rte)(x * 1.44269504f);
-  y = x - to_vfloat(n) * 0.693147181f;
-  em = y * (1.0f + y * (1.0f / 2.0f +
-                        y * (1.0f / 6.0f +
-                             y * (1.0f / 24.0f +
-                                  y * (1.0f / 120.0f +
-                                       y * (1.0f / 720.0f +
-                                            y * (1.0f / 5040.0f)))))));
-  p2 = as_vfloat((n + 127) << 23); /* 2^n, normal */
-  x = -(em * p2 + (p2 - 1.0f));
-  x = select(x, (vfloat)(0.0f), a <= 0.0f);
-  return select(x, (vfloat)(1.0f), a >= 1.0f);
-}
-
-/* Each lane's RGBA from the LUT: entries e and e + 1 mixed by w. */
-void rp_cl_classify(__global const float4 *lut, vint e, vfloat w,
-                    vfloat *r, vfloat *g, vfloat *b, vfloat *a) {
-  __global const float *lf = (__global const float *)lut;
-  float c[8][RP_CL_W];
-  int idx[RP_CL_W], j;
-  vstore_w(e * 4, 0, idx);
-#pragma clang loop vectorize(enable) vectorize_width(RP_CL_W)
-  for (j = 0; j < RP_CL_W; j++) {
-    __global const float *q = lf + idx[j];
-    c[0][j] = q[0];
-    c[1][j] = q[1];
-    c[2][j] = q[2];
-    c[3][j] = q[3];
-    c[4][j] = q[4];
-    c[5][j] = q[5];
-    c[6][j] = q[6];
-    c[7][j] = q[7];
-  }
-#define RP_CL_ROW(i) vload_w(0, c[i])
-  *r = mix(RP_CL_ROW(0), RP_CL_ROW(4), w);
-  *g = mix(RP_CL_ROW(1), RP_CL_ROW(5), w);
-  *b = mix(RP_CL_ROW(2), RP_CL_ROW(6), w);
-  *a = mix(RP_CL_ROW(3), RP_CL_ROW(7), w);
-#undef RP_CL_ROW
-}
 
 #ifdef RP_SHADING
 /* Headlight (L = -dir, two-sided) on straight colour; (gx, gy, gz) is the
@@ -265,7 +104,9 @@ void rp_cl_shade(vfloat *r, vfloat *g, vfloat *b, vfloat gx, vfloat gy,
 /* Global size (region tiles across, region tiles down * 64 / RP_CL_W),
  * local size (1, 64 / RP_CL_W): one work-group per tile of the region
  * [x0, x1) x [y0, y1), whose pixels are written compactly (row pitch
- * x1 - x0) and whose tiles are numbered within the region. */
+ * x1 - x0) and whose tiles are numbered within the region. `ao` is the
+ * AO volume (one byte per voxel, padded like the volume), read with
+ * RP_AO only. */
 __kernel __attribute__((reqd_work_group_size(
     1, RP_CL_TILE * RP_CL_TILE / RP_CL_W, 1)))
 void rp_cl_raycast(rp_cl_frame fp, uint x0, uint y0, uint x1, uint y1,
@@ -273,7 +114,8 @@ void rp_cl_raycast(rp_cl_frame fp, uint x0, uint y0, uint x1, uint y1,
                    __global const float4 *lut, __global const uchar *grid,
                    __global const float2 *front_back, __global uint *rgba,
                    __global rp_cl_tile *tiles,
-                   __global ulong *tile_fetches) {
+                   __global ulong *tile_fetches,
+                   __global const uchar *ao) {
   __local uint l_samples[RP_CL_TILE * RP_CL_TILE];
   __local float l_depth[RP_CL_TILE * RP_CL_TILE];
 #ifdef RP_COUNT_FETCHES
@@ -290,16 +132,13 @@ void rp_cl_raycast(rp_cl_frame fp, uint x0, uint y0, uint x1, uint y1,
     rp_cl_packet k = rp_cl_make_packet(&fp, px + 0.5f, py + 0.5f, inside);
     /* Lane j takes samples i0_j .. i1_j of its lattice s + i * step. */
     vfloat i0 = 0.0f, i1 = rp_cl_lattice_last(&k, fp.step);
-    rp_cl_grid g = rp_cl_grid_of(&fp);
+    rp_cl_grid g = rp_cl_grid_make(fp.dims, fp.idims);
+    rp_cl_lutpos lp =
+        rp_cl_lutpos_make(fp.value_min, fp.value_max, fp.lut_size);
     vfloat cr = 0.0f, cg = 0.0f, cb = 0.0f, acc = 0.0f, step_i = 0.0f;
     vfloat front, back;
     vint live;
     float range = fp.value_max - fp.value_min;
-    /* x * (lut_size - 1) in one multiply; a constant field sits at 0. */
-    float lut_scale = range > 0.0f ? (float)(fp.lut_size - 1u) / range
-                                   : 0.0f;
-    float lut_top = (float)(fp.lut_size - 1u);
-    int lut_last = (int)fp.lut_size - 2;
     float ratio = fp.step / fp.ref_step;
 #ifdef RP_SHADING
     float gsx = 0.5f * fp.inv_spacing[0], gsy = 0.5f * fp.inv_spacing[1];
@@ -345,32 +184,46 @@ void rp_cl_raycast(rp_cl_frame fp, uint x0, uint y0, uint x1, uint y1,
       vfloat t = k.s + (i0 + step_i) * fp.step;
       vfloat qx = k.p0x + t * k.dpx, qy = k.p0y + t * k.dpy;
       vfloat qz = k.p0z + t * k.dpz;
-      vfloat v = RP_CL_FETCH(qx, qy, qz, live);
-      vfloat f = clamp((v - fp.value_min) * lut_scale, 0.0f, lut_top);
-      vint e = min(to_vint(f), lut_last);
-      vfloat w = f - to_vfloat(e), r, gr, b, a, wgt;
+      rp_cl_cell cell = rp_cl_cell_at(&g, qx, qy, qz);
+      vfloat v = rp_cl_sample_cell(vol, &g, &cell), w, r, gr, b, a, wgt;
+      vint e = rp_cl_lut_entry(&lp, v, &w);
+#if defined(RP_SHADING) || defined(RP_AO)
+      vint lit;
+#endif
+      RP_CL_COUNT(live);
       rp_cl_classify(lut, e, w, &r, &gr, &b, &a);
       /* At the TF's own step the correction is the identity (the
        * reference's double evaluation rounds back to a exactly). */
       if (ratio != 1.0f)
         a = rp_cl_correct(a, ratio);
+#if defined(RP_SHADING) || defined(RP_AO)
+      /* A transparent sample adds exactly 0 whatever its colour, so the
+       * gradient and the AO are fetched only where some lane's sample
+       * shows: on a CT's soft tissue and air inside occupied blocks that
+       * is most packets (bonsai, 512^2: 46 -> 147 M samples/s shaded).
+       * The lanes that show are the ones counted. */
+      lit = live & (a > 0.0f);
+#endif
 #ifdef RP_SHADING
-      {
-        /* A transparent sample adds exactly 0 whatever its colour, so the
-         * gradient is fetched only where some lane's sample shows: on a
-         * CT's soft tissue and air inside occupied blocks that is most
-         * packets (bonsai, 512^2: 46 -> 147 M samples/s). The lanes that
-         * show are the ones counted. */
-        vint lit = live & (a > 0.0f);
-        if (any(lit)) {
-          vfloat gx = (RP_CL_FETCH(qx + 1.0f, qy, qz, lit) -
-                       RP_CL_FETCH(qx - 1.0f, qy, qz, lit)) * gsx;
-          vfloat gy = (RP_CL_FETCH(qx, qy + 1.0f, qz, lit) -
-                       RP_CL_FETCH(qx, qy - 1.0f, qz, lit)) * gsy;
-          vfloat gz = (RP_CL_FETCH(qx, qy, qz + 1.0f, lit) -
-                       RP_CL_FETCH(qx, qy, qz - 1.0f, lit)) * gsz;
-          rp_cl_shade(&r, &gr, &b, gx, gy, gz, &k, range);
-        }
+      if (any(lit)) {
+        vfloat gx = (RP_CL_FETCH(qx + 1.0f, qy, qz, lit) -
+                     RP_CL_FETCH(qx - 1.0f, qy, qz, lit)) * gsx;
+        vfloat gy = (RP_CL_FETCH(qx, qy + 1.0f, qz, lit) -
+                     RP_CL_FETCH(qx, qy - 1.0f, qz, lit)) * gsy;
+        vfloat gz = (RP_CL_FETCH(qx, qy, qz + 1.0f, lit) -
+                     RP_CL_FETCH(qx, qy, qz - 1.0f, lit)) * gsz;
+        rp_cl_shade(&r, &gr, &b, gx, gy, gz, &k, range);
+      }
+#endif
+#ifdef RP_AO
+      /* After shading: the AO volume at the density's own point, from
+       * the cell that point already found. */
+      if (any(lit)) {
+        vfloat occ = rp_cl_sample_bytes(ao, &g, &cell) / 255.0f;
+        RP_CL_COUNT(lit);
+        r *= occ;
+        gr *= occ;
+        b *= occ;
       }
 #endif
       wgt = select((vfloat)(0.0f), (1.0f - acc) * a, live);

@@ -1,15 +1,20 @@
 /* Shared by the raypace Vulkan kernels (depth.comp, raycast.comp,
- * ert.comp): frame parameters, bindings, rays, box clipping and the block
- * grid. The formulas are those of backends/README.md, evaluated in float.
+ * ert.comp, ao.comp): frame parameters, bindings, rays, box clipping, the
+ * block grid, and the volume sampling and classification the raycast and
+ * the AO kernel share. The formulas are those of backends/README.md,
+ * evaluated in float.
  *
- * One descriptor set serves all three kernels; each kernel touches only
- * the bindings it declares, and the host keeps every binding valid. */
+ * One descriptor set serves all kernels; each kernel touches only the
+ * bindings it declares, and the host keeps every binding valid. */
 #ifndef RP_VK_COMMON_GLSL
 #define RP_VK_COMMON_GLSL
 
 /* One workgroup per 8x8 tile of the scaled image (or of the ERT grid):
- * the tile statistics are then a reduction inside one workgroup. */
+ * the tile statistics are then a reduction inside one workgroup. A kernel
+ * with another shape (ao.comp) defines RP_VK_OWN_LOCAL_SIZE first. */
+#ifndef RP_VK_OWN_LOCAL_SIZE
 layout(local_size_x = 8, local_size_y = 8, local_size_z = 1) in;
+#endif
 
 /* The effect set a pipeline is specialised for. Off means the code is
  * folded away when the driver specialises, so an effect that is off costs
@@ -18,7 +23,8 @@ layout(constant_id = 0) const bool RP_SHADING = false;
 layout(constant_id = 1) const bool RP_ERT = false;
 layout(constant_id = 2) const bool RP_SKIP = false;
 layout(constant_id = 3) const bool RP_COUNT = false;
-/* Reserved for ambient occlusion (M7); no kernel reads it yet. */
+/* Ambient occlusion: the raycast darkens each visible sample by the AO
+ * volume (raycast.comp). */
 layout(constant_id = 4) const bool RP_AO = false;
 /* Voxel type as rp_voxel_type: 1 uint8, 2 uint16, 3 float32. */
 layout(constant_id = 5) const uint RP_VOXEL = 1u;
@@ -141,6 +147,104 @@ uint block_index(ivec3 c) {
 
 bool block_occupied(uint b) {
   return texelFetch(grid, int(b)).x != 0u;
+}
+
+/* ---- sampling (raycast.comp, ao.comp) ------------------------------------ */
+
+/* The volume is a uniform texel buffer read with texelFetch: exact
+ * values, no filtering, hand-written trilinear (lavapipe's 8-bit 3D
+ * textures filter with coarse weights). A texel fetch is a vectorised
+ * gather on lavapipe while a storage-buffer load is a loop over the lanes
+ * with bounds checks: in a prototype sweep (no LUT, both cores, another
+ * job running) uint8 storage buffers gave 35, packed uint storage 65, an
+ * R8 texel buffer 56 and the RGBA8 quad texel buffer 100 M samples/s.
+ * Float voxels travel as their bits in a UINT format so that one
+ * declaration serves all three types. */
+layout(set = 0, binding = 1) uniform usamplerBuffer volume;
+/* lut_size RGBA32F entries, straight colour, alpha per reference step. */
+layout(set = 0, binding = 2) uniform samplerBuffer lut;
+
+/* a + w (b - a): one fused multiply-add after the subtraction. It differs
+ * from the reference's (1 - w) a + w b in the last bit only. */
+float lerp(float a, float b, float w) {
+  return a + w * (b - a);
+}
+vec2 lerp(vec2 a, vec2 b, float w) {
+  return a + w * (b - a);
+}
+vec4 lerp(vec4 a, vec4 b, float w) {
+  return a + w * (b - a);
+}
+
+vec4 texel(uint i) {
+  uvec4 q = texelFetch(volume, int(i));
+  return RP_VOXEL == 3u ? uintBitsToFloat(q) : vec4(q);
+}
+
+/* Trilinear sample at voxel-space p, each coordinate clamped to
+ * [0, dims - 1]. Quad layout: texel (x, y, z) holds voxels (x, y),
+ * (x+1, y), (x, y+1), (x+1, y+1) of slice z, repeated at the far faces,
+ * so the eight corners are two fetches. Plain layout: one voxel per
+ * texel, eight fetches. Interpolates along x, then y, then z. */
+float sample_volume(vec3 p) {
+  p = clamp(p, vec3(0.0), P.dims.xyz - 1.0);
+  vec3 fl = floor(p);
+  uvec3 lo = uvec3(fl);
+  vec3 w = p - fl;
+  uint sx = P.idims.x, sxy = P.idims.x * P.idims.y;
+  uint i = (lo.z * P.idims.y + lo.y) * sx + lo.x;
+  uint dz = lo.z + 1u < P.idims.z ? sxy : 0u;
+  vec4 z0, z1;
+  if (RP_QUAD) {
+    z0 = texel(i);
+    z1 = texel(i + dz);
+  } else {
+    uint dx = lo.x + 1u < P.idims.x ? 1u : 0u;
+    uint dy = lo.y + 1u < P.idims.y ? sx : 0u;
+    z0 = vec4(texel(i).x, texel(i + dx).x, texel(i + dy).x,
+              texel(i + dy + dx).x);
+    i += dz;
+    z1 = vec4(texel(i).x, texel(i + dx).x, texel(i + dy).x,
+              texel(i + dy + dx).x);
+  }
+  vec2 c0 = lerp(z0.xz, z0.yw, w.x); /* rows y and y+1 of slice z */
+  vec2 c1 = lerp(z1.xz, z1.yw, w.x);
+  return lerp(lerp(c0.x, c0.y, w.y), lerp(c1.x, c1.y, w.y), w.z);
+}
+
+vec4 classify(float v) {
+  float x = clamp((v - P.vrange.x) * P.vrange.y, 0.0, 1.0);
+  float f = x * float(P.idims.w - 1u);
+  int i = min(int(f), int(P.idims.w) - 2);
+  return lerp(texelFetch(lut, i), texelFetch(lut, i + 1), f - float(i));
+}
+
+/* classify(v).a, the same arithmetic on the alpha channel alone. */
+float classify_alpha(float v) {
+  float x = clamp((v - P.vrange.x) * P.vrange.y, 0.0, 1.0);
+  float f = x * float(P.idims.w - 1u);
+  int i = min(int(f), int(P.idims.w) - 2);
+  return lerp(texelFetch(lut, i).a, texelFetch(lut, i + 1).a, f - float(i));
+}
+
+/* Opacity of one step from the TF's alpha per reference step:
+ * a' = -expm1(r * log1p(-a)), r = step / ref_step, in float but without
+ * the cancellation of 1 - (1 - a)^r that ruins tiny opacities and steps.
+ * log1p(-a) by Kahan's correction log(u) * (-a / (u - 1)), u = 1 - a;
+ * expm1(y) by its series where |y| < 1/4 (terms to y^7: relative error
+ * below 1e-8) and exp(y) - 1 elsewhere, where nothing cancels. `precise`
+ * keeps the compiler from folding (1 - a) - 1 into -a. Only compiled in
+ * when step != ref_step (RP_CORRECT): then a' == a. */
+float correct(float a) {
+  float ac = min(a, 0.99999994);
+  precise float u = 1.0 - ac;
+  precise float d = u - 1.0;
+  float l = d == 0.0 ? -ac : log(u) * (-ac / d);
+  float y = P.vrange.w * l;
+  float series = y * (1.0 + y * (1.0 / 2.0 + y * (1.0 / 6.0 + y * (1.0 / 24.0 +
+                 y * (1.0 / 120.0 + y * (1.0 / 720.0 + y * (1.0 / 5040.0)))))));
+  float e = abs(y) < 0.25 ? series : exp(y) - 1.0;
+  return a >= 1.0 ? 1.0 : clamp(-e, 0.0, 1.0);
 }
 
 #endif /* RP_VK_COMMON_GLSL */

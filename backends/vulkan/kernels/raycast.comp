@@ -1,25 +1,14 @@
 /* The raycast (backends/README.md): one invocation per pixel of the
  * region, one workgroup per 8x8 tile. Front-to-back compositing of
  * trilinear samples on the lattice s + i * step, classified through the
- * LUT, opacity-corrected to the step, optionally shaded, with optional
- * early termination and empty-space skipping. Each workgroup also reduces
+ * LUT, opacity-corrected to the step, optionally shaded and darkened by
+ * ambient occlusion, with optional early termination and empty-space
+ * skipping. Each workgroup also reduces
  * its tile's statistics in shared memory (integers, and one float sum in
  * a fixed order, so a tile's numbers do not depend on the region). */
 #version 450
 #include "common.glsl"
 
-/* The volume is a uniform texel buffer read with texelFetch: exact
- * values, no filtering, hand-written trilinear (lavapipe's 8-bit 3D
- * textures filter with coarse weights). A texel fetch is a vectorised
- * gather on lavapipe while a storage-buffer load is a loop over the lanes
- * with bounds checks: in a prototype sweep (no LUT, both cores, another
- * job running) uint8 storage buffers gave 35, packed uint storage 65, an
- * R8 texel buffer 56 and the RGBA8 quad texel buffer 100 M samples/s.
- * Float voxels travel as their bits in a UINT format so that one
- * declaration serves all three types. */
-layout(set = 0, binding = 1) uniform usamplerBuffer volume;
-/* lut_size RGBA32F entries, straight colour, alpha per reference step. */
-layout(set = 0, binding = 2) uniform samplerBuffer lut;
 layout(set = 0, binding = 5, std430) readonly buffer Depth {
   vec2 depth[];
 };
@@ -32,85 +21,42 @@ layout(set = 0, binding = 7, std430) writeonly buffer Tiles {
   uvec4 tiles[];
 };
 
+/* The AO volume (RP_AO): one R8 texel per voxel, 255 unoccluded; a
+ * stand-in texel when AO is off. */
+layout(set = 0, binding = 9) uniform usamplerBuffer ao_volume;
+
 /* Volume fetches of this invocation, kept only in the counting variant:
- * one where the loop consumes a sample, six where shade() runs. The one
- * fetch the pipelined loop makes past the last sample is no sample and is
- * not counted. */
+ * one where the loop consumes a sample, six where shade() runs, one where
+ * sample_ao() runs. The one fetch the pipelined loop makes past the last
+ * sample is no sample and is not counted. */
 uint fetches = 0u;
 
-/* a + w (b - a): one fused multiply-add after the subtraction. It differs
- * from the reference's (1 - w) a + w b in the last bit only. */
-float lerp(float a, float b, float w) {
-  return a + w * (b - a);
-}
-vec2 lerp(vec2 a, vec2 b, float w) {
-  return a + w * (b - a);
-}
-vec4 lerp(vec4 a, vec4 b, float w) {
-  return a + w * (b - a);
-}
-
-vec4 texel(uint i) {
-  uvec4 q = texelFetch(volume, int(i));
-  return RP_VOXEL == 3u ? uintBitsToFloat(q) : vec4(q);
-}
-
-/* Trilinear sample at voxel-space p, each coordinate clamped to
- * [0, dims - 1]. Quad layout: texel (x, y, z) holds voxels (x, y),
- * (x+1, y), (x, y+1), (x+1, y+1) of slice z, repeated at the far faces,
- * so the eight corners are two fetches. Plain layout: one voxel per
- * texel, eight fetches. Interpolates along x, then y, then z. */
-float sample_volume(vec3 p) {
+/* The AO factor at voxel-space p: the AO bytes interpolated by the
+ * density's clamp-and-weights rule (sample_volume), divided by 255. One
+ * voxel per texel, eight texel fetches, counted as one fetch. */
+float sample_ao(vec3 p) {
   p = clamp(p, vec3(0.0), P.dims.xyz - 1.0);
   vec3 fl = floor(p);
   uvec3 lo = uvec3(fl);
   vec3 w = p - fl;
   uint sx = P.idims.x, sxy = P.idims.x * P.idims.y;
   uint i = (lo.z * P.idims.y + lo.y) * sx + lo.x;
+  uint dx = lo.x + 1u < P.idims.x ? 1u : 0u;
+  uint dy = lo.y + 1u < P.idims.y ? sx : 0u;
   uint dz = lo.z + 1u < P.idims.z ? sxy : 0u;
-  vec4 z0, z1;
-  if (RP_QUAD) {
-    z0 = texel(i);
-    z1 = texel(i + dz);
-  } else {
-    uint dx = lo.x + 1u < P.idims.x ? 1u : 0u;
-    uint dy = lo.y + 1u < P.idims.y ? sx : 0u;
-    z0 = vec4(texel(i).x, texel(i + dx).x, texel(i + dy).x,
-              texel(i + dy + dx).x);
-    i += dz;
-    z1 = vec4(texel(i).x, texel(i + dx).x, texel(i + dy).x,
-              texel(i + dy + dx).x);
-  }
-  vec2 c0 = lerp(z0.xz, z0.yw, w.x); /* rows y and y+1 of slice z */
+  vec4 z0 = vec4(texelFetch(ao_volume, int(i)).x,
+                 texelFetch(ao_volume, int(i + dx)).x,
+                 texelFetch(ao_volume, int(i + dy)).x,
+                 texelFetch(ao_volume, int(i + dy + dx)).x);
+  i += dz;
+  vec4 z1 = vec4(texelFetch(ao_volume, int(i)).x,
+                 texelFetch(ao_volume, int(i + dx)).x,
+                 texelFetch(ao_volume, int(i + dy)).x,
+                 texelFetch(ao_volume, int(i + dy + dx)).x);
+  vec2 c0 = lerp(z0.xz, z0.yw, w.x);
   vec2 c1 = lerp(z1.xz, z1.yw, w.x);
-  return lerp(lerp(c0.x, c0.y, w.y), lerp(c1.x, c1.y, w.y), w.z);
-}
-
-vec4 classify(float v) {
-  float x = clamp((v - P.vrange.x) * P.vrange.y, 0.0, 1.0);
-  float f = x * float(P.idims.w - 1u);
-  int i = min(int(f), int(P.idims.w) - 2);
-  return lerp(texelFetch(lut, i), texelFetch(lut, i + 1), f - float(i));
-}
-
-/* Opacity of one step from the TF's alpha per reference step:
- * a' = -expm1(r * log1p(-a)), r = step / ref_step, in float but without
- * the cancellation of 1 - (1 - a)^r that ruins tiny opacities and steps.
- * log1p(-a) by Kahan's correction log(u) * (-a / (u - 1)), u = 1 - a;
- * expm1(y) by its series where |y| < 1/4 (terms to y^7: relative error
- * below 1e-8) and exp(y) - 1 elsewhere, where nothing cancels. `precise`
- * keeps the compiler from folding (1 - a) - 1 into -a. Only compiled in
- * when step != ref_step (RP_CORRECT): then a' == a. */
-float correct(float a) {
-  float ac = min(a, 0.99999994);
-  precise float u = 1.0 - ac;
-  precise float d = u - 1.0;
-  float l = d == 0.0 ? -ac : log(u) * (-ac / d);
-  float y = P.vrange.w * l;
-  float series = y * (1.0 + y * (1.0 / 2.0 + y * (1.0 / 6.0 + y * (1.0 / 24.0 +
-                 y * (1.0 / 120.0 + y * (1.0 / 720.0 + y * (1.0 / 5040.0)))))));
-  float e = abs(y) < 0.25 ? series : exp(y) - 1.0;
-  return a >= 1.0 ? 1.0 : clamp(-e, 0.0, 1.0);
+  return lerp(lerp(c0.x, c0.y, w.y), lerp(c1.x, c1.y, w.y), w.z) *
+         (1.0 / 255.0);
 }
 
 /* Headlight shading: central differences one voxel either side, per world
@@ -189,14 +135,15 @@ Result cast_ray(uvec2 pix) {
   while (i <= last) {
     vec4 c;
     float a;
-    /* With shading, march over transparent samples in a loop of their
-     * own: they add exactly 0 whatever their colour, and so need no
-     * gradient. lavapipe runs divergent branches as masked SIMD lanes and
-     * executes their code even when every lane is masked off (measured:
-     * shading tested per sample, or behind a subgroup vote, saved
-     * nothing), but it does leave a loop once every lane has. The
-     * shading below then runs once per sample that shows in some lane,
-     * not once per sample. Without shading the loop body runs once. */
+    /* With shading or AO, march over transparent samples in a loop of
+     * their own: they add exactly 0 whatever their colour, and so need no
+     * gradient and no AO. lavapipe runs divergent branches as masked SIMD
+     * lanes and executes their code even when every lane is masked off
+     * (measured: shading tested per sample, or behind a subgroup vote,
+     * saved nothing), but it does leave a loop once every lane has. The
+     * shading and the AO fetch below then run once per sample that shows
+     * in some lane, not once per sample. Without either the loop body
+     * runs once. */
     for (;;) {
       float t_next = ray.s + float(i + 1) * step;
       float v_next = sample_volume(ray.p0 + t_next * ray.dp);
@@ -205,16 +152,24 @@ Result cast_ray(uvec2 pix) {
       c = classify(v);
       v = v_next;
       a = RP_CORRECT ? correct(c.a) : c.a;
-      if (!RP_SHADING || a > 0.0 || i >= last)
+      if (!(RP_SHADING || RP_AO) || a > 0.0 || i >= last)
         break;
       i++;
     }
     vec3 rgb = c.rgb;
-    if (RP_SHADING && a > 0.0) {
-      float t = ray.s + float(i) * step;
-      rgb = shade(rgb, ray.p0 + t * ray.dp, ray.dir);
-      if (RP_COUNT)
-        fetches += 6u;
+    if ((RP_SHADING || RP_AO) && a > 0.0) {
+      vec3 p = ray.p0 + (ray.s + float(i) * step) * ray.dp;
+      if (RP_SHADING) {
+        rgb = shade(rgb, p, ray.dir);
+        if (RP_COUNT)
+          fetches += 6u;
+      }
+      /* After shading, or in its place (backends/README.md). */
+      if (RP_AO) {
+        rgb *= sample_ao(p);
+        if (RP_COUNT)
+          fetches++;
+      }
     }
     float w = (1.0 - res.C.a) * a;
     res.C.rgb += w * rgb;

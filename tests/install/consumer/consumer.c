@@ -23,7 +23,7 @@ int main(void) {
     err = rp_tf_create_preset(ctx, "opaque", &tf);
   if (err == 0) {
     rp_camera_orbit(&cam, vol, 0, 0, 3);
-    err = rp_render_reference(ctx, vol, tf, NULL, &cam, &rd, px, NULL);
+    err = rp_render_reference(ctx, vol, tf, NULL, NULL, &cam, &rd, px, NULL);
   }
   /* The opaque TF makes the centre pixel fully opaque. */
   if (err == 0 && px[(8 * 16 + 8) * 4 + 3] != 255)

@@ -1,0 +1,264 @@
+/* Sampling shared by the raycast and the AO kernels (after common.cl):
+ * trilinear interpolation of the volume from a buffer, the LUT
+ * classification and the opacity correction, exactly as backends/README.md
+ * states them. The raycast and the AO volume classify a point the same
+ * way because both call these.
+ *
+ * Options: RP_VOXEL_T, RP_VOXEL_BYTES and RP_INDEX_T, as raycast.cl
+ * describes them. */
+
+#ifndef RP_INDEX_T
+#define RP_INDEX_T int
+#endif
+#ifndef RP_VOXEL_BYTES
+#define RP_VOXEL_BYTES 1
+#endif
+
+typedef RP_CL_VEC(RP_INDEX_T) vindex;
+#define to_vindex RP_CL_CONVERT(RP_INDEX_T)
+
+/* What trilinear sampling needs of the volume. The low corner is clamped
+ * to dims - 2 (0 for a one-voxel axis) with the weight then reaching 1,
+ * so the two voxels along x are always adjacent and come in one load;
+ * along y and z the upper neighbour is one row or slice on, or the same
+ * one for a one-voxel axis. */
+typedef struct rp_cl_grid {
+  float topx, topy, topz; /* dims - 1: where coordinates clamp */
+  int lomx, lomy, lomz;   /* max(dims - 2, 0) */
+  RP_INDEX_T row, slice, dy, dz; /* strides; upper y and z neighbours */
+} rp_cl_grid;
+
+/* The grid of a volume of idims voxels; dims is the same in float. */
+rp_cl_grid rp_cl_grid_make(const float dims[3], const uint idims[3]) {
+  rp_cl_grid g;
+  g.topx = dims[0] - 1.0f;
+  g.topy = dims[1] - 1.0f;
+  g.topz = dims[2] - 1.0f;
+  g.lomx = idims[0] > 1u ? (int)idims[0] - 2 : 0;
+  g.lomy = idims[1] > 1u ? (int)idims[1] - 2 : 0;
+  g.lomz = idims[2] > 1u ? (int)idims[2] - 2 : 0;
+  g.row = idims[0];
+  g.slice = (RP_INDEX_T)idims[0] * idims[1];
+  g.dy = idims[1] > 1u ? g.row : 0u;
+  g.dz = idims[2] > 1u ? g.slice : 0u;
+  return g;
+}
+
+/* Two x-adjacent voxels read as one unaligned integer: the unit the
+ * gathers below move. uchar reads four bytes and keeps two (the buffer is
+ * padded past its end for that). */
+#if RP_VOXEL_BYTES == 4
+#define RP_CL_PAIR_T ulong
+#else
+#define RP_CL_PAIR_T uint
+#endif
+typedef RP_CL_VEC(RP_CL_PAIR_T) vpair;
+typedef struct __attribute__((packed)) rp_cl_pair {
+  RP_CL_PAIR_T v;
+} rp_cl_pair;
+
+/* The voxel pair at each lane's index (a gather: per-lane inserts into a
+ * vector cost twice as much on PoCL). */
+vpair rp_cl_gather(__global const RP_VOXEL_T *vol, vindex at) {
+  RP_CL_PAIR_T out[RP_CL_W];
+  RP_INDEX_T idx[RP_CL_W];
+  int j;
+  vstore_w(at, 0, idx);
+#pragma clang loop vectorize(enable) vectorize_width(RP_CL_W)
+  for (j = 0; j < RP_CL_W; j++)
+    out[j] = ((__global const rp_cl_pair *)(vol + idx[j]))->v;
+  return vload_w(0, out);
+}
+
+/* Linear interpolation along x within each lane's voxel pair. */
+vfloat rp_cl_lerp_pair(vpair q, vfloat w) {
+#if RP_VOXEL_BYTES == 1
+  vfloat lo = to_vfloat(q & 0xffu), hi = to_vfloat((q >> 8) & 0xffu);
+#elif RP_VOXEL_BYTES == 2
+  vfloat lo = to_vfloat(q & 0xffffu), hi = to_vfloat(q >> 16);
+#else
+  vfloat lo = as_vfloat(RP_CL_CONVERT(uint)(q));
+  vfloat hi = as_vfloat(RP_CL_CONVERT(uint)(q >> 32));
+#endif
+  return mix(lo, hi, w);
+}
+
+/* Where each lane's point reads the volume: the index of its cell's low
+ * corner and the weights along each axis, after clamping to
+ * [0, dims - 1]. Clamped coordinates are >= 0, so truncation is floor. */
+typedef struct rp_cl_cell {
+  vindex base;
+  vfloat wx, wy, wz;
+} rp_cl_cell;
+
+rp_cl_cell rp_cl_cell_at(const rp_cl_grid *g, vfloat px, vfloat py,
+                         vfloat pz) {
+  rp_cl_cell c;
+  vfloat cx = min(max(px, 0.0f), g->topx);
+  vfloat cy = min(max(py, 0.0f), g->topy);
+  vfloat cz = min(max(pz, 0.0f), g->topz);
+  vint ix = min(to_vint(cx), g->lomx), iy = min(to_vint(cy), g->lomy);
+  vint iz = min(to_vint(cz), g->lomz);
+  c.wx = cx - to_vfloat(ix);
+  c.wy = cy - to_vfloat(iy);
+  c.wz = cz - to_vfloat(iz);
+  c.base = to_vindex(ix) + to_vindex(iy) * g->row +
+           to_vindex(iz) * g->slice;
+  return c;
+}
+
+/* Trilinear interpolation of the volume in each lane's cell: along x,
+ * then y, then z. */
+vfloat rp_cl_sample_cell(__global const RP_VOXEL_T *vol, const rp_cl_grid *g,
+                         const rp_cl_cell *c) {
+  vfloat e0 = rp_cl_lerp_pair(rp_cl_gather(vol, c->base), c->wx);
+  vfloat e1 = rp_cl_lerp_pair(rp_cl_gather(vol, c->base + g->dy), c->wx);
+  vfloat e2 = rp_cl_lerp_pair(rp_cl_gather(vol, c->base + g->dz), c->wx);
+  vfloat e3 =
+      rp_cl_lerp_pair(rp_cl_gather(vol, c->base + g->dy + g->dz), c->wx);
+  return mix(mix(e0, e1, c->wy), mix(e2, e3, c->wy), c->wz);
+}
+
+/* Trilinear interpolation of the packet's points. */
+vfloat rp_cl_sample(__global const RP_VOXEL_T *vol, const rp_cl_grid *g,
+                    vfloat px, vfloat py, vfloat pz) {
+  rp_cl_cell c = rp_cl_cell_at(g, px, py, pz);
+  return rp_cl_sample_cell(vol, g, &c);
+}
+
+/* The same for a byte volume of the same grid (the AO volume, padded like
+ * the volume): two x-adjacent bytes per lane from one 32-bit word. */
+vfloat rp_cl_lerp_bytes(__global const uchar *bytes, vindex at, vfloat w) {
+  uint out[RP_CL_W];
+  RP_INDEX_T idx[RP_CL_W];
+  int j;
+  vuint q;
+  vstore_w(at, 0, idx);
+#pragma clang loop vectorize(enable) vectorize_width(RP_CL_W)
+  for (j = 0; j < RP_CL_W; j++)
+    out[j] = ((__global const rp_cl_word *)(bytes + idx[j]))->v;
+  q = vload_w(0, out);
+  return mix(to_vfloat(q & 0xffu), to_vfloat((q >> 8) & 0xffu), w);
+}
+
+vfloat rp_cl_sample_bytes(__global const uchar *bytes, const rp_cl_grid *g,
+                          const rp_cl_cell *c) {
+  vfloat e0 = rp_cl_lerp_bytes(bytes, c->base, c->wx);
+  vfloat e1 = rp_cl_lerp_bytes(bytes, c->base + g->dy, c->wx);
+  vfloat e2 = rp_cl_lerp_bytes(bytes, c->base + g->dz, c->wx);
+  vfloat e3 = rp_cl_lerp_bytes(bytes, c->base + g->dy + g->dz, c->wx);
+  return mix(mix(e0, e1, c->wy), mix(e2, e3, c->wy), c->wz);
+}
+
+/* Opacity for `step` from opacity a over the reference step:
+ * 1 - (1 - a)^ratio = -expm1(ratio * log1p(-a)), exact at 0 and 1.
+ *
+ * Written out rather than calling log1p and expm1: the library versions
+ * cost a third of a CPU frame. Both halves keep relative precision where
+ * it matters. log1p(-a) = 2 atanh(s), s = t / (2 + t), with t = -a
+ * itself for a < 1/4 (no rounding of 1 - a), else t = m - 1 for the
+ * mantissa m in [0.71, 1.41) of 1 - a (exact there); |s| <= 0.172, so
+ * the series to s^7 is good to 1e-7. expm1(x) = 2^n (expm1(y) + 1) - 1
+ * with x = n ln 2 + y, |y| <= ln 2 / 2, and a Taylor series to y^7; for
+ * small x, n = 0 and the result is expm1(y) itself. Relative error about
+ * 2e-7, far below what an 8-bit pixel can show. */
+vfloat rp_cl_correct(vfloat a, float ratio) {
+  vint small = a < 0.25f;
+  vint bits = as_vint(1.0f - a);
+  vint e = ((bits >> 23) & 0xff) - 127;
+  vfloat m = as_vfloat((bits & 0x7fffff) | 0x3f800000);
+  vint top = m > 1.41421356f;
+  vfloat t, s, s2, ln, x, y, em, p2;
+  vint n;
+  m = select(m, 0.5f * m, top);
+  e -= top; /* top is -1 where true */
+  t = select(m - 1.0f, -a, small);
+  s = t / (2.0f + t);
+  s2 = s * s;
+  ln = 2.0f * s * (1.0f + s2 * (1.0f / 3.0f +
+                                 s2 * (1.0f / 5.0f + s2 * (1.0f / 7.0f)))) +
+       select(to_vfloat(e), (vfloat)(0.0f), small) * 0.693147181f;
+  /* e^-87 is below the smallest normal float: the result is 1 there. */
+  x = max(ratio * ln, -87.0f);
+  n = RP_CL_CAT(to_vint, _rte)(x * 1.44269504f);
+  y = x - to_vfloat(n) * 0.693147181f;
+  em = y * (1.0f + y * (1.0f / 2.0f +
+                        y * (1.0f / 6.0f +
+                             y * (1.0f / 24.0f +
+                                  y * (1.0f / 120.0f +
+                                       y * (1.0f / 720.0f +
+                                            y * (1.0f / 5040.0f)))))));
+  p2 = as_vfloat((n + 127) << 23); /* 2^n, normal */
+  x = -(em * p2 + (p2 - 1.0f));
+  x = select(x, (vfloat)(0.0f), a <= 0.0f);
+  return select(x, (vfloat)(1.0f), a >= 1.0f);
+}
+
+/* Each lane's RGBA from the LUT: entries e and e + 1 mixed by w. */
+void rp_cl_classify(__global const float4 *lut, vint e, vfloat w,
+                    vfloat *r, vfloat *g, vfloat *b, vfloat *a) {
+  __global const float *lf = (__global const float *)lut;
+  float c[8][RP_CL_W];
+  int idx[RP_CL_W], j;
+  vstore_w(e * 4, 0, idx);
+#pragma clang loop vectorize(enable) vectorize_width(RP_CL_W)
+  for (j = 0; j < RP_CL_W; j++) {
+    __global const float *q = lf + idx[j];
+    c[0][j] = q[0];
+    c[1][j] = q[1];
+    c[2][j] = q[2];
+    c[3][j] = q[3];
+    c[4][j] = q[4];
+    c[5][j] = q[5];
+    c[6][j] = q[6];
+    c[7][j] = q[7];
+  }
+#define RP_CL_ROW(i) vload_w(0, c[i])
+  *r = mix(RP_CL_ROW(0), RP_CL_ROW(4), w);
+  *g = mix(RP_CL_ROW(1), RP_CL_ROW(5), w);
+  *b = mix(RP_CL_ROW(2), RP_CL_ROW(6), w);
+  *a = mix(RP_CL_ROW(3), RP_CL_ROW(7), w);
+#undef RP_CL_ROW
+}
+
+
+/* Opacity alone from the LUT, as rp_cl_classify computes it. */
+vfloat rp_cl_classify_alpha(__global const float4 *lut, vint e, vfloat w) {
+  __global const float *lf = (__global const float *)lut;
+  float c[2][RP_CL_W];
+  int idx[RP_CL_W], j;
+  vstore_w(e * 4 + 3, 0, idx);
+#pragma clang loop vectorize(enable) vectorize_width(RP_CL_W)
+  for (j = 0; j < RP_CL_W; j++) {
+    c[0][j] = lf[idx[j]];
+    c[1][j] = lf[idx[j] + 4];
+  }
+  return mix(vload_w(0, c[0]), vload_w(0, c[1]), w);
+}
+
+/* The LUT position of values: x = (v - min) / (max - min) clamped to
+ * [0, 1] (0 when max == min), f = x (lut_size - 1), entry
+ * e = min(floor(f), lut_size - 2) and weight f - e. */
+typedef struct rp_cl_lutpos {
+  float min, scale, top; /* scale: (lut_size - 1) / range, or 0 */
+  int last;              /* lut_size - 2 */
+} rp_cl_lutpos;
+
+rp_cl_lutpos rp_cl_lutpos_make(float value_min, float value_max,
+                               uint lut_size) {
+  rp_cl_lutpos q;
+  float range = value_max - value_min;
+  /* x * (lut_size - 1) in one multiply; a constant field sits at 0. */
+  q.min = value_min;
+  q.scale = range > 0.0f ? (float)(lut_size - 1u) / range : 0.0f;
+  q.top = (float)(lut_size - 1u);
+  q.last = (int)lut_size - 2;
+  return q;
+}
+
+vint rp_cl_lut_entry(const rp_cl_lutpos *q, vfloat v, vfloat *w) {
+  vfloat f = clamp((v - q->min) * q->scale, 0.0f, q->top);
+  vint e = min(to_vint(f), q->last);
+  *w = f - to_vfloat(e);
+  return e;
+}

@@ -1,0 +1,626 @@
+/* Ambient occlusion across devices (seed 004 section 5): the static BSP
+ * split with its planes moved by full-brick counts, the naive split, and
+ * the dynamic queue of fixed blocks; one thread per device, the result
+ * assembled on the host.
+ *
+ * Departures from seed 004, and why:
+ * - Every device already holds the whole volume (the raycast needs it),
+ *   so a block's R halo is never transferred: a job is only a box to
+ *   compute, and the halo costs nothing here.
+ * - The raycast is sort-first (every device renders a region of the
+ *   image from the whole volume), so every device needs the whole AO
+ *   volume: blocks are read back and assembled, then uploaded to all.
+ * - Both schemes are one mechanism: a list of jobs, each owned by a
+ *   device (static) or by none (dynamic). A device that fails releases
+ *   its jobs to the others, so a lost device costs time, not the result.
+ * - Static splits give each side of a plane as many devices as the BSP
+ *   node has on that side; with an odd count the sides differ, so the
+ *   balance criterion compares full bricks per device. */
+#include <math.h>
+#include <pthread.h>
+#include <stdio.h>
+#include <string.h>
+#include <time.h>
+
+#include "ao.h"
+
+#define DEFAULT_BLOCK 32u
+#define DEFAULT_BALANCE_MS 100.0
+#define DEFAULT_TOLERANCE 0.02
+/* Slabs per static block: how often a device reports progress. */
+#define STATIC_SLABS 8u
+
+/* A box of voxels [lo, end). */
+typedef struct box {
+  uint32_t lo[3], end[3];
+} box;
+
+typedef struct job {
+  box b;
+  int owner;  /* device index, or -1: any device */
+  int state;  /* 0 waiting, 1 taken, 2 done */
+} job;
+
+typedef struct sched {
+  const rp_ao_plan *plan;
+  rp_device *const *devs;
+  uint32_t n;
+  uint8_t *out;        /* the AO volume being assembled */
+  job *jobs;
+  uint32_t njobs, done;
+  int alive[RP_AO_MAX_DEVICES];
+  uint32_t alive_count;
+  pthread_mutex_t mu;
+  pthread_cond_t cv;
+  rp_ao_report *rep;
+  char first_error[256];
+  int first_err;
+} sched;
+
+typedef struct worker {
+  sched *s;
+  uint32_t index;
+  pthread_t thread;
+} worker;
+
+static double now_ms(void) {
+  struct timespec ts;
+  clock_gettime(CLOCK_MONOTONIC, &ts);
+  return (double)ts.tv_sec * 1e3 + (double)ts.tv_nsec * 1e-6;
+}
+
+static uint64_t box_voxels(const box *b) {
+  return (uint64_t)(b->end[0] - b->lo[0]) * (b->end[1] - b->lo[1]) *
+         (b->end[2] - b->lo[2]);
+}
+
+/* Copies a computed box into the volume (x fastest). */
+static void scatter(uint8_t *vol, const uint32_t dims[3], const box *b,
+                    const uint8_t *part) {
+  uint32_t nx = b->end[0] - b->lo[0], ny = b->end[1] - b->lo[1], y, z;
+  for (z = b->lo[2]; z < b->end[2]; z++)
+    for (y = b->lo[1]; y < b->end[1]; y++)
+      memcpy(vol + ((size_t)z * dims[1] + y) * dims[0] + b->lo[0],
+             part + ((size_t)(z - b->lo[2]) * ny + (y - b->lo[1])) * nx, nx);
+}
+
+/* The next job device i may take: its own first, then unowned ones. */
+static job *take(sched *s, uint32_t i) {
+  uint32_t k;
+  for (k = 0; k < s->njobs; k++)
+    if (s->jobs[k].state == 0 && s->jobs[k].owner == (int)i)
+      return &s->jobs[k];
+  for (k = 0; k < s->njobs; k++)
+    if (s->jobs[k].state == 0 && s->jobs[k].owner < 0)
+      return &s->jobs[k];
+  return NULL;
+}
+
+static void *worker_main(void *arg) {
+  worker *w = arg;
+  sched *s = w->s;
+  rp_device *dev = s->devs[w->index];
+  rp_context *dctx = rp__device_context(dev);
+  uint8_t *part = NULL;
+  size_t cap = 0;
+  double busy = 0.0;
+  pthread_mutex_lock(&s->mu);
+  for (;;) {
+    job *j;
+    int err;
+    double t0;
+    size_t need;
+    while ((j = take(s, w->index)) == NULL && s->done < s->njobs)
+      pthread_cond_wait(&s->cv, &s->mu);
+    if (j == NULL)
+      break;
+    j->state = 1;
+    pthread_mutex_unlock(&s->mu);
+    need = (size_t)box_voxels(&j->b);
+    err = 0;
+    if (need > cap) {
+      rp__free(dctx, part);
+      part = rp__malloc(dctx, need);
+      cap = part != NULL ? need : 0;
+      if (part == NULL)
+        err = rp__fail(dctx, RP_ENOMEM, "rp_ao_compute: out of memory "
+                       "for a block of %zu voxels", need);
+    }
+    t0 = now_ms();
+    if (err == 0)
+      err = rp_device_compute_ao(dev, s->plan, j->b.lo, j->b.end, part);
+    if (err == 0 && part != NULL)
+      scatter(s->out, s->plan->dims, &j->b, part);
+    busy += now_ms() - t0;
+    pthread_mutex_lock(&s->mu);
+    if (err != 0) {
+      uint32_t k;
+      /* Lost: this job and every other of this device go to the rest. */
+      j->state = 0;
+      for (k = 0; k < s->njobs; k++)
+        if (s->jobs[k].owner == (int)w->index)
+          s->jobs[k].owner = -1;
+      s->alive[w->index] = 0;
+      s->alive_count--;
+      if (s->first_err == 0) {
+        s->first_err = err;
+        snprintf(s->first_error, sizeof s->first_error, "device %u: %s",
+                 w->index, rp_last_error(dctx));
+      }
+      if (s->rep != NULL)
+        s->rep->devices[w->index].status = err;
+      /* With no device left nothing will finish the jobs: end the wait. */
+      if (s->alive_count == 0)
+        s->done = s->njobs;
+      pthread_cond_broadcast(&s->cv);
+      break;
+    }
+    j->state = 2;
+    s->done++;
+    if (s->rep != NULL) {
+      s->rep->devices[w->index].voxels += need;
+      s->rep->devices[w->index].full_bricks +=
+          rp_ao_plan_full_bricks(s->plan, j->b.lo, j->b.end);
+      s->rep->devices[w->index].jobs++;
+    }
+    pthread_cond_broadcast(&s->cv);
+  }
+  if (s->rep != NULL)
+    s->rep->devices[w->index].busy_ms = busy;
+  pthread_mutex_unlock(&s->mu);
+  rp__free(dctx, part);
+  return NULL;
+}
+
+/* ---- Static split ------------------------------------------------------ */
+
+typedef struct bsp_node {
+  box b;
+  uint32_t devices;    /* devices under this node */
+  uint32_t first;      /* index of its first device */
+  int axis;            /* split axis; -1 for a leaf */
+  uint32_t plane;      /* split position, voxels, a multiple of 4 inside */
+  int left, right;     /* children's node indices */
+} bsp_node;
+
+static int longest_axis(const box *b) {
+  int a, best = 0;
+  for (a = 1; a < 3; a++)
+    if (b->end[a] - b->lo[a] > b->end[best] - b->lo[best])
+      best = a;
+  return best;
+}
+
+/* Places `plane` on the brick grid inside (lo, end) when the box allows,
+ * so that no brick is split between two devices. */
+static uint32_t snap_plane(uint32_t plane, uint32_t lo, uint32_t end) {
+  uint32_t p = (plane + RP_AO_BRICK / 2) / RP_AO_BRICK * RP_AO_BRICK;
+  if (p <= lo || p >= end)
+    p = plane;
+  if (p <= lo)
+    p = lo + 1;
+  if (p >= end)
+    p = end - 1;
+  return p;
+}
+
+/* Builds the BSP under node `k` (already holding its box and devices);
+ * nodes are appended to `nodes`. */
+static void bsp_build(bsp_node *nodes, int *count, int k) {
+  bsp_node *nd = &nodes[k];
+  uint32_t nl, len;
+  int a;
+  nd->axis = -1;
+  nd->left = nd->right = -1;
+  if (nd->devices < 2)
+    return;
+  a = longest_axis(&nd->b);
+  len = nd->b.end[a] - nd->b.lo[a];
+  if (len < 2)
+    return; /* a one-voxel box cannot be split: one device gets it */
+  nl = nd->devices / 2;
+  nd->axis = a;
+  nd->plane = snap_plane(
+      nd->b.lo[a] + (uint32_t)((uint64_t)len * nl / nd->devices),
+      nd->b.lo[a], nd->b.end[a]);
+  nd->left = (*count)++;
+  nd->right = (*count)++;
+  nodes[nd->left].b = nd->b;
+  nodes[nd->left].b.end[a] = nd->plane;
+  nodes[nd->left].devices = nl;
+  nodes[nd->left].first = nd->first;
+  nodes[nd->right].b = nd->b;
+  nodes[nd->right].b.lo[a] = nd->plane;
+  nodes[nd->right].devices = nd->devices - nl;
+  nodes[nd->right].first = nd->first + nl;
+  bsp_build(nodes, count, nd->left);
+  bsp_build(nodes, count, nd->right);
+}
+
+/* Re-derives the children's boxes after a plane moved. */
+static void bsp_reshape(bsp_node *nodes, int k) {
+  bsp_node *nd = &nodes[k];
+  uint32_t len;
+  int a = nd->axis;
+  if (a < 0)
+    return;
+  len = nd->b.end[a] - nd->b.lo[a];
+  if (len < 2) {
+    nd->axis = -1;
+    return;
+  }
+  if (nd->plane <= nd->b.lo[a] || nd->plane >= nd->b.end[a])
+    nd->plane = nd->b.lo[a] + len / 2;
+  nodes[nd->left].b = nd->b;
+  nodes[nd->left].b.end[a] = nd->plane;
+  nodes[nd->right].b = nd->b;
+  nodes[nd->right].b.lo[a] = nd->plane;
+  bsp_reshape(nodes, nd->left);
+  bsp_reshape(nodes, nd->right);
+}
+
+/* Full bricks per device on each side of node k's plane at `plane`:
+ * D = left - right (seed 004's D(B_i, B_j), per device). */
+static double imbalance(const rp_ao_plan *plan, const bsp_node *nd,
+                        uint32_t plane, double *smaller) {
+  box l = nd->b, r = nd->b;
+  double fl, fr, nl = 0, nr = 0;
+  l.end[nd->axis] = plane;
+  r.lo[nd->axis] = plane;
+  fl = (double)rp_ao_plan_full_bricks(plan, l.lo, l.end);
+  fr = (double)rp_ao_plan_full_bricks(plan, r.lo, r.end);
+  nl = fl / (double)(nd->devices / 2);
+  nr = fr / (double)(nd->devices - nd->devices / 2);
+  *smaller = nl < nr ? nl : nr;
+  return nl - nr;
+}
+
+/* Moves node k's plane, then its children's, until each is balanced, the
+ * sign of D flips, or the time runs out (seed 004 section 5.2.6). A move
+ * is as many brick layers as the difference of full bricks fills, given
+ * the full bricks of the layer at the plane: the difference in counts
+ * sets the step, as the seed does, and a step is never under one
+ * layer. */
+static void bsp_balance(const rp_ao_plan *plan, bsp_node *nodes, int k,
+                        double tolerance, double deadline) {
+  bsp_node *nd = &nodes[k];
+  int a = nd->axis;
+  if (a < 0)
+    return;
+  for (;;) {
+    double smaller, d = imbalance(plan, nd, nd->plane, &smaller), layer, dn;
+    double moved;
+    uint32_t steps, next;
+    box slab = nd->b;
+    if (fabs(d) <= tolerance * (smaller > 1.0 ? smaller : 1.0) ||
+        now_ms() > deadline)
+      break;
+    /* The full bricks of the one-brick layer just past the plane on the
+     * heavier side. */
+    if (d > 0) {
+      slab.lo[a] = nd->plane >= RP_AO_BRICK ? nd->plane - RP_AO_BRICK : 0;
+      slab.end[a] = nd->plane;
+    } else {
+      slab.lo[a] = nd->plane;
+      slab.end[a] = nd->plane + RP_AO_BRICK;
+    }
+    if (slab.lo[a] < nd->b.lo[a])
+      slab.lo[a] = nd->b.lo[a];
+    if (slab.end[a] > nd->b.end[a])
+      slab.end[a] = nd->b.end[a];
+    layer = slab.end[a] > slab.lo[a]
+                ? (double)rp_ao_plan_full_bricks(plan, slab.lo, slab.end)
+                : 0.0;
+    /* Moving one layer from the heavier side to the lighter changes the
+     * per-device difference by about layer * (1/nl + 1/nr). */
+    dn = layer * (1.0 / (double)(nd->devices / 2) +
+                  1.0 / (double)(nd->devices - nd->devices / 2));
+    moved = dn > 0.0 ? fabs(d) / dn : 1.0;
+    steps = moved < 1.0 ? 1u : moved > 1e6 ? 1000000u : (uint32_t)moved;
+    if (d > 0) {
+      uint64_t back = (uint64_t)steps * RP_AO_BRICK;
+      next = nd->plane - nd->b.lo[a] > back ? nd->plane - (uint32_t)back
+                                            : nd->b.lo[a] + 1;
+    } else {
+      uint64_t fwd = (uint64_t)nd->plane + (uint64_t)steps * RP_AO_BRICK;
+      next = fwd < nd->b.end[a] ? (uint32_t)fwd : nd->b.end[a] - 1;
+    }
+    if (next == nd->plane)
+      break;
+    {
+      double s2, d2 = imbalance(plan, nd, next, &s2);
+      if ((d2 > 0) != (d > 0)) {
+        /* Crossed the balance point: keep the better side and stop. */
+        if (fabs(d2) < fabs(d))
+          nd->plane = next;
+        break;
+      }
+      nd->plane = next;
+    }
+  }
+  bsp_reshape(nodes, k);
+  bsp_balance(plan, nodes, nd->left, tolerance, deadline);
+  bsp_balance(plan, nodes, nd->right, tolerance, deadline);
+}
+
+/* ---- Jobs -------------------------------------------------------------- */
+
+/* v rounded down to the brick grid, but not below lo. */
+static uint32_t brick_floor(uint32_t v, uint32_t lo) {
+  uint32_t f = v / RP_AO_BRICK * RP_AO_BRICK;
+  return f > lo ? f : lo;
+}
+
+static int static_jobs(rp_context *ctx, const rp_ao_plan *plan, uint32_t n,
+                       int balanced, const rp_ao_schedule *sc, job **out,
+                       uint32_t *njobs, double *balance_ms,
+                       rp_ao_report *rep) {
+  bsp_node nodes[2 * RP_AO_MAX_DEVICES];
+  int count = 1, k;
+  uint32_t nj = 0, s;
+  job *jobs;
+  double t0 = now_ms();
+  memset(nodes, 0, sizeof nodes);
+  memcpy(nodes[0].b.end, plan->dims, sizeof nodes[0].b.end);
+  nodes[0].devices = n;
+  bsp_build(nodes, &count, 0);
+  if (balanced)
+    bsp_balance(plan, nodes, 0, sc->tolerance, t0 + sc->balance_ms);
+  *balance_ms = balanced ? now_ms() - t0 : 0.0;
+  jobs = rp__calloc(ctx, (size_t)count * STATIC_SLABS, sizeof *jobs);
+  if (jobs == NULL)
+    return RP__AO_FAIL(ctx, RP_ENOMEM, "rp_ao_compute: out of memory");
+  /* Each leaf's block, as z-slabs so its device reports progress; a
+   * block without a full brick is left to the host fill. */
+  for (k = 0; k < count; k++) {
+    const bsp_node *nd = &nodes[k];
+    uint32_t depth = nd->b.end[2] - nd->b.lo[2];
+    uint32_t slabs = depth < STATIC_SLABS ? depth : STATIC_SLABS;
+    if (nd->axis >= 0 || nd->devices == 0)
+      continue;
+    if (rep != NULL) {
+      memcpy(rep->devices[nd->first].block_lo, nd->b.lo, sizeof nd->b.lo);
+      memcpy(rep->devices[nd->first].block_end, nd->b.end,
+             sizeof nd->b.end);
+    }
+    for (s = 0; s < slabs; s++) {
+      box b = nd->b;
+      /* Slab faces on the brick grid, so no brick counts twice. */
+      b.lo[2] = brick_floor(nd->b.lo[2] + (uint32_t)((uint64_t)depth * s /
+                                                     slabs),
+                            nd->b.lo[2]);
+      b.end[2] = s + 1 == slabs
+                     ? nd->b.end[2]
+                     : brick_floor(nd->b.lo[2] +
+                                       (uint32_t)((uint64_t)depth * (s + 1) /
+                                                  slabs),
+                                   nd->b.lo[2]);
+      if (b.end[2] <= b.lo[2] ||
+          rp_ao_plan_full_bricks(plan, b.lo, b.end) == 0)
+        continue;
+      jobs[nj].b = b;
+      jobs[nj].owner = (int)nd->first;
+      nj++;
+    }
+  }
+  *out = jobs;
+  *njobs = nj;
+  return 0;
+}
+
+static int dynamic_jobs(rp_context *ctx, const rp_ao_plan *plan,
+                        uint32_t edge, job **out, uint32_t *njobs) {
+  uint32_t g[3], a, x, y, z, nj = 0;
+  size_t total;
+  job *jobs;
+  for (a = 0; a < 3; a++)
+    g[a] = plan->dims[a] / edge + (plan->dims[a] % edge != 0);
+  total = (size_t)g[0] * g[1] * g[2];
+  jobs = rp__calloc(ctx, total > 0 ? total : 1, sizeof *jobs);
+  if (jobs == NULL)
+    return RP__AO_FAIL(ctx, RP_ENOMEM,
+                       "rp_ao_compute: out of memory for %zu blocks", total);
+  for (z = 0; z < g[2]; z++)
+    for (y = 0; y < g[1]; y++)
+      for (x = 0; x < g[0]; x++) {
+        box b;
+        uint32_t c[3] = {x, y, z};
+        for (a = 0; a < 3; a++) {
+          b.lo[a] = c[a] * edge;
+          b.end[a] = b.lo[a] + edge < plan->dims[a] ? b.lo[a] + edge
+                                                    : plan->dims[a];
+        }
+        if (rp_ao_plan_full_bricks(plan, b.lo, b.end) == 0)
+          continue;
+        jobs[nj].b = b;
+        jobs[nj].owner = -1;
+        nj++;
+      }
+  *out = jobs;
+  *njobs = nj;
+  return 0;
+}
+
+/* ---- The call ---------------------------------------------------------- */
+
+int rp__ao_schedule_resolve(rp_context *ctx, const char *fn,
+                            const rp_ao_schedule *in, rp_ao_schedule *sc) {
+  memset(sc, 0, sizeof *sc);
+  if (in != NULL)
+    *sc = *in;
+  if (sc->block == 0)
+    sc->block = DEFAULT_BLOCK;
+  if (sc->balance_ms == 0.0)
+    sc->balance_ms = DEFAULT_BALANCE_MS;
+  if (sc->tolerance == 0.0)
+    sc->tolerance = DEFAULT_TOLERANCE;
+  if (sc->scheme != RP_AO_DYNAMIC && sc->scheme != RP_AO_STATIC &&
+      sc->scheme != RP_AO_STATIC_NAIVE)
+    return RP__AO_FAIL(ctx, RP_EINVAL, "%s: unknown scheme %d", fn,
+                       (int)sc->scheme);
+  if (sc->block % RP_AO_BRICK != 0)
+    return RP__AO_FAIL(ctx, RP_EINVAL,
+                       "%s: block %u is not a multiple of the %u-voxel brick",
+                       fn, sc->block, RP_AO_BRICK);
+  if (!isfinite(sc->balance_ms) || !isfinite(sc->tolerance))
+    return RP__AO_FAIL(ctx, RP_ENOTFINITE,
+                       "%s: balance_ms and tolerance must be finite", fn);
+  if (sc->balance_ms < 0.0 || sc->tolerance < 0.0)
+    return RP__AO_FAIL(
+        ctx, RP_ERANGE,
+        "%s: balance_ms %g and tolerance %g must not be negative", fn,
+        sc->balance_ms, sc->tolerance);
+  return 0;
+}
+
+static int check_args(rp_context *ctx, rp_device *const *devs, uint32_t n,
+                      const rp_ao_plan *plan, const rp_ao_schedule *in,
+                      rp_ao_schedule *sc, rp_ao **out) {
+  static const char *fn = "rp_ao_compute";
+  uint32_t i, k;
+  int err;
+  if (devs == NULL || plan == NULL || out == NULL) {
+    /* Not rp__fail's code: the analyzer then sees no caller go on with
+     * a NULL. */
+    rp__fail(ctx, RP_EINVAL, "%s: devices, plan and out are required", fn);
+    return RP_EINVAL;
+  }
+  if (n < 1 || n > RP_AO_MAX_DEVICES)
+    return RP__AO_FAIL(ctx, RP_ERANGE, "%s: %u devices; 1 to %u are allowed",
+                       fn, n, RP_AO_MAX_DEVICES);
+  if ((err = rp__ao_schedule_resolve(ctx, fn, in, sc)) != 0)
+    return err;
+  for (i = 0; i < n; i++) {
+    if (devs[i] == NULL)
+      return RP__AO_FAIL(ctx, RP_EINVAL, "%s: device %u is NULL", fn, i);
+    /* A context serves one thread at a time, and each device here runs
+     * on a thread of its own. */
+    for (k = 0; k < i; k++)
+      if (devs[k] == devs[i] ||
+          rp__device_context(devs[k]) == rp__device_context(devs[i]))
+        return RP__AO_FAIL(ctx, RP_EINVAL,
+                           "%s: devices %u and %u %s; each "
+                           "device needs a context of its own",
+                           fn, k, i,
+                           devs[k] == devs[i] ? "are the same device"
+                                              : "share a context");
+    if (!rp__device_holds(devs[i], plan->vol_id, plan->tf_id))
+      return RP__AO_FAIL(
+          ctx, RP_ESTATE,
+          "%s: device %u does not hold the plan's volume and transfer function",
+          fn, i);
+  }
+  return 0;
+}
+
+int rp_ao_compute(rp_context *ctx, rp_device *const *devices, uint32_t count,
+                  const rp_ao_plan *plan, const rp_ao_schedule *schedule,
+                  rp_ao **out, rp_ao_report *report) {
+  rp_ao_schedule sc = {0};
+  rp_ao_report rep;
+  sched s;
+  worker ws[RP_AO_MAX_DEVICES];
+  rp_ao *ao = NULL;
+  double t0 = now_ms(), balance_ms = 0.0;
+  uint32_t i, started = 0, reported = 0;
+  int err;
+  if (ctx == NULL)
+    return RP_EINVAL;
+  if ((err = check_args(ctx, devices, count, plan, schedule, &sc, out)) != 0)
+    return err;
+  memset(&s, 0, sizeof s);
+  memset(&rep, 0, sizeof rep);
+  rep.device_count = count;
+  if ((err = rp__ao_new(ctx, plan, &ao)) != 0)
+    return err;
+  /* Voxels no job computes (bricks without a full brick) are unoccluded
+   * by definition. */
+  memset(ao->data, 255,
+         (size_t)plan->dims[0] * plan->dims[1] * plan->dims[2]);
+  err = sc.scheme == RP_AO_DYNAMIC
+            ? dynamic_jobs(ctx, plan, sc.block, &s.jobs, &s.njobs)
+            : static_jobs(ctx, plan, count, sc.scheme == RP_AO_STATIC, &sc,
+                          &s.jobs, &s.njobs, &balance_ms, &rep);
+  if (err != 0) {
+    rp_ao_destroy(ao);
+    return err;
+  }
+  s.plan = plan;
+  s.devs = devices;
+  s.n = count;
+  s.out = ao->data;
+  s.rep = &rep;
+  s.alive_count = count;
+  for (i = 0; i < count; i++)
+    s.alive[i] = 1;
+  pthread_mutex_init(&s.mu, NULL);
+  pthread_cond_init(&s.cv, NULL);
+  for (i = 0; i < count; i++) {
+    ws[i].s = &s;
+    ws[i].index = i;
+    if (pthread_create(&ws[i].thread, NULL, worker_main, &ws[i]) != 0)
+      break;
+    started++;
+  }
+  pthread_mutex_lock(&s.mu);
+  if (started < count) {
+    /* Devices without a thread: their static jobs go to the others. */
+    uint32_t k;
+    for (k = 0; k < s.njobs; k++)
+      if (s.jobs[k].owner >= (int)started)
+        s.jobs[k].owner = -1;
+    s.alive_count = started;
+    if (started == 0) {
+      s.done = s.njobs;
+      s.first_err = rp__fail(ctx, RP_EDEVICE, "rp_ao_compute: no thread "
+                             "could be started");
+    }
+    pthread_cond_broadcast(&s.cv);
+  }
+  /* Progress from the calling thread, on every job finished. */
+  while (s.done < s.njobs) {
+    if (sc.progress != NULL && s.done != reported) {
+      double f = (double)s.done / (double)s.njobs;
+      reported = s.done;
+      pthread_mutex_unlock(&s.mu);
+      sc.progress(f, sc.user);
+      pthread_mutex_lock(&s.mu);
+      continue;
+    }
+    pthread_cond_wait(&s.cv, &s.mu);
+  }
+  pthread_mutex_unlock(&s.mu);
+  for (i = 0; i < started; i++)
+    pthread_join(ws[i].thread, NULL);
+  pthread_cond_destroy(&s.cv);
+  pthread_mutex_destroy(&s.mu);
+  err = 0;
+  if (s.alive_count == 0 && s.njobs > 0) {
+    err = s.first_err != 0 ? s.first_err : RP_EDEVICE;
+    rp__fail(ctx, err, "rp_ao_compute: every device failed; first, %s",
+             s.first_error);
+  }
+  rp__free(ctx, s.jobs);
+  if (err != 0) {
+    rp_ao_destroy(ao);
+    return err;
+  }
+  if (sc.progress != NULL)
+    sc.progress(1.0, sc.user);
+  rep.total_ms = now_ms() - t0;
+  rep.balance_ms = balance_ms;
+  rep.min_ms = INFINITY;
+  rep.max_ms = 0.0;
+  for (i = 0; i < count; i++) {
+    if (rep.devices[i].jobs == 0)
+      continue;
+    rep.min_ms = fmin(rep.min_ms, rep.devices[i].busy_ms);
+    rep.max_ms = fmax(rep.max_ms, rep.devices[i].busy_ms);
+  }
+  if (rep.min_ms == INFINITY)
+    rep.min_ms = 0.0;
+  if (report != NULL)
+    *report = rep;
+  *out = ao;
+  return 0;
+}
