@@ -122,9 +122,11 @@ typedef enum rp_ao_scheme {
   RP_AO_DYNAMIC = 0,
   /* A BSP split along the longest axis into one block per device, each
    * splitting plane then moved, top down, by the difference of the full
-   * bricks on its two sides until balanced or out of time. */
+   * bricks on its two sides (per unit of speed) until balanced or out of
+   * time. */
   RP_AO_STATIC = 1,
-  /* The same BSP split into equal volumes, planes never moved. */
+  /* The same BSP split into volumes in proportion to speed (equal by
+   * default), planes never moved. */
   RP_AO_STATIC_NAIVE = 2
 } rp_ao_scheme;
 
@@ -137,6 +139,11 @@ typedef struct rp_ao_schedule {
   double tolerance;    /* static: a plane is balanced when the full bricks
                           per device on its sides differ by at most this
                           share of the smaller side; 0: 0.02 */
+  /* static: each device's relative speed (full bricks per ms, or any
+   * unit common to all); planes are placed and moved so that each device
+   * gets bricks in proportion to it. 0: 1 (alike, seed 004's). The
+   * previous computation's report gives it: full_bricks / busy_ms. */
+  double speed[RP_AO_MAX_DEVICES];
   rp_progress_fn progress; /* may be NULL; called on the calling thread */
   void *user;
 } rp_ao_schedule;

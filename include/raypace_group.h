@@ -132,7 +132,9 @@ RP_API int rp_device_group_set_tf(rp_device_group *g, const rp_tf *tf,
  *  over the live devices (each already has a context of its own; a
  *  device lost doing it is dropped), and set for RP_EFFECT_AO renders
  *  (NULL releases every device's AO memory); the bytes they hold. Not
- *  while a frame is in flight. \since 0.2 */
+ *  while a frame is in flight. Without speeds in `schedule`, a static
+ *  split takes each device's speed from the group's previous AO
+ *  computation. \since 0.2 */
 RP_API int rp_device_group_compute_ao(rp_device_group *g,
                                       const rp_ao_plan *plan,
                                       const rp_ao_schedule *schedule,

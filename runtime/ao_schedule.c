@@ -13,9 +13,12 @@
  * - Both schemes are one mechanism: a list of jobs, each owned by a
  *   device (static) or by none (dynamic). A device that fails releases
  *   its jobs to the others, so a lost device costs time, not the result.
- * - Static splits give each side of a plane as many devices as the BSP
- *   node has on that side; with an odd count the sides differ, so the
- *   balance criterion compares full bricks per device. */
+ * - Static splits weigh each side of a plane by the speeds of the
+ *   devices under it (rp_ao_schedule.speed; all 1 by default, which is
+ *   the seed's criterion per device, and also covers odd device counts,
+ *   whose sides hold different numbers of devices). The seed's GPUs were
+ *   alike; ours are not (a CPU part next to lavapipe, a slowed device),
+ *   and an even split of the bricks leaves the fast device waiting. */
 #include <math.h>
 #include <pthread.h>
 #include <stdio.h>
@@ -178,6 +181,7 @@ typedef struct bsp_node {
   box b;
   uint32_t devices;    /* devices under this node */
   uint32_t first;      /* index of its first device */
+  double cap_left, cap_right; /* summed device speeds on each side */
   int axis;            /* split axis; -1 for a leaf */
   uint32_t plane;      /* split position, voxels, a multiple of 4 inside */
   int left, right;     /* children's node indices */
@@ -204,9 +208,19 @@ static uint32_t snap_plane(uint32_t plane, uint32_t lo, uint32_t end) {
   return p;
 }
 
+static double capacity(const double *speed, uint32_t first, uint32_t n) {
+  double c = 0.0;
+  uint32_t i;
+  for (i = 0; i < n; i++)
+    c += speed[first + i];
+  return c;
+}
+
 /* Builds the BSP under node `k` (already holding its box and devices);
- * nodes are appended to `nodes`. */
-static void bsp_build(bsp_node *nodes, int *count, int k) {
+ * nodes are appended to `nodes`. The first split puts the plane where
+ * the sides' volumes are in the ratio of their devices' speeds. */
+static void bsp_build(bsp_node *nodes, int *count, int k,
+                      const double *speed) {
   bsp_node *nd = &nodes[k];
   uint32_t nl, len;
   int a;
@@ -220,8 +234,11 @@ static void bsp_build(bsp_node *nodes, int *count, int k) {
     return; /* a one-voxel box cannot be split: one device gets it */
   nl = nd->devices / 2;
   nd->axis = a;
+  nd->cap_left = capacity(speed, nd->first, nl);
+  nd->cap_right = capacity(speed, nd->first + nl, nd->devices - nl);
   nd->plane = snap_plane(
-      nd->b.lo[a] + (uint32_t)((uint64_t)len * nl / nd->devices),
+      nd->b.lo[a] + (uint32_t)((double)len * nd->cap_left /
+                               (nd->cap_left + nd->cap_right)),
       nd->b.lo[a], nd->b.end[a]);
   nd->left = (*count)++;
   nd->right = (*count)++;
@@ -233,8 +250,8 @@ static void bsp_build(bsp_node *nodes, int *count, int k) {
   nodes[nd->right].b.lo[a] = nd->plane;
   nodes[nd->right].devices = nd->devices - nl;
   nodes[nd->right].first = nd->first + nl;
-  bsp_build(nodes, count, nd->left);
-  bsp_build(nodes, count, nd->right);
+  bsp_build(nodes, count, nd->left, speed);
+  bsp_build(nodes, count, nd->right, speed);
 }
 
 /* Re-derives the children's boxes after a plane moved. */
@@ -259,8 +276,9 @@ static void bsp_reshape(bsp_node *nodes, int k) {
   bsp_reshape(nodes, nd->right);
 }
 
-/* Full bricks per device on each side of node k's plane at `plane`:
- * D = left - right (seed 004's D(B_i, B_j), per device). */
+/* Full bricks per unit of device speed on each side of node k's plane
+ * at `plane`: D = left - right (seed 004's D(B_i, B_j), per device when
+ * the devices are alike). */
 static double imbalance(const rp_ao_plan *plan, const bsp_node *nd,
                         uint32_t plane, double *smaller) {
   box l = nd->b, r = nd->b;
@@ -269,8 +287,8 @@ static double imbalance(const rp_ao_plan *plan, const bsp_node *nd,
   r.lo[nd->axis] = plane;
   fl = (double)rp_ao_plan_full_bricks(plan, l.lo, l.end);
   fr = (double)rp_ao_plan_full_bricks(plan, r.lo, r.end);
-  nl = fl / (double)(nd->devices / 2);
-  nr = fr / (double)(nd->devices - nd->devices / 2);
+  nl = fl / nd->cap_left;
+  nr = fr / nd->cap_right;
   *smaller = nl < nr ? nl : nr;
   return nl - nr;
 }
@@ -312,9 +330,8 @@ static void bsp_balance(const rp_ao_plan *plan, bsp_node *nodes, int k,
                 ? (double)rp_ao_plan_full_bricks(plan, slab.lo, slab.end)
                 : 0.0;
     /* Moving one layer from the heavier side to the lighter changes the
-     * per-device difference by about layer * (1/nl + 1/nr). */
-    dn = layer * (1.0 / (double)(nd->devices / 2) +
-                  1.0 / (double)(nd->devices - nd->devices / 2));
+     * difference by about layer * (1/cap_left + 1/cap_right). */
+    dn = layer * (1.0 / nd->cap_left + 1.0 / nd->cap_right);
     moved = dn > 0.0 ? fabs(d) / dn : 1.0;
     steps = moved < 1.0 ? 1u : moved > 1e6 ? 1000000u : (uint32_t)moved;
     if (d > 0) {
@@ -363,7 +380,7 @@ static int static_jobs(rp_context *ctx, const rp_ao_plan *plan, uint32_t n,
   memset(nodes, 0, sizeof nodes);
   memcpy(nodes[0].b.end, plan->dims, sizeof nodes[0].b.end);
   nodes[0].devices = n;
-  bsp_build(nodes, &count, 0);
+  bsp_build(nodes, &count, 0, sc->speed);
   if (balanced)
     bsp_balance(plan, nodes, 0, sc->tolerance, t0 + sc->balance_ms);
   *balance_ms = balanced ? now_ms() - t0 : 0.0;
@@ -445,6 +462,7 @@ static int dynamic_jobs(rp_context *ctx, const rp_ao_plan *plan,
 
 int rp__ao_schedule_resolve(rp_context *ctx, const char *fn,
                             const rp_ao_schedule *in, rp_ao_schedule *sc) {
+  uint32_t i;
   memset(sc, 0, sizeof *sc);
   if (in != NULL)
     *sc = *in;
@@ -454,6 +472,16 @@ int rp__ao_schedule_resolve(rp_context *ctx, const char *fn,
     sc->balance_ms = DEFAULT_BALANCE_MS;
   if (sc->tolerance == 0.0)
     sc->tolerance = DEFAULT_TOLERANCE;
+  for (i = 0; i < RP_AO_MAX_DEVICES; i++) {
+    if (!isfinite(sc->speed[i]))
+      return RP__AO_FAIL(ctx, RP_ENOTFINITE, "%s: speed[%u] is %g", fn, i,
+                         sc->speed[i]);
+    if (sc->speed[i] < 0.0)
+      return RP__AO_FAIL(ctx, RP_ERANGE, "%s: speed[%u] is %g; must not be "
+                         "negative", fn, i, sc->speed[i]);
+    if (sc->speed[i] == 0.0)
+      sc->speed[i] = 1.0;
+  }
   if (sc->scheme != RP_AO_DYNAMIC && sc->scheme != RP_AO_STATIC &&
       sc->scheme != RP_AO_STATIC_NAIVE)
     return RP__AO_FAIL(ctx, RP_EINVAL, "%s: unknown scheme %d", fn,

@@ -77,6 +77,8 @@ typedef struct member {
   const rp_tf *tf;
   const rp_occupancy *occ;
   const rp_ao *ao;      /* JOB_AO: NULL releases the device's AO */
+  double ao_speed;      /* full bricks per ms of its last AO work; 0:
+                           unknown */
   rp_camera cam;
   rp_render_desc desc;
   rp_region region;
@@ -633,17 +635,27 @@ uint64_t rp_device_group_ao_bytes(const rp_device_group *g) {
 /* Between frames every live member's worker waits for a job, so the
  * devices are free for rp_ao_compute's threads; each has a context of
  * its own, as rp_ao_compute requires. A device the computation lost is
- * dropped, as a lost upload would drop it. */
+ * dropped, as a lost upload would drop it.
+ *
+ * Unless the caller gives speeds, a static split uses each device's
+ * speed from the group's last AO computation (full bricks per ms), so
+ * that the split follows the devices from the second TF on; a device
+ * not yet measured counts as the mean of those that were. */
 int rp_device_group_compute_ao(rp_device_group *g, const rp_ao_plan *plan,
                                const rp_ao_schedule *schedule, rp_ao **out,
                                rp_ao_report *report) {
   rp_device *devs[RP_AO_MAX_DEVICES];
-  uint32_t idx[RP_AO_MAX_DEVICES] = {0}, n = 0, i;
+  uint32_t idx[RP_AO_MAX_DEVICES] = {0}, n = 0, i, known = 0;
+  rp_ao_schedule sc;
   rp_ao_report rep;
-  int err;
+  double sum = 0.0;
+  int err, given = 0;
   if (g == NULL)
     return RP_EINVAL;
   memset(&rep, 0, sizeof rep);
+  memset(&sc, 0, sizeof sc);
+  if (schedule != NULL)
+    sc = *schedule;
   for (i = 0; i < g->count && n < RP_AO_MAX_DEVICES; i++)
     if (!g->m[i].dropped) {
       idx[n] = i;
@@ -652,12 +664,30 @@ int rp_device_group_compute_ao(rp_device_group *g, const rp_ao_plan *plan,
   if (n == 0)
     return rp__fail(g->ctx, RP_ENODEV, "rp_device_group_compute_ao: no "
                     "device left");
-  err = rp_ao_compute(g->ctx, devs, n, plan, schedule, out, &rep);
-  for (i = 0; i < n; i++)
+  for (i = 0; i < RP_AO_MAX_DEVICES; i++)
+    given |= sc.speed[i] != 0.0;
+  if (!given) {
+    for (i = 0; i < n; i++)
+      if (g->m[idx[i]].ao_speed > 0.0) {
+        sum += g->m[idx[i]].ao_speed;
+        known++;
+      }
+    for (i = 0; i < n && known > 0; i++)
+      sc.speed[i] = g->m[idx[i]].ao_speed > 0.0 ? g->m[idx[i]].ao_speed
+                                                : sum / known;
+  }
+  err = rp_ao_compute(g->ctx, devs, n, plan, &sc, out, &rep);
+  for (i = 0; i < n; i++) {
+    member *w = &g->m[idx[i]];
     if (loses_device(rep.devices[i].status, 0) || err == RP_EDEVICE) {
-      g->m[idx[i]].dropped = 1;
+      w->dropped = 1;
       g->have_prev = 0;
+    } else if (err == 0 && rep.devices[i].busy_ms > 0.0 &&
+               rep.devices[i].full_bricks > 0) {
+      w->ao_speed =
+          (double)rep.devices[i].full_bricks / rep.devices[i].busy_ms;
     }
+  }
   if (err == 0 && report != NULL)
     *report = rep;
   return err;

@@ -692,6 +692,48 @@ static void test_static_balances(void **state) {
   scene_close(&sn);
 }
 
+/* With device speeds given, static splits hand out full bricks in their
+ * ratio: a device three times as fast gets three times the bricks, to
+ * within a brick layer (at most 36 bricks here); naive splits the volume
+ * in that ratio. */
+static void test_static_follows_speed(void **state) {
+  rp_context *ctx = *state;
+  rp_ao_desc desc = {2, 1, 2.0f, 1.0f, 0};
+  lopsided_scene sn;
+  int k;
+  scene_open(ctx, &sn, &desc, 0);
+  for (k = 0; k < 2; k++) {
+    device_set ds;
+    rp_ao_schedule sc = {0};
+    rp_ao_report rep;
+    rp_ao *got = NULL;
+    uint64_t f[2];
+    uint32_t i;
+    open_devices(&ds, 2, &sn, 99, 0);
+    sc.scheme = k == 0 ? RP_AO_STATIC_NAIVE : RP_AO_STATIC;
+    sc.balance_ms = 10000.0;
+    sc.speed[0] = 1.0;
+    sc.speed[1] = 3.0;
+    assert_int_equal(rp_ao_compute(ctx, ds.dev, 2, sn.plan, &sc, &got, &rep),
+                     0);
+    for (i = 0; i < 2; i++)
+      f[i] = rp_ao_plan_full_bricks(sn.plan, rep.devices[i].block_lo,
+                                    rep.devices[i].block_end);
+    if (k == 0) {
+      /* x is the longest axis: device 0 gets the first quarter of it,
+       * to the nearest brick face. */
+      assert_int_equal(rep.devices[0].block_end[0], 12);
+    } else {
+      double d = 3.0 * (double)f[0] - (double)f[1];
+      assert_true(fabs(d) <= 4.0 * 36.0);
+      assert_true(f[1] > 2 * f[0]);
+    }
+    rp_ao_destroy(got);
+    close_devices(&ds);
+  }
+  scene_close(&sn);
+}
+
 /* A device lost mid-computation hands its work to the others and the
  * result is still exact; with every device lost the call fails and
  * leaves *out alone. */
@@ -761,6 +803,13 @@ static void test_bad_schedule(void **state) {
   assert_int_equal(rp_ao_compute(ctx, ds.dev, 2, sn.plan, &sc, &got, NULL),
                    RP_ENOTFINITE);
   sc.balance_ms = 0.0;
+  sc.speed[1] = -1.0;
+  assert_int_equal(rp_ao_compute(ctx, ds.dev, 2, sn.plan, &sc, &got, NULL),
+                   RP_ERANGE);
+  sc.speed[1] = INFINITY;
+  assert_int_equal(rp_ao_compute(ctx, ds.dev, 2, sn.plan, &sc, &got, NULL),
+                   RP_ENOTFINITE);
+  sc.speed[1] = 0.0;
   sc.scheme = (rp_ao_scheme)7;
   assert_int_equal(rp_ao_compute(ctx, ds.dev, 2, sn.plan, &sc, &got, NULL),
                    RP_EINVAL);
@@ -792,6 +841,7 @@ int main(void) {
       cmocka_unit_test(test_bad_desc),
       cmocka_unit_test(test_schemes_assemble),
       cmocka_unit_test(test_static_balances),
+      cmocka_unit_test(test_static_follows_speed),
       cmocka_unit_test(test_device_lost),
       cmocka_unit_test(test_bad_schedule),
   };

@@ -11,6 +11,7 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "raypace_ao.h"
 #include "raypace_group.h"
 #include "test_util.h"
 
@@ -226,6 +227,61 @@ static void test_shares_follow_speed(void **state) {
   rp_device_group_destroy(g);
   scene_free(&s);
   free(img);
+}
+
+/* AO on a pair whose second device is 4x slower (the slowdown stretches
+ * AO jobs as it does renders): the first static split knows nothing and
+ * splits by bricks alone; from the second on, the group gives the split
+ * the speeds it measured, and the fast device takes more of the full
+ * bricks. Closed form: 4/5 of them; bound: at least 1.5x the slow one's
+ * (timer noise on a loaded machine, not the split, is what can move it).
+ * Every result equals the reference computation. Lost devices are
+ * dropped like a failed upload drops them. */
+static void test_ao_follows_speed(void **state) {
+  rp_device_desc dd[2];
+  rp_group_desc gd = {0};
+  rp_device_group *g;
+  rp_ao_desc desc = {4, 2, 3.0f, 1.0f, 0};
+  rp_ao_plan *plan = NULL;
+  rp_ao *want = NULL;
+  scene s;
+  int k;
+  (void)state;
+  memset(dd, 0, sizeof dd);
+  dd[1].slowdown = 4.0;
+  g = reference_pair(&s, dd, &gd);
+  assert_int_equal(rp_ao_plan_create(s.ctx, s.vol, s.tf, &desc, &plan), 0);
+  assert_int_equal(rp_ao_compute_reference(s.ctx, s.vol, s.tf, &desc, NULL,
+                                           NULL, &want),
+                   0);
+  for (k = 0; k < 2; k++) {
+    rp_ao_schedule sc = {0};
+    rp_ao_report rep;
+    rp_ao *got = NULL;
+    uint64_t f[2];
+    uint32_t i;
+    sc.scheme = RP_AO_STATIC;
+    assert_int_equal(rp_device_group_compute_ao(g, plan, &sc, &got, &rep), 0);
+    assert_memory_equal(rp_ao_data(got, NULL), rp_ao_data(want, NULL),
+                        48 * 48 * 48);
+    for (i = 0; i < 2; i++)
+      f[i] = rp_ao_plan_full_bricks(plan, rep.devices[i].block_lo,
+                                    rep.devices[i].block_end);
+    print_message("AO split %d: full bricks %llu fast, %llu slow\n", k,
+                  (unsigned long long)f[0], (unsigned long long)f[1]);
+    if (k == 1)
+      assert_true((double)f[0] >= 1.5 * (double)f[1]);
+    /* Set, then released: no AO memory is left. */
+    assert_int_equal(rp_device_group_set_ao(g, got), 0);
+    assert_int_equal(rp_device_group_ao_bytes(g), 2 * 48 * 48 * 48);
+    assert_int_equal(rp_device_group_set_ao(g, NULL), 0);
+    assert_int_equal(rp_device_group_ao_bytes(g), 0);
+    rp_ao_destroy(got);
+  }
+  rp_ao_destroy(want);
+  rp_ao_plan_destroy(plan);
+  rp_device_group_destroy(g);
+  scene_free(&s);
 }
 
 /* Two devices of the same speed, one of which stalls for 600 ms on its
@@ -593,6 +649,7 @@ int main(void) {
       cmocka_unit_test(test_matches_one_device),
       cmocka_unit_test(test_shares_follow_speed),
       cmocka_unit_test(test_stall_recovers),
+      cmocka_unit_test(test_ao_follows_speed),
       cmocka_unit_test(test_device_loss),
       cmocka_unit_test(test_late_device),
       cmocka_unit_test(test_all_lost),
