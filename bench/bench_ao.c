@@ -2,7 +2,7 @@
  * costs a frame.
  *
  * Per volume (the ../shared/data sets named, or generated ones), AO with
- * the default desc (L = 16, M = 8, R = 8, a = 1) under a TF preset:
+ * the default desc (L = 8, M = 16, R = 8, a = 1) under a TF preset:
  *   1 device, unbricked     (the reference time; speedups are against it)
  *   1 device, bricked
  *   N devices, static naive, unbricked
@@ -334,6 +334,8 @@ int main(int argc, char **argv) {
   const char *data = getenv("RP_SHARED_DATA");
   int runs = 3, n = 0, i, rc = 0, sweep = 0;
   rp_context *ctx = NULL;
+  /* A run takes minutes: show each row as it is measured. */
+  setvbuf(stdout, NULL, _IOLBF, 0);
   for (i = 1; i < argc; i++) {
     if (strcmp(argv[i], "--set") == 0 && i + 1 < argc)
       set = argv[++i];

@@ -43,8 +43,9 @@ extern "C" {
 #define RP_AO_MAX_RADIUS 256.0f  /* voxels */
 
 typedef struct rp_ao_desc {
-  uint32_t directions; /* L; 0: 16; at most RP_AO_MAX_DIRECTIONS */
-  uint32_t samples;    /* M per direction; 0: 8; at most RP_AO_MAX_SAMPLES */
+  uint32_t directions; /* L; 0: 8; at most RP_AO_MAX_DIRECTIONS */
+  uint32_t samples;    /* M per direction; 0: 16; at most
+                          RP_AO_MAX_SAMPLES */
   float radius;        /* R in voxels; 0: 8; at most RP_AO_MAX_RADIUS */
   float offset;        /* a in voxels, in (0, R); 0: 1 (seed 004's) */
   int unbricked;       /* 1: compute every voxel (seed 004's reference
@@ -170,11 +171,34 @@ typedef struct rp_ao_report {
  *  per device; the result is assembled on the host. A device that fails
  *  has its remaining work taken by the others; only when every device
  *  fails does the call fail, with the first device's error. `sched` and
- *  `report` may be NULL. \since 0.2 */
+ *  `report` may be NULL; the report is filled on failure too. Each
+ *  device needs a context of its own. \since 0.2 */
 RP_API int rp_ao_compute(rp_context *ctx, rp_device *const *devices,
                          uint32_t count, const rp_ao_plan *plan,
                          const rp_ao_schedule *sched, rp_ao **out,
                          rp_ao_report *report);
+
+/** The same computation in steps, for a frame loop that must not stall:
+ *  each step computes jobs for about `budget_ms` of wall time (a device
+ *  takes a further job only when its mean job time so far ends before
+ *  the budget does; its first job of a step it always takes, so a step
+ *  overruns by at most one job, and every step makes progress), then
+ *  returns with the fraction of jobs done. INFINITY runs to the end. The
+ *  devices and the plan must stay as they are (same volume and TF) until
+ *  the run is finished or destroyed; between steps they are free for
+ *  rendering. rp_ao_run_finish hands over the AO volume once every job
+ *  is done (RP_ESTATE before). \since 0.2 */
+typedef struct rp_ao_run rp_ao_run;
+RP_API int rp_ao_run_create(rp_context *ctx, rp_device *const *devices,
+                            uint32_t count, const rp_ao_plan *plan,
+                            const rp_ao_schedule *sched, rp_ao_run **out);
+RP_API int rp_ao_run_step(rp_ao_run *run, double budget_ms,
+                          double *fraction);
+RP_API int rp_ao_run_finish(rp_ao_run *run, rp_ao **out,
+                            rp_ao_report *report);
+/** What the devices did so far (after a failed step: which failed). */
+RP_API void rp_ao_run_report(const rp_ao_run *run, rp_ao_report *report);
+RP_API void rp_ao_run_destroy(rp_ao_run *run);
 
 #ifdef __cplusplus
 }

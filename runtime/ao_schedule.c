@@ -44,21 +44,32 @@ typedef struct job {
   int state;  /* 0 waiting, 1 taken, 2 done */
 } job;
 
-typedef struct sched {
+/* A computation in progress: the jobs, the volume being assembled, and
+ * what the devices did so far. Guarded by mu while a step's workers run;
+ * the caller's between steps. */
+struct rp_ao_run {
+  rp_context *ctx;
   const rp_ao_plan *plan;
-  rp_device *const *devs;
+  rp_device *devs[RP_AO_MAX_DEVICES];
   uint32_t n;
-  uint8_t *out;        /* the AO volume being assembled */
+  rp_ao_schedule sc;
+  rp_ao *ao;           /* being assembled; the caller's after finish */
   job *jobs;
   uint32_t njobs, done;
   int alive[RP_AO_MAX_DEVICES];
   uint32_t alive_count;
+  double t0;           /* creation, for the report's total */
+  double deadline;     /* the current step's, absolute ms; INFINITY */
+  uint32_t active;     /* the current step's workers still running */
+  uint32_t taken[RP_AO_MAX_DEVICES]; /* jobs each took this step */
   pthread_mutex_t mu;
   pthread_cond_t cv;
-  rp_ao_report *rep;
+  rp_ao_report rep;
   char first_error[256];
   int first_err;
-} sched;
+};
+
+typedef struct rp_ao_run sched;
 
 typedef struct worker {
   sched *s;
@@ -99,6 +110,19 @@ static job *take(sched *s, uint32_t i) {
   return NULL;
 }
 
+/* Whether device i takes a job now: always its first of the step, so
+ * that every step makes progress; later ones only when its mean job time
+ * so far says it ends before the step's deadline. */
+static int in_time(const sched *s, uint32_t i) {
+  const rp_ao_report *r = &s->rep;
+  double mean;
+  if (s->taken[i] == 0 || s->deadline == INFINITY)
+    return 1;
+  mean = r->devices[i].jobs > 0 ? r->devices[i].busy_ms / r->devices[i].jobs
+                                : 0.0;
+  return now_ms() + mean <= s->deadline;
+}
+
 static void *worker_main(void *arg) {
   worker *w = arg;
   sched *s = w->s;
@@ -106,18 +130,26 @@ static void *worker_main(void *arg) {
   rp_context *dctx = rp__device_context(dev);
   uint8_t *part = NULL;
   size_t cap = 0;
-  double busy = 0.0;
   pthread_mutex_lock(&s->mu);
   for (;;) {
-    job *j;
+    job *j = NULL;
     int err;
-    double t0;
+    double t0, took;
     size_t need;
-    while ((j = take(s, w->index)) == NULL && s->done < s->njobs)
+    while (s->done < s->njobs && in_time(s, w->index)) {
+      if ((j = take(s, w->index)) != NULL)
+        break;
+      /* Nothing to take now. With a deadline the step ends here for this
+       * device (jobs a failing device releases go in the next step);
+       * without one, wait for them or for the end. */
+      if (s->deadline != INFINITY || s->alive_count == 0)
+        break;
       pthread_cond_wait(&s->cv, &s->mu);
+    }
     if (j == NULL)
       break;
     j->state = 1;
+    s->taken[w->index]++;
     pthread_mutex_unlock(&s->mu);
     need = (size_t)box_voxels(&j->b);
     err = 0;
@@ -133,9 +165,10 @@ static void *worker_main(void *arg) {
     if (err == 0)
       err = rp_device_compute_ao(dev, s->plan, j->b.lo, j->b.end, part);
     if (err == 0 && part != NULL)
-      scatter(s->out, s->plan->dims, &j->b, part);
-    busy += now_ms() - t0;
+      scatter(s->ao->data, s->plan->dims, &j->b, part);
+    took = now_ms() - t0;
     pthread_mutex_lock(&s->mu);
+    s->rep.devices[w->index].busy_ms += took;
     if (err != 0) {
       uint32_t k;
       /* Lost: this job and every other of this device go to the rest. */
@@ -150,26 +183,20 @@ static void *worker_main(void *arg) {
         snprintf(s->first_error, sizeof s->first_error, "device %u: %s",
                  w->index, rp_last_error(dctx));
       }
-      if (s->rep != NULL)
-        s->rep->devices[w->index].status = err;
-      /* With no device left nothing will finish the jobs: end the wait. */
-      if (s->alive_count == 0)
-        s->done = s->njobs;
+      s->rep.devices[w->index].status = err;
       pthread_cond_broadcast(&s->cv);
       break;
     }
     j->state = 2;
     s->done++;
-    if (s->rep != NULL) {
-      s->rep->devices[w->index].voxels += need;
-      s->rep->devices[w->index].full_bricks +=
-          rp_ao_plan_full_bricks(s->plan, j->b.lo, j->b.end);
-      s->rep->devices[w->index].jobs++;
-    }
+    s->rep.devices[w->index].voxels += need;
+    s->rep.devices[w->index].full_bricks +=
+        rp_ao_plan_full_bricks(s->plan, j->b.lo, j->b.end);
+    s->rep.devices[w->index].jobs++;
     pthread_cond_broadcast(&s->cv);
   }
-  if (s->rep != NULL)
-    s->rep->devices[w->index].busy_ms = busy;
+  s->active--;
+  pthread_cond_broadcast(&s->cv);
   pthread_mutex_unlock(&s->mu);
   rp__free(dctx, part);
   return NULL;
@@ -293,65 +320,88 @@ static double imbalance(const rp_ao_plan *plan, const bsp_node *nd,
   return nl - nr;
 }
 
-/* Moves node k's plane, then its children's, until each is balanced, the
- * sign of D flips, or the time runs out (seed 004 section 5.2.6). A move
- * is as many brick layers as the difference of full bricks fills, given
- * the full bricks of the layer at the plane: the difference in counts
- * sets the step, as the seed does, and a step is never under one
- * layer. */
+/* Moves node k's plane, then its children's, until each is balanced or
+ * the time runs out (seed 004 section 5.2.6). A move is as many brick
+ * layers as the difference of full bricks fills, given the full bricks
+ * of the layer at the plane: the difference in counts sets the step, as
+ * the seed does, and a step is never under one layer. Where the seed
+ * stops when the sign of D flips, we keep the two planes either side of
+ * the flip and halve the gap between them until it is one layer: a
+ * sparse layer at the plane makes the proportional step overshoot far
+ * (measured on bonsai: from x = 196 to 1), and stopping there would keep
+ * the unbalanced plane. D is monotonic in the plane, so the halving
+ * converges. */
 static void bsp_balance(const rp_ao_plan *plan, bsp_node *nodes, int k,
                         double tolerance, double deadline) {
   bsp_node *nd = &nodes[k];
-  int a = nd->axis;
+  int a = nd->axis, bracketed = 0;
+  uint32_t other = 0; /* with bracketed: the plane across the flip */
+  double d_other = 0.0;
   if (a < 0)
     return;
   for (;;) {
-    double smaller, d = imbalance(plan, nd, nd->plane, &smaller), layer, dn;
-    double moved;
-    uint32_t steps, next;
-    box slab = nd->b;
+    double smaller, d = imbalance(plan, nd, nd->plane, &smaller), d2, s2;
+    uint32_t next;
     if (fabs(d) <= tolerance * (smaller > 1.0 ? smaller : 1.0) ||
         now_ms() > deadline)
       break;
-    /* The full bricks of the one-brick layer just past the plane on the
-     * heavier side. */
-    if (d > 0) {
-      slab.lo[a] = nd->plane >= RP_AO_BRICK ? nd->plane - RP_AO_BRICK : 0;
-      slab.end[a] = nd->plane;
+    if (bracketed) {
+      uint32_t lo = other < nd->plane ? other : nd->plane;
+      uint32_t hi = other < nd->plane ? nd->plane : other;
+      if (hi - lo <= RP_AO_BRICK) {
+        if (fabs(d_other) < fabs(d))
+          nd->plane = other;
+        break;
+      }
+      next = snap_plane(lo + (hi - lo) / 2, lo, hi);
     } else {
-      slab.lo[a] = nd->plane;
-      slab.end[a] = nd->plane + RP_AO_BRICK;
-    }
-    if (slab.lo[a] < nd->b.lo[a])
-      slab.lo[a] = nd->b.lo[a];
-    if (slab.end[a] > nd->b.end[a])
-      slab.end[a] = nd->b.end[a];
-    layer = slab.end[a] > slab.lo[a]
-                ? (double)rp_ao_plan_full_bricks(plan, slab.lo, slab.end)
-                : 0.0;
-    /* Moving one layer from the heavier side to the lighter changes the
-     * difference by about layer * (1/cap_left + 1/cap_right). */
-    dn = layer * (1.0 / nd->cap_left + 1.0 / nd->cap_right);
-    moved = dn > 0.0 ? fabs(d) / dn : 1.0;
-    steps = moved < 1.0 ? 1u : moved > 1e6 ? 1000000u : (uint32_t)moved;
-    if (d > 0) {
-      uint64_t back = (uint64_t)steps * RP_AO_BRICK;
-      next = nd->plane - nd->b.lo[a] > back ? nd->plane - (uint32_t)back
-                                            : nd->b.lo[a] + 1;
-    } else {
-      uint64_t fwd = (uint64_t)nd->plane + (uint64_t)steps * RP_AO_BRICK;
-      next = fwd < nd->b.end[a] ? (uint32_t)fwd : nd->b.end[a] - 1;
+      double layer, dn, moved;
+      uint32_t steps;
+      box slab = nd->b;
+      /* The full bricks of the one-brick layer just past the plane on
+       * the heavier side. */
+      if (d > 0) {
+        slab.lo[a] = nd->plane >= RP_AO_BRICK ? nd->plane - RP_AO_BRICK : 0;
+        slab.end[a] = nd->plane;
+      } else {
+        slab.lo[a] = nd->plane;
+        slab.end[a] = nd->plane + RP_AO_BRICK;
+      }
+      if (slab.lo[a] < nd->b.lo[a])
+        slab.lo[a] = nd->b.lo[a];
+      if (slab.end[a] > nd->b.end[a])
+        slab.end[a] = nd->b.end[a];
+      layer = slab.end[a] > slab.lo[a]
+                  ? (double)rp_ao_plan_full_bricks(plan, slab.lo, slab.end)
+                  : 0.0;
+      /* Moving one layer from the heavier side to the lighter changes
+       * the difference by about layer * (1/cap_left + 1/cap_right). */
+      dn = layer * (1.0 / nd->cap_left + 1.0 / nd->cap_right);
+      moved = dn > 0.0 ? fabs(d) / dn : 1.0;
+      steps = moved < 1.0 ? 1u : moved > 1e6 ? 1000000u : (uint32_t)moved;
+      if (d > 0) {
+        uint64_t back = (uint64_t)steps * RP_AO_BRICK;
+        next = nd->plane - nd->b.lo[a] > back ? nd->plane - (uint32_t)back
+                                              : nd->b.lo[a] + 1;
+      } else {
+        uint64_t fwd = (uint64_t)nd->plane + (uint64_t)steps * RP_AO_BRICK;
+        next = fwd < nd->b.end[a] ? (uint32_t)fwd : nd->b.end[a] - 1;
+      }
     }
     if (next == nd->plane)
       break;
-    {
-      double s2, d2 = imbalance(plan, nd, next, &s2);
-      if ((d2 > 0) != (d > 0)) {
-        /* Crossed the balance point: keep the better side and stop. */
-        if (fabs(d2) < fabs(d))
-          nd->plane = next;
-        break;
+    d2 = imbalance(plan, nd, next, &s2);
+    if ((d2 > 0) != (d > 0)) {
+      /* Across the balance point: next and the plane bracket it. */
+      bracketed = 1;
+      other = next;
+      d_other = d2;
+      if (fabs(d2) < fabs(d)) {
+        other = nd->plane;
+        d_other = d;
+        nd->plane = next;
       }
+    } else {
       nd->plane = next;
     }
   }
@@ -503,7 +553,7 @@ int rp__ao_schedule_resolve(rp_context *ctx, const char *fn,
 
 static int check_args(rp_context *ctx, rp_device *const *devs, uint32_t n,
                       const rp_ao_plan *plan, const rp_ao_schedule *in,
-                      rp_ao_schedule *sc, rp_ao **out) {
+                      rp_ao_schedule *sc, const void *out) {
   static const char *fn = "rp_ao_compute";
   uint32_t i, k;
   int err;
@@ -541,114 +591,184 @@ static int check_args(rp_context *ctx, rp_device *const *devs, uint32_t n,
   return 0;
 }
 
-int rp_ao_compute(rp_context *ctx, rp_device *const *devices, uint32_t count,
-                  const rp_ao_plan *plan, const rp_ao_schedule *schedule,
-                  rp_ao **out, rp_ao_report *report) {
+int rp_ao_run_create(rp_context *ctx, rp_device *const *devices,
+                     uint32_t count, const rp_ao_plan *plan,
+                     const rp_ao_schedule *schedule, rp_ao_run **out) {
   rp_ao_schedule sc = {0};
-  rp_ao_report rep;
-  sched s;
-  worker ws[RP_AO_MAX_DEVICES];
-  rp_ao *ao = NULL;
-  double t0 = now_ms(), balance_ms = 0.0;
-  uint32_t i, started = 0, reported = 0;
+  sched *s;
+  double balance_ms = 0.0;
+  uint32_t i;
   int err;
   if (ctx == NULL)
     return RP_EINVAL;
   if ((err = check_args(ctx, devices, count, plan, schedule, &sc, out)) != 0)
     return err;
-  memset(&s, 0, sizeof s);
-  memset(&rep, 0, sizeof rep);
-  rep.device_count = count;
-  if ((err = rp__ao_new(ctx, plan, &ao)) != 0)
+  if ((s = rp__calloc(ctx, 1, sizeof *s)) == NULL)
+    return RP__AO_FAIL(ctx, RP_ENOMEM, "rp_ao_run_create: out of memory");
+  s->ctx = ctx;
+  s->plan = plan;
+  s->n = count;
+  s->sc = sc;
+  s->t0 = now_ms();
+  s->rep.device_count = count;
+  for (i = 0; i < count; i++) {
+    s->devs[i] = devices[i];
+    s->alive[i] = 1;
+  }
+  s->alive_count = count;
+  if ((err = rp__ao_new(ctx, plan, &s->ao)) != 0) {
+    rp__free(ctx, s);
     return err;
+  }
   /* Voxels no job computes (bricks without a full brick) are unoccluded
    * by definition. */
-  memset(ao->data, 255,
+  memset(s->ao->data, 255,
          (size_t)plan->dims[0] * plan->dims[1] * plan->dims[2]);
   err = sc.scheme == RP_AO_DYNAMIC
-            ? dynamic_jobs(ctx, plan, sc.block, &s.jobs, &s.njobs)
+            ? dynamic_jobs(ctx, plan, sc.block, &s->jobs, &s->njobs)
             : static_jobs(ctx, plan, count, sc.scheme == RP_AO_STATIC, &sc,
-                          &s.jobs, &s.njobs, &balance_ms, &rep);
+                          &s->jobs, &s->njobs, &balance_ms, &s->rep);
   if (err != 0) {
-    rp_ao_destroy(ao);
+    rp_ao_destroy(s->ao);
+    rp__free(ctx, s);
     return err;
   }
-  s.plan = plan;
-  s.devs = devices;
-  s.n = count;
-  s.out = ao->data;
-  s.rep = &rep;
-  s.alive_count = count;
-  for (i = 0; i < count; i++)
-    s.alive[i] = 1;
-  pthread_mutex_init(&s.mu, NULL);
-  pthread_cond_init(&s.cv, NULL);
-  for (i = 0; i < count; i++) {
-    ws[i].s = &s;
-    ws[i].index = i;
-    if (pthread_create(&ws[i].thread, NULL, worker_main, &ws[i]) != 0)
-      break;
-    started++;
-  }
-  pthread_mutex_lock(&s.mu);
-  if (started < count) {
-    /* Devices without a thread: their static jobs go to the others. */
-    uint32_t k;
-    for (k = 0; k < s.njobs; k++)
-      if (s.jobs[k].owner >= (int)started)
-        s.jobs[k].owner = -1;
-    s.alive_count = started;
-    if (started == 0) {
-      s.done = s.njobs;
-      s.first_err = rp__fail(ctx, RP_EDEVICE, "rp_ao_compute: no thread "
-                             "could be started");
+  s->rep.balance_ms = balance_ms;
+  pthread_mutex_init(&s->mu, NULL);
+  pthread_cond_init(&s->cv, NULL);
+  *out = s;
+  return 0;
+}
+
+int rp_ao_run_step(rp_ao_run *s, double budget_ms, double *fraction) {
+  worker ws[RP_AO_MAX_DEVICES];
+  uint32_t i, started = 0, reported;
+  int err = 0;
+  if (s == NULL)
+    return RP_EINVAL;
+  if (!(budget_ms > 0.0))
+    return RP__AO_FAIL(s->ctx, RP_ERANGE, "rp_ao_run_step: budget_ms %g "
+                       "must be above 0 (INFINITY: to the end)", budget_ms);
+  pthread_mutex_lock(&s->mu);
+  s->deadline = budget_ms == INFINITY ? INFINITY : now_ms() + budget_ms;
+  memset(s->taken, 0, sizeof s->taken);
+  reported = s->done;
+  pthread_mutex_unlock(&s->mu);
+  if (s->done < s->njobs) {
+    pthread_mutex_lock(&s->mu);
+    for (i = 0; i < s->n; i++) {
+      if (!s->alive[i])
+        continue;
+      ws[started].s = s;
+      ws[started].index = i;
+      s->active++;
+      if (pthread_create(&ws[started].thread, NULL, worker_main,
+                         &ws[started]) != 0) {
+        s->active--;
+        break;
+      }
+      started++;
     }
-    pthread_cond_broadcast(&s.cv);
+    /* Progress from the calling thread, on every job finished. */
+    while (s->active > 0) {
+      if (s->sc.progress != NULL && s->done != reported &&
+          s->done < s->njobs) {
+        double f = (double)s->done / (double)s->njobs;
+        reported = s->done;
+        pthread_mutex_unlock(&s->mu);
+        s->sc.progress(f, s->sc.user);
+        pthread_mutex_lock(&s->mu);
+        continue;
+      }
+      pthread_cond_wait(&s->cv, &s->mu);
+    }
+    pthread_mutex_unlock(&s->mu);
+    for (i = 0; i < started; i++)
+      pthread_join(ws[i].thread, NULL);
+    if (started == 0 && s->alive_count > 0)
+      err = RP__AO_FAIL(s->ctx, RP_EDEVICE, "rp_ao_run_step: no thread "
+                        "could be started");
   }
-  /* Progress from the calling thread, on every job finished. */
-  while (s.done < s.njobs) {
-    if (sc.progress != NULL && s.done != reported) {
-      double f = (double)s.done / (double)s.njobs;
-      reported = s.done;
-      pthread_mutex_unlock(&s.mu);
-      sc.progress(f, sc.user);
-      pthread_mutex_lock(&s.mu);
+  if (err == 0 && s->alive_count == 0 && s->done < s->njobs) {
+    err = s->first_err != 0 ? s->first_err : RP_EDEVICE;
+    rp__fail(s->ctx, err, "rp_ao_compute: every device failed; first, %s",
+             s->first_error);
+  }
+  if (fraction != NULL)
+    *fraction = s->njobs > 0 ? (double)s->done / (double)s->njobs : 1.0;
+  return err;
+}
+
+int rp_ao_run_finish(rp_ao_run *s, rp_ao **out, rp_ao_report *report) {
+  uint32_t i;
+  if (s == NULL)
+    return RP_EINVAL;
+  if (out == NULL)
+    return RP__AO_FAIL(s->ctx, RP_EINVAL, "rp_ao_run_finish: out is NULL");
+  if (s->done < s->njobs || s->ao == NULL)
+    return RP__AO_FAIL(s->ctx, RP_ESTATE, "rp_ao_run_finish: %u of %u jobs "
+                       "done", s->done, s->njobs);
+  if (s->sc.progress != NULL)
+    s->sc.progress(1.0, s->sc.user);
+  s->rep.total_ms = now_ms() - s->t0;
+  s->rep.min_ms = INFINITY;
+  s->rep.max_ms = 0.0;
+  for (i = 0; i < s->n; i++) {
+    if (s->rep.devices[i].jobs == 0)
       continue;
-    }
-    pthread_cond_wait(&s.cv, &s.mu);
+    s->rep.min_ms = fmin(s->rep.min_ms, s->rep.devices[i].busy_ms);
+    s->rep.max_ms = fmax(s->rep.max_ms, s->rep.devices[i].busy_ms);
   }
-  pthread_mutex_unlock(&s.mu);
-  for (i = 0; i < started; i++)
-    pthread_join(ws[i].thread, NULL);
-  pthread_cond_destroy(&s.cv);
-  pthread_mutex_destroy(&s.mu);
-  err = 0;
-  if (s.alive_count == 0 && s.njobs > 0) {
-    err = s.first_err != 0 ? s.first_err : RP_EDEVICE;
-    rp__fail(ctx, err, "rp_ao_compute: every device failed; first, %s",
-             s.first_error);
+  if (s->rep.min_ms == INFINITY)
+    s->rep.min_ms = 0.0;
+  if (report != NULL)
+    *report = s->rep;
+  *out = s->ao;
+  s->ao = NULL;
+  return 0;
+}
+
+void rp_ao_run_report(const rp_ao_run *s, rp_ao_report *report) {
+  if (s != NULL && report != NULL)
+    *report = s->rep;
+}
+
+void rp_ao_run_destroy(rp_ao_run *s) {
+  if (s == NULL)
+    return;
+  pthread_cond_destroy(&s->cv);
+  pthread_mutex_destroy(&s->mu);
+  rp_ao_destroy(s->ao);
+  rp__free(s->ctx, s->jobs);
+  rp__free(s->ctx, s);
+}
+
+int rp_ao_compute(rp_context *ctx, rp_device *const *devices, uint32_t count,
+                  const rp_ao_plan *plan, const rp_ao_schedule *schedule,
+                  rp_ao **out, rp_ao_report *report) {
+  rp_ao_run *run = NULL;
+  rp_ao *ao = NULL;
+  rp_ao_report rep;
+  int err;
+  if (ctx == NULL)
+    return RP_EINVAL;
+  if (out == NULL) {
+    rp__fail(ctx, RP_EINVAL, "rp_ao_compute: out is required");
+    return RP_EINVAL;
   }
-  rp__free(ctx, s.jobs);
-  if (err != 0) {
-    rp_ao_destroy(ao);
+  if ((err = rp_ao_run_create(ctx, devices, count, plan, schedule, &run)) !=
+      0)
     return err;
-  }
-  if (sc.progress != NULL)
-    sc.progress(1.0, sc.user);
-  rep.total_ms = now_ms() - t0;
-  rep.balance_ms = balance_ms;
-  rep.min_ms = INFINITY;
-  rep.max_ms = 0.0;
-  for (i = 0; i < count; i++) {
-    if (rep.devices[i].jobs == 0)
-      continue;
-    rep.min_ms = fmin(rep.min_ms, rep.devices[i].busy_ms);
-    rep.max_ms = fmax(rep.max_ms, rep.devices[i].busy_ms);
-  }
-  if (rep.min_ms == INFINITY)
-    rep.min_ms = 0.0;
+  if ((err = rp_ao_run_step(run, INFINITY, NULL)) == 0)
+    err = rp_ao_run_finish(run, &ao, &rep);
+  else
+    rp_ao_run_report(run, &rep);
+  rp_ao_run_destroy(run);
+  /* The report says which device failed, even when the call fails. */
   if (report != NULL)
     *report = rep;
+  if (err != 0)
+    return err;
   *out = ao;
   return 0;
 }
