@@ -139,6 +139,18 @@ RP_API int rp_device_group_compute_ao(rp_device_group *g,
                                       const rp_ao_plan *plan,
                                       const rp_ao_schedule *schedule,
                                       rp_ao **out, rp_ao_report *report);
+/** The same in steps (rp_ao_run_step between frames): begin picks the
+ *  live devices and their learned speeds; end takes the run's status (0,
+ *  or the error a step returned), finishes it when 0, drops the devices
+ *  it lost and learns the others' speeds. The caller destroys the run.
+ *  Only one run at a time per group. \since 0.2 */
+RP_API int rp_device_group_ao_begin(rp_device_group *g,
+                                    const rp_ao_plan *plan,
+                                    const rp_ao_schedule *schedule,
+                                    rp_ao_run **out);
+RP_API int rp_device_group_ao_end(rp_device_group *g, rp_ao_run *run,
+                                  int status, rp_ao **out,
+                                  rp_ao_report *report);
 RP_API int rp_device_group_set_ao(rp_device_group *g, const rp_ao *ao);
 RP_API uint64_t rp_device_group_ao_bytes(const rp_device_group *g);
 

@@ -10,8 +10,10 @@
  *   TF          -> H-alpha + occupancy, device upload, then as for a camera
  *   camera, viewport, ERT/skip toggled -> the probe (depth pass and ERT
  *                  pre-pass on the host, the cost model's input)
- *   AO turned on -> the AO volume; turned off -> the AO memory freed
- *   (with AO on, a volume or TF change recomputes it too)
+ *   AO turned on -> the AO volume, computed over the next frames in
+ *   steps (desc.ao_frame_share of each), which render without AO until
+ *   it is done; turned off -> the AO memory freed (with AO on, a volume
+ *   or TF change recomputes it too)
  *   target, shading toggled, controller -> nothing derived
  *
  * Events between two frames coalesce: the latest value of each kind wins
@@ -136,7 +138,11 @@ typedef struct rp_frame_stats {
   double volume_upload_ms;
   double occupancy_ms;     /* H-alpha + occupancy */
   double tf_upload_ms;
-  double ao_ms;            /* AO plan, computation and upload */
+  double ao_ms;            /* AO plan, its step this frame and upload */
+  double ao_progress;      /* AO being computed: the fraction done after
+                              this frame's step (the frame rendered
+                              without AO unless it reached 1); 0 when
+                              no AO was being computed */
   double probe_ms;         /* host depth pass + ERT pre-pass */
   double predict_ms;       /* the controller's decision (tune and every
                               prediction it made) and the prediction
@@ -202,7 +208,12 @@ typedef struct rp_runtime_desc {
                              defaults */
   rp_ao_schedule ao_schedule; /* how AO is spread over the devices; its
                              progress callback runs on the runtime's
-                             worker thread */
+                             worker thread; block 0: 16 */
+  /* While AO is being computed (turned on, or the volume or TF changed
+   * with it on) each frame spends this share of the target on it and
+   * renders without AO until it is done, so that the frame rate holds;
+   * 1: all of it in the first frame (which then runs late). 0: 0.25. */
+  double ao_frame_share;
 } rp_runtime_desc;
 
 /** Creates the runtime, opens its device and starts its worker thread

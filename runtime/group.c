@@ -127,6 +127,9 @@ struct rp_device_group {
   uint64_t vol_gen, tf_gen;
   double prev_shares[RP_GROUP_MAX_DEVICES];
   int have_prev;
+  /* The members an AO run (rp_device_group_ao_begin) computes on: run
+   * device i is member ao_members[i]. */
+  uint32_t ao_members[RP_AO_MAX_DEVICES], ao_count;
   rp_balancer *balancer;
   uint32_t balancer_tiles;
   float *cost;
@@ -633,63 +636,97 @@ uint64_t rp_device_group_ao_bytes(const rp_device_group *g) {
 }
 
 /* Between frames every live member's worker waits for a job, so the
- * devices are free for rp_ao_compute's threads; each has a context of
- * its own, as rp_ao_compute requires. A device the computation lost is
- * dropped, as a lost upload would drop it.
+ * devices are free for an AO run's threads; each has a context of its
+ * own, as rp_ao_compute requires.
  *
  * Unless the caller gives speeds, a static split uses each device's
  * speed from the group's last AO computation (full bricks per ms), so
  * that the split follows the devices from the second TF on; a device
  * not yet measured counts as the mean of those that were. */
-int rp_device_group_compute_ao(rp_device_group *g, const rp_ao_plan *plan,
-                               const rp_ao_schedule *schedule, rp_ao **out,
-                               rp_ao_report *report) {
+int rp_device_group_ao_begin(rp_device_group *g, const rp_ao_plan *plan,
+                             const rp_ao_schedule *schedule,
+                             rp_ao_run **out) {
   rp_device *devs[RP_AO_MAX_DEVICES];
-  uint32_t idx[RP_AO_MAX_DEVICES] = {0}, n = 0, i, known = 0;
+  uint32_t n = 0, i, known = 0;
   rp_ao_schedule sc;
-  rp_ao_report rep;
   double sum = 0.0;
-  int err, given = 0;
+  int given = 0;
   if (g == NULL)
     return RP_EINVAL;
-  memset(&rep, 0, sizeof rep);
   memset(&sc, 0, sizeof sc);
   if (schedule != NULL)
     sc = *schedule;
   for (i = 0; i < g->count && n < RP_AO_MAX_DEVICES; i++)
     if (!g->m[i].dropped) {
-      idx[n] = i;
+      g->ao_members[n] = i;
       devs[n++] = g->m[i].dev;
     }
   if (n == 0)
-    return rp__fail(g->ctx, RP_ENODEV, "rp_device_group_compute_ao: no "
+    return rp__fail(g->ctx, RP_ENODEV, "rp_device_group_ao_begin: no "
                     "device left");
+  g->ao_count = n;
   for (i = 0; i < RP_AO_MAX_DEVICES; i++)
     given |= sc.speed[i] != 0.0;
   if (!given) {
     for (i = 0; i < n; i++)
-      if (g->m[idx[i]].ao_speed > 0.0) {
-        sum += g->m[idx[i]].ao_speed;
+      if (g->m[g->ao_members[i]].ao_speed > 0.0) {
+        sum += g->m[g->ao_members[i]].ao_speed;
         known++;
       }
-    for (i = 0; i < n && known > 0; i++)
-      sc.speed[i] = g->m[idx[i]].ao_speed > 0.0 ? g->m[idx[i]].ao_speed
-                                                : sum / known;
-  }
-  err = rp_ao_compute(g->ctx, devs, n, plan, &sc, out, &rep);
-  for (i = 0; i < n; i++) {
-    member *w = &g->m[idx[i]];
-    if (loses_device(rep.devices[i].status, 0) || err == RP_EDEVICE) {
-      w->dropped = 1;
-      g->have_prev = 0;
-    } else if (err == 0 && rep.devices[i].busy_ms > 0.0 &&
-               rep.devices[i].full_bricks > 0) {
-      w->ao_speed =
-          (double)rep.devices[i].full_bricks / rep.devices[i].busy_ms;
+    for (i = 0; i < n && known > 0; i++) {
+      double v = g->m[g->ao_members[i]].ao_speed;
+      sc.speed[i] = v > 0.0 ? v : sum / known;
     }
   }
+  return rp_ao_run_create(g->ctx, devs, n, plan, &sc, out);
+}
+
+/* A device the run lost is dropped, as a lost upload would drop it; the
+ * others' speeds are learned. */
+static void ao_learn(rp_device_group *g, const rp_ao_report *rep, int err) {
+  uint32_t i;
+  for (i = 0; i < g->ao_count; i++) {
+    member *w = &g->m[g->ao_members[i]];
+    if (loses_device(rep->devices[i].status, 0) || err == RP_EDEVICE) {
+      w->dropped = 1;
+      g->have_prev = 0;
+    } else if (err == 0 && rep->devices[i].busy_ms > 0.0 &&
+               rep->devices[i].full_bricks > 0) {
+      w->ao_speed =
+          (double)rep->devices[i].full_bricks / rep->devices[i].busy_ms;
+    }
+  }
+}
+
+int rp_device_group_ao_end(rp_device_group *g, rp_ao_run *run, int status,
+                           rp_ao **out, rp_ao_report *report) {
+  rp_ao_report rep;
+  int err = status;
+  if (g == NULL || run == NULL)
+    return RP_EINVAL;
+  memset(&rep, 0, sizeof rep);
+  if (err == 0)
+    err = rp_ao_run_finish(run, out, &rep);
+  else
+    rp_ao_run_report(run, &rep);
+  ao_learn(g, &rep, err);
   if (err == 0 && report != NULL)
     *report = rep;
+  return err;
+}
+
+int rp_device_group_compute_ao(rp_device_group *g, const rp_ao_plan *plan,
+                               const rp_ao_schedule *schedule, rp_ao **out,
+                               rp_ao_report *report) {
+  rp_ao_run *run = NULL;
+  int err;
+  if (g == NULL)
+    return RP_EINVAL;
+  if ((err = rp_device_group_ao_begin(g, plan, schedule, &run)) != 0)
+    return err;
+  err = rp_ao_run_step(run, INFINITY, NULL);
+  err = rp_device_group_ao_end(g, run, err, out, report);
+  rp_ao_run_destroy(run);
   return err;
 }
 

@@ -82,6 +82,11 @@ typedef struct scene {
    * a set's first frame builds its kernel variant and allocates, a cost
    * the model must not learn as if every frame paid it. */
   uint32_t warm_sets;
+  /* AO being computed in steps (RP_EFFECT_AO on and not yet ready):
+   * frames render without AO until the run finishes. */
+  rp_ao_plan *ao_plan;
+  rp_ao_run *ao_run;
+  int ao_ready;  /* the devices hold AO for the current volume and TF */
 } scene;
 
 /* What the cost model trains on after delivery. */
@@ -234,36 +239,86 @@ static void take_events(rp_runtime *rt) {
   in->marks = 0;
 }
 
-/* AO on: computed over the devices for the current volume and TF, then
- * set on each; the host copy is dropped, the devices hold theirs. AO
- * off: the devices' AO memory is released, so an effect that is off
- * costs neither time nor memory. */
+/* The effects a frame renders: the scene's, without AO while it is
+ * being computed. */
+static uint32_t frame_effects(const scene *s) {
+  return s->ao_ready ? s->effects : s->effects & ~(uint32_t)RP_EFFECT_AO;
+}
+
+static void drop_ao_run(scene *s) {
+  rp_ao_run_destroy(s->ao_run);
+  rp_ao_plan_destroy(s->ao_plan);
+  s->ao_run = NULL;
+  s->ao_plan = NULL;
+}
+
+static void publish_ao_bytes(rp_runtime *rt) {
+  uint64_t bytes = rp_device_group_ao_bytes(rt->group);
+  uv_mutex_lock(&rt->lock);
+  rt->counters.ao_bytes = bytes;
+  uv_mutex_unlock(&rt->lock);
+}
+
+/* A volume, TF or AO toggle: any run in progress is for the old scene and
+ * goes. AO on: a run starts for the current volume and TF, and frames
+ * render without AO until it is done (advance_ao). AO off: the devices'
+ * AO memory is released, so an effect that is off costs neither time
+ * nor memory. */
 static int update_ao(rp_runtime *rt) {
   scene *s = &rt->s;
-  rp_ao_plan *plan = NULL;
-  rp_ao *ao = NULL;
-  uint64_t bytes;
   int err = 0;
+  drop_ao_run(s);
+  if (s->ao_ready)
+    s->stale |= STALE_PROBE; /* the effects the probe prices change */
+  s->ao_ready = 0;
   if (!(s->effects & RP_EFFECT_AO)) {
     if (rp_device_group_ao_bytes(rt->group) != 0)
       err = rp_device_group_set_ao(rt->group, NULL);
   } else {
-    err = rp_ao_plan_create(rt->ctx, s->vol, s->tf, &rt->desc.ao, &plan);
+    err = rp_ao_plan_create(rt->ctx, s->vol, s->tf, &rt->desc.ao,
+                            &s->ao_plan);
     if (err == 0)
-      err = rp_device_group_compute_ao(rt->group, plan, &rt->desc.ao_schedule,
-                                       &ao, NULL);
-    if (err == 0)
-      err = rp_device_group_set_ao(rt->group, ao);
-    rp_ao_destroy(ao);
-    rp_ao_plan_destroy(plan);
-    if (err == 0)
-      count(rt, &rt->counters.ao_computes);
+      err = rp_device_group_ao_begin(rt->group, s->ao_plan,
+                                     &rt->desc.ao_schedule, &s->ao_run);
+    if (err != 0)
+      drop_ao_run(s);
   }
-  bytes = rp_device_group_ao_bytes(rt->group);
-  uv_mutex_lock(&rt->lock);
-  rt->counters.ao_bytes = bytes;
-  uv_mutex_unlock(&rt->lock);
+  publish_ao_bytes(rt);
   return err;
+}
+
+/* One step of the AO run: ao_frame_share of the target (all of it at
+ * once with share 1); the render passes then get what is left of the
+ * target, as after any stage. When the run is done its AO goes to every
+ * device and frames render with it from this one on. */
+static int advance_ao(rp_runtime *rt) {
+  scene *s = &rt->s;
+  rp_frame_stats *st = &rt->stats;
+  double budget = rt->desc.ao_frame_share >= 1.0
+                      ? INFINITY
+                      : rt->desc.ao_frame_share * s->target_ms;
+  double fraction = 0.0;
+  rp_ao *ao = NULL;
+  int err = rp_ao_run_step(s->ao_run, budget, &fraction);
+  st->ao_progress = fraction;
+  if (err == 0 && fraction < 1.0)
+    return 0;
+  err = rp_device_group_ao_end(rt->group, s->ao_run, err, &ao, NULL);
+  if (err == 0)
+    err = rp_device_group_set_ao(rt->group, ao);
+  rp_ao_destroy(ao);
+  drop_ao_run(s);
+  publish_ao_bytes(rt);
+  if (err != 0) {
+    /* Tried again from the start next frame: a lost device is dropped
+     * by now, and the others may finish it. */
+    s->stale |= STALE_AO;
+    return err;
+  }
+  s->ao_ready = 1;
+  s->stale |= STALE_PROBE;
+  count(rt, &rt->counters.ao_computes);
+  return 0;
 }
 
 /* Runs the stale stages in dependency order: H, then the volume upload,
@@ -308,18 +363,22 @@ static int recompute(rp_runtime *rt) {
     s->stale &= ~(uint32_t)STALE_TF_UPLOAD;
     count(rt, &rt->counters.tf_uploads);
   }
-  if (s->stale & STALE_AO) {
+  if (s->stale & STALE_AO || s->ao_run != NULL) {
     t0 = now_ms();
-    if ((err = update_ao(rt)) != 0)
+    if (s->stale & STALE_AO) {
+      s->stale &= ~(uint32_t)STALE_AO;
+      if ((err = update_ao(rt)) != 0)
+        return err;
+    }
+    if (s->ao_run != NULL && (err = advance_ao(rt)) != 0)
       return err;
     st->ao_ms = now_ms() - t0;
-    s->stale &= ~(uint32_t)STALE_AO;
   }
   if (s->stale & STALE_PROBE) {
     rp_render_desc d = {0};
     d.width = s->width;
     d.height = s->height;
-    d.effects = s->effects;
+    d.effects = frame_effects(s);
     if ((err = rp_frame_probe_compute(rt->ctx, s->vol, s->tf, s->occ,
                                       &s->cam, &d, rt->desc.ert_seed,
                                       (uint32_t)rt->frame_no,
@@ -386,7 +445,7 @@ static int render_pass(rp_runtime *rt, double rho, double *pass_ms) {
   d.height = s->height;
   d.step = st->step;
   d.image_scale = st->scale;
-  d.effects = s->effects;
+  d.effects = frame_effects(s);
   rp_scaled_size(&d, &sw, &sh);
   rp_tile_grid(sw, sh, &tx, &ty);
   if ((err = reserve(rt, (void **)&rt->scaled, &rt->scaled_cap,
@@ -440,8 +499,8 @@ static int render_pass(rp_runtime *rt, double rho, double *pass_ms) {
   }
   rt->out_w = s->width;
   rt->out_h = s->height;
-  rt->job_train.valid = (s->warm_sets >> (s->effects & 15u)) & 1u;
-  s->warm_sets |= 1u << (s->effects & 15u);
+  rt->job_train.valid = (s->warm_sets >> (frame_effects(s) & 15u)) & 1u;
+  s->warm_sets |= 1u << (frame_effects(s) & 15u);
   rt->job_train.probe = s->probe;
   rt->job_train.step = st->step;
   rt->job_train.scale = st->scale;
@@ -521,9 +580,9 @@ static void run_frame(rp_runtime *rt) {
   take_events(rt);
   st->controller = rt->s.controller_kind;
   st->target_ms = rt->s.target_ms;
-  st->effects = rt->s.effects;
   if ((err = recompute(rt)) == 0)
     err = render_frame(rt);
+  st->effects = frame_effects(&rt->s);
   if (err != 0) {
     st->status = err;
     snprintf(st->error, sizeof st->error, "%s", rp_last_error(rt->ctx));
@@ -693,6 +752,7 @@ static void free_runtime(rp_runtime *rt) {
   scene *s = &rt->s;
   drop_posted(&rt->posted);
   drop_posted(&rt->job_in);
+  drop_ao_run(s);
   rp_controller_destroy(s->controller);
   rp_occupancy_destroy(s->occ);
   rp_histograms_destroy(s->h);
@@ -816,6 +876,12 @@ static int check_desc(rp_context *ctx, const rp_runtime_desc *d) {
                     d->device_count, RP_RUNTIME_MAX_DEVICES);
   if (d->device_count > 0 && d->devices == NULL)
     return rp__fail(ctx, RP_EINVAL, "%s: desc->devices is NULL", fn);
+  if (!isfinite(d->ao_frame_share))
+    return rp__fail(ctx, RP_ENOTFINITE, "%s: desc->ao_frame_share is %g",
+                    fn, d->ao_frame_share);
+  if (d->ao_frame_share < 0.0 || d->ao_frame_share > 1.0)
+    return rp__fail(ctx, RP_ERANGE, "%s: desc->ao_frame_share is %g; must "
+                    "be in (0, 1] (0: 0.25)", fn, d->ao_frame_share);
   if ((err = rp__ao_desc_resolve(ctx, fn, &d->ao, &ao)) != 0 ||
       (err = rp__ao_schedule_resolve(ctx, fn, &d->ao_schedule, &sched)) != 0)
     return err;
@@ -890,6 +956,11 @@ int rp_runtime_create(rp_context *ctx, const rp_runtime_desc *desc,
   rt->posted.width = rt->s.width = rt->desc.width;
   rt->posted.height = rt->s.height = rt->desc.height;
   rt->posted.effects = rt->s.effects = rt->desc.effects;
+  if (rt->desc.ao_frame_share == 0.0)
+    rt->desc.ao_frame_share = 0.25;
+  /* Blocks small enough that one job fits in a frame's share. */
+  if (rt->desc.ao_schedule.block == 0)
+    rt->desc.ao_schedule.block = 16;
   rt->posted.controller = rt->s.controller_kind = rt->desc.controller;
   rt->due = 1;
   if (uv_mutex_init(&rt->lock) != 0) {

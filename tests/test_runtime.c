@@ -122,8 +122,8 @@ typedef struct app {
 
 /* devices / count: the runtime's device list (count 0: one reference
  * device through desc.device). */
-static void app_open_devices(app *a, const rp_device_desc *devices,
-                             uint32_t count) {
+static void app_open_ao(app *a, const rp_device_desc *devices,
+                        uint32_t count, double ao_frame_share) {
   rp_runtime_desc d = {0};
   memset(a, 0, sizeof *a);
   a->ctx = rp_test_context();
@@ -140,8 +140,14 @@ static void app_open_devices(app *a, const rp_device_desc *devices,
   d.target_ms = 1000.0;
   d.devices = devices;
   d.device_count = count;
+  d.ao_frame_share = ao_frame_share;
   assert_int_equal(rp_runtime_create(a->ctx, &d, &a->rt), 0);
   a->s.rt = a->rt;
+}
+
+static void app_open_devices(app *a, const rp_device_desc *devices,
+                             uint32_t count) {
+  app_open_ao(a, devices, count, 0.0);
 }
 
 static void app_open(app *a) { app_open_devices(a, NULL, 0); }
@@ -365,6 +371,25 @@ static void test_bad_input(void **state) {
   rp_context_destroy(a.ctx);
 }
 
+/* Frames until the AO being computed renders (at most 300): the frames
+ * before it render without AO, their progress never falling, below 1.
+ * Returns how many frames it took, the one with AO included. */
+static int frames_until_ao(app *a) {
+  double last = 0.0;
+  int n;
+  for (n = 1; n <= 300; n++) {
+    (void)frame(a);
+    assert_int_equal(a->s.last.status, 0);
+    if (a->s.last.effects & RP_EFFECT_AO)
+      return n;
+    assert_true(a->s.last.ao_progress >= last &&
+                a->s.last.ao_progress < 1.0);
+    last = a->s.last.ao_progress;
+  }
+  fail_msg("AO not ready after 300 frames");
+  return 0;
+}
+
 /* AO costs nothing while off: no computation, no AO memory. Turned on,
  * it is computed once (not per frame) and the frame is the reference's
  * with the reference AO; a TF change recomputes it; turned off, its
@@ -376,7 +401,6 @@ static void test_ao_only_when_on(void **state) {
   rp_camera cam;
   rp_runtime_counters c;
   rp_ao *ao = NULL;
-  rp_volume_info info;
   (void)state;
   app_open(&a);
   vol = make_volume(a.ctx, 24, 2);
@@ -385,7 +409,6 @@ static void test_ao_only_when_on(void **state) {
     vd.data = rp_volume_data(vol);
     assert_int_equal(rp_volume_create(a.ctx, &vd, &copy), 0);
   }
-  rp_volume_get_info(vol, &info);
   cam = orbit(vol, 40.0f);
   tf = post_scene(a.rt, a.ctx, vol, "ct-soft", &cam);
   (void)frame(&a);
@@ -396,10 +419,7 @@ static void test_ao_only_when_on(void **state) {
   assert_true(a.s.last.ao_ms == 0.0);
 
   assert_int_equal(rp_runtime_set_effects(a.rt, EFFECTS | RP_EFFECT_AO), 0);
-  (void)frame(&a);
-  assert_int_equal(a.s.last.status, 0);
-  assert_true(a.s.last.effects & RP_EFFECT_AO);
-  assert_true(a.s.last.ao_ms > 0.0);
+  (void)frames_until_ao(&a);
   rp_runtime_get_counters(a.rt, &c);
   assert_int_equal(c.ao_computes, 1);
   assert_int_equal(c.ao_bytes, 24 * 24 * 24);
@@ -412,10 +432,11 @@ static void test_ao_only_when_on(void **state) {
   rp_runtime_get_counters(a.rt, &c);
   assert_int_equal(c.ao_computes, 1);
   assert_true(a.s.last.ao_ms == 0.0);
+  assert_true(a.s.last.effects & RP_EFFECT_AO);
 
   assert_int_equal(rp_tf_create_preset(a.ctx, "ct-bone", &tf2), 0);
   assert_int_equal(rp_runtime_set_tf(a.rt, tf2), 0);
-  (void)frame(&a);
+  (void)frames_until_ao(&a);
   rp_runtime_get_counters(a.rt, &c);
   assert_int_equal(c.ao_computes, 2);
 
@@ -430,6 +451,57 @@ static void test_ao_only_when_on(void **state) {
   assert_int_equal(c.ao_bytes, 0);
   assert_int_equal(a.s.last.status, 0);
   expect_reference(a.ctx, copy, tf, &cam, a.s.image);
+  app_close(&a);
+  rp_tf_destroy(tf);
+  rp_tf_destroy(tf2);
+  rp_volume_destroy(copy);
+  rp_context_destroy(a.ctx);
+}
+
+/* With a small share of each frame for AO (2 ms of the 1000 ms target:
+ * one 16^3 block per frame, the least a step does), AO takes several
+ * frames; those render the reference's image without AO, each spends
+ * time on AO, and the first frame with AO is the reference's with the
+ * reference AO. A TF change in the middle of a run starts it again for
+ * the new TF. */
+static void test_ao_in_steps(void **state) {
+  app a;
+  rp_volume *vol, *copy;
+  rp_tf *tf, *tf2 = NULL;
+  rp_camera cam;
+  rp_runtime_counters c;
+  rp_ao *ao = NULL;
+  int n;
+  (void)state;
+  app_open_ao(&a, NULL, 0, 0.002);
+  vol = make_volume(a.ctx, 24, 2);
+  {
+    rp_volume_desc vd = {{24, 24, 24}, RP_U8, {0, 0, 0}, NULL};
+    vd.data = rp_volume_data(vol);
+    assert_int_equal(rp_volume_create(a.ctx, &vd, &copy), 0);
+  }
+  cam = orbit(vol, 40.0f);
+  tf = post_scene(a.rt, a.ctx, vol, "ct-soft", &cam);
+  assert_int_equal(rp_runtime_set_effects(a.rt, EFFECTS | RP_EFFECT_AO), 0);
+  (void)frame(&a);
+  assert_int_equal(a.s.last.status, 0);
+  assert_false(a.s.last.effects & RP_EFFECT_AO);
+  assert_true(a.s.last.ao_ms > 0.0);
+  assert_true(a.s.last.ao_progress > 0.0 && a.s.last.ao_progress < 1.0);
+  expect_reference(a.ctx, copy, tf, &cam, a.s.image);
+  /* A TF change mid-run: the run restarts for the new TF. */
+  assert_int_equal(rp_tf_create_preset(a.ctx, "ct-bone", &tf2), 0);
+  assert_int_equal(rp_runtime_set_tf(a.rt, tf2), 0);
+  n = frames_until_ao(&a);
+  print_message("AO in steps: ready after %d frames\n", n);
+  assert_true(n >= 3);
+  rp_runtime_get_counters(a.rt, &c);
+  assert_int_equal(c.ao_computes, 1);
+  assert_int_equal(rp_ao_compute_reference(a.ctx, copy, tf2, NULL, NULL,
+                                           NULL, &ao),
+                   0);
+  expect_reference_ao(a.ctx, copy, tf2, ao, &cam, a.s.image);
+  rp_ao_destroy(ao);
   app_close(&a);
   rp_tf_destroy(tf);
   rp_tf_destroy(tf2);
@@ -747,6 +819,18 @@ static void test_create_refuses(void **state) {
   d.target_ms = -1.0;
   assert_int_equal(rp_runtime_create(ctx, &d, &rt), RP_ERANGE);
   d.target_ms = 0.0;
+  d.ao_frame_share = NAN;
+  assert_int_equal(rp_runtime_create(ctx, &d, &rt), RP_ENOTFINITE);
+  d.ao_frame_share = 1.5;
+  assert_int_equal(rp_runtime_create(ctx, &d, &rt), RP_ERANGE);
+  assert_non_null(strstr(rp_last_error(ctx), "ao_frame_share"));
+  d.ao_frame_share = 0.0;
+  d.ao.radius = -1.0f;
+  assert_int_equal(rp_runtime_create(ctx, &d, &rt), RP_ERANGE);
+  d.ao.radius = 0.0f;
+  d.ao_schedule.block = 6;
+  assert_int_equal(rp_runtime_create(ctx, &d, &rt), RP_EINVAL);
+  d.ao_schedule.block = 0;
   d.device.backend = "no-such-backend";
   assert_true(rp_runtime_create(ctx, &d, &rt) < 0);
   assert_null(rt);
@@ -761,6 +845,7 @@ int main(void) {
       cmocka_unit_test(test_requests),
       cmocka_unit_test(test_bad_input),
       cmocka_unit_test(test_ao_only_when_on),
+      cmocka_unit_test(test_ao_in_steps),
       cmocka_unit_test(test_several_devices),
       cmocka_unit_test(test_volume_other_allocator),
       cmocka_unit_test(test_close_in_flight),
