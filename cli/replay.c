@@ -31,6 +31,7 @@
 #include <string.h>
 
 #include "cli_util.h"
+#include "raypace_ao.h"
 #include "commands.h"
 #include "raypace.h"
 #include "raypace_group.h"
@@ -62,6 +63,8 @@ typedef struct frame_row {
   int passes, tf_changed;
   double target_ms, measured_ms, predicted_ms, probe_ms;
   double last_pass_ms; /* the pass the prediction is for */
+  double ao_ms;        /* AO computed this frame (in measured_ms) */
+  int ao;              /* rendered with AO */
   double rho;
   float step, scale;
   double samples_est;
@@ -102,6 +105,12 @@ typedef struct replay {
   rp_tile_stats *tiles;
   double full_ms;     /* frame time without adaptation, at the start */
   double seq_target0; /* the sequence's first target, ms */
+  /* AO as the runtime does it: computed in steps over frames for the
+   * active TF, frames rendering without AO until it is ready. */
+  rp_ao_plan *ao_plan;
+  rp_ao_run *ao_run;
+  int ao_tf;  /* the TF whose AO the devices hold; -1: none */
+  int run_tf; /* the TF ao_run computes for */
 } replay;
 
 static void usage(FILE *f) {
@@ -348,6 +357,82 @@ static int use_tf(replay *r, int index) {
   return 0;
 }
 
+/* The share of a frame's target spent on AO while it is computed (the
+ * runtime's default ao_frame_share). */
+#define AO_FRAME_SHARE 0.25
+
+static void ao_drop_run(replay *r) {
+  rp_ao_run_destroy(r->ao_run);
+  rp_ao_plan_destroy(r->ao_plan);
+  r->ao_run = NULL;
+  r->ao_plan = NULL;
+}
+
+/* The effects a frame renders: AO only once its volume is ready. */
+static uint32_t ao_effects(const replay *r, uint32_t effects) {
+  return r->ao_tf == r->tf_active ? effects
+                                  : effects & ~(uint32_t)RP_EFFECT_AO;
+}
+
+/* Starts AO for the active TF unless the devices hold it or a run for it
+ * is under way; drops a run for another TF (the devices no longer hold
+ * that TF). */
+static int ao_start(replay *r) {
+  rp_ao_schedule sc = {0};
+  int err;
+  if (r->ao_tf == r->tf_active ||
+      (r->ao_run != NULL && r->run_tf == r->tf_active))
+    return 0;
+  ao_drop_run(r);
+  sc.block = RP_AO_FRAME_BLOCK;
+  err = rp_ao_plan_create(r->ctx, r->vol, r->tfs[r->tf_active], NULL,
+                          &r->ao_plan);
+  if (err == 0)
+    err = r->group != NULL
+              ? rp_device_group_ao_begin(r->group, r->ao_plan, &sc,
+                                         &r->ao_run)
+              : rp_ao_run_create(r->ctx, &r->dev, 1, r->ao_plan, &sc,
+                                 &r->ao_run);
+  if (err != 0) {
+    ao_drop_run(r);
+    return cli_error(r->ctx, "ambient occlusion", err);
+  }
+  r->run_tf = r->tf_active;
+  return 0;
+}
+
+/* One step of `budget_ms` (INFINITY: to the end); once done, the AO goes
+ * to the device(s). */
+static int ao_step(replay *r, double budget_ms) {
+  rp_ao *ao = NULL;
+  double fraction = 0.0;
+  int err = rp_ao_run_step(r->ao_run, budget_ms, &fraction);
+  if (err == 0 && fraction < 1.0)
+    return 0;
+  if (r->group != NULL)
+    err = rp_device_group_ao_end(r->group, r->ao_run, err, &ao, NULL);
+  else if (err == 0)
+    err = rp_ao_run_finish(r->ao_run, &ao, NULL);
+  if (err == 0)
+    err = r->group != NULL ? rp_device_group_set_ao(r->group, ao)
+                           : rp_device_set_ao(r->dev, ao);
+  rp_ao_destroy(ao);
+  ao_drop_run(r);
+  if (err != 0)
+    return cli_error(r->ctx, "ambient occlusion", err);
+  r->ao_tf = r->run_tf;
+  return 0;
+}
+
+/* AO for the active TF, all of it now (warming up, calibrating). */
+static int ao_now(replay *r, uint32_t effects) {
+  if (!(effects & RP_EFFECT_AO) || r->ao_tf == r->tf_active)
+    return 0;
+  if (ao_start(r) != 0)
+    return 1;
+  return ao_step(r, INFINITY);
+}
+
 static double seq_target_ms(const replay *r, const rp_sequence_state *st) {
   return st->target_ms > 0 ? st->target_ms
                            : st->target_fraction * r->full_ms;
@@ -414,7 +499,7 @@ static int warm_kernels(replay *r) {
     if (k == nseen && nseen < 16) {
       seen[nseen++] = st.effects;
       rp_sequence_camera(&st, r->vol, &cam);
-      if ((err = use_tf(r, st.tf)) != 0 ||
+      if ((err = use_tf(r, st.tf)) != 0 || (err = ao_now(r, st.effects)) ||
           (err = render_pass(r, &cam, st.effects, 1.0, NULL, &pr)) != 0 ||
           (err = render_pass(r, &cam, st.effects, 0.3, NULL, &pr)) != 0)
         return err;
@@ -437,7 +522,7 @@ static int calibrate(replay *r) {
   if ((err = rp_sequence_frame(r->seq, 0, &st)) != 0)
     return cli_error(r->ctx, "sequence", err);
   rp_sequence_camera(&st, r->vol, &cam);
-  if ((err = use_tf(r, st.tf)) != 0)
+  if ((err = use_tf(r, st.tf)) != 0 || (err = ao_now(r, st.effects)) != 0)
     return err;
   for (i = 0; i < 3; i++) {
     if ((err = render_pass(r, &cam, st.effects, 1.0, NULL, &pr)) != 0)
@@ -460,6 +545,8 @@ static int open_group(replay *r) {
   int err;
   gd.devices = r->o.devices;
   gd.count = r->o.ndevices;
+  ao_drop_run(r);
+  r->ao_tf = -1; /* a new group holds no AO */
   if ((err = rp_device_group_create(r->ctx, &gd, &r->group)) != 0)
     return cli_error(r->ctx, "--devices", err);
   if ((err = rp_device_group_set_volume(r->group, r->vol)) != 0 ||
@@ -523,7 +610,8 @@ static int play(replay *r, rp_controller_kind kind, frame_row *rows) {
     rp_cost_estimate est;
     predict_ctx pc;
     pass_result pr;
-    double rho, target, frame_ms = 0.0, t0;
+    double rho, target, pass_target, frame_ms = 0.0, t0, ao_ms;
+    uint32_t effects;
     int again = 1, passes = 0;
     if ((err = rp_sequence_frame(r->seq, f, &st)) != 0) {
       cli_error(r->ctx, "sequence", err);
@@ -533,13 +621,29 @@ static int play(replay *r, rp_controller_kind kind, frame_row *rows) {
       goto out;
     rp_sequence_camera(&st, r->vol, &cam);
     target = frame_target(r, &st);
+    /* AO as the runtime does it: a share of the target on its run, the
+     * passes get the rest (at least a quarter of it). */
+    ao_ms = 0.0;
+    if (!(st.effects & RP_EFFECT_AO))
+      ao_drop_run(r);
+    else if (ao_start(r) != 0)
+      goto out;
+    if (r->ao_run != NULL) {
+      t0 = cli_now();
+      if (ao_step(r, AO_FRAME_SHARE * target) != 0)
+        goto out;
+      ao_ms = (cli_now() - t0) * 1e3;
+    }
+    effects = ao_effects(r, st.effects);
+    pass_target = target - ao_ms > 0.25 * target ? target - ao_ms
+                                                 : 0.25 * target;
     t0 = cli_now();
-    if (probe_frame(r, &cam, st.effects, f, &probe) != 0)
+    if (probe_frame(r, &cam, effects, f, &probe) != 0)
       goto out;
     pc.r = r;
     pc.model = model;
     pc.probe = &probe;
-    if ((err = rp_controller_begin_frame(ctl, target, predict_ms, &pc,
+    if ((err = rp_controller_begin_frame(ctl, pass_target, predict_ms, &pc,
                                          &rho)) != 0) {
       cli_error(r->ctx, "controller", err);
       goto out;
@@ -547,7 +651,7 @@ static int play(replay *r, rp_controller_kind kind, frame_row *rows) {
     if (i >= r->o.settle)
       rows[f].probe_ms = (cli_now() - t0) * 1e3;
     while (again) {
-      if (render_pass(r, &cam, st.effects, rho, &probe, &pr) != 0)
+      if (render_pass(r, &cam, effects, rho, &probe, &pr) != 0)
         goto out;
       passes++;
       frame_ms += pr.ms;
@@ -568,6 +672,8 @@ static int play(replay *r, rp_controller_kind kind, frame_row *rows) {
         row->target_ms = target;
         row->predicted_ms = est.ms;
         row->last_pass_ms = pr.ms;
+        row->ao_ms = ao_ms;
+        row->ao = (effects & RP_EFFECT_AO) != 0;
         row->rho = rho;
         row->step = pr.step;
         row->scale = pr.scale;
@@ -593,7 +699,8 @@ static int play(replay *r, rp_controller_kind kind, frame_row *rows) {
       }
     }
     if (i >= r->o.settle) {
-      rows[f].measured_ms = frame_ms;
+      /* What the user waited for: the AO step and the passes. */
+      rows[f].measured_ms = frame_ms + ao_ms;
       rows[f].passes = passes;
     }
   }
@@ -688,7 +795,8 @@ static int write_csv(const char *path, const summary *sums,
   for (j = 0; j < ndev; j++)
     fprintf(f, ",dev%u_share,dev%u_busy_ms,dev%u_raycast_ms,dev%u_samples",
             j, j, j, j);
-  fprintf(f, "%s\n", ndev > 0 ? ",imbalance" : "");
+  /* Appended, so that the earlier columns keep their places. */
+  fprintf(f, "%s,ao_ms,ao\n", ndev > 0 ? ",imbalance" : "");
   for (k = 0; k < nctl; k++) {
     for (i = 0; i < n; i++) {
       const frame_row *w = &rows[k][i];
@@ -706,7 +814,7 @@ static int write_csv(const char *path, const summary *sums,
                 (unsigned long long)w->dev[j].samples);
       if (ndev > 0)
         fprintf(f, ",%.4f", w->imbalance);
-      fprintf(f, "\n");
+      fprintf(f, ",%.4f,%d\n", w->ao_ms, w->ao);
     }
   }
   return fclose(f) == 0 ? 0 : 1;
@@ -962,6 +1070,7 @@ static int open_scene(replay *r) {
   if ((err = rp_occupancy_build(r->ctx, r->h, r->tfs[st.tf], &r->occ)) != 0)
     return cli_error(r->ctx, "occupancy", err);
   r->tf_active = st.tf;
+  r->ao_tf = -1;
   if (r->o.ndevices > 0) {
     if (open_group(r) != 0)
       return 1;
@@ -986,6 +1095,7 @@ static int open_scene(replay *r) {
 
 static void close_scene(replay *r) {
   int i;
+  ao_drop_run(r);
   free(r->scaled);
   free(r->image);
   free(r->tiles);

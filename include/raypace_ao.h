@@ -116,6 +116,12 @@ RP_API uint64_t rp_device_ao_bytes(const rp_device *dev);
 /* ---- Across devices (seed 004 section 5) ------------------------------ */
 
 #define RP_AO_MAX_DEVICES 16
+/* Dynamic block edge for AO computed in steps between frames (the
+ * runtime's default, raypace replay's): small enough that one job fits
+ * a frame's share of the target on bonsai-sized volumes (about 2.5 ms
+ * per 16^3 block on one PoCL core); a whole computation is faster with
+ * the default 32. */
+#define RP_AO_FRAME_BLOCK 16
 
 typedef enum rp_ao_scheme {
   /* Fixed-size blocks in a queue that idle devices take from; blocks

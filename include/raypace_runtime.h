@@ -208,7 +208,8 @@ typedef struct rp_runtime_desc {
                              defaults */
   rp_ao_schedule ao_schedule; /* how AO is spread over the devices; its
                              progress callback runs on the runtime's
-                             worker thread; block 0: 16 */
+                             worker thread; block 0:
+                             RP_AO_FRAME_BLOCK */
   /* While AO is being computed (turned on, or the volume or TF changed
    * with it on) each frame spends this share of the target on it and
    * renders without AO until it is done, so that the frame rate holds;

@@ -958,9 +958,8 @@ int rp_runtime_create(rp_context *ctx, const rp_runtime_desc *desc,
   rt->posted.effects = rt->s.effects = rt->desc.effects;
   if (rt->desc.ao_frame_share == 0.0)
     rt->desc.ao_frame_share = 0.25;
-  /* Blocks small enough that one job fits in a frame's share. */
   if (rt->desc.ao_schedule.block == 0)
-    rt->desc.ao_schedule.block = 16;
+    rt->desc.ao_schedule.block = RP_AO_FRAME_BLOCK;
   rt->posted.controller = rt->s.controller_kind = rt->desc.controller;
   rt->due = 1;
   if (uv_mutex_init(&rt->lock) != 0) {

@@ -182,6 +182,27 @@ static const char builtin_mixed[] =
     "  ]\n"
     "}\n";
 
+static const char builtin_ao_tf_switch[] =
+    "{\n"
+    "  \"version\": 1,\n"
+    "  \"name\": \"ao-tf-switch\",\n"
+    "  \"about\": \"still camera with shading and ambient occlusion, "
+    "switching between soft tissue and bone every 40 frames: each switch "
+    "recomputes the AO volume\",\n"
+    "  \"frames\": 160,\n"
+    "  \"tfs\": [\"ct-soft\", \"ct-bone\"],\n"
+    "  \"events\": [\n"
+    "    {\"frame\": 0,\n"
+    "     \"camera\": {\"azimuth\": 30, \"elevation\": 20, "
+    "\"distance\": 2.5},\n"
+    "     \"tf\": 0, \"target_fraction\": 0.5, "
+    "\"effects\": [\"shading\", \"ao\", \"ert\", \"skip\"]},\n"
+    "    {\"frame\": 40, \"tf\": 1},\n"
+    "    {\"frame\": 80, \"tf\": 0},\n"
+    "    {\"frame\": 120, \"tf\": 1}\n"
+    "  ]\n"
+    "}\n";
+
 typedef struct builtin {
   const char *name;
   const char *about; /* equal to the document's "about" (tested) */
@@ -205,13 +226,18 @@ static const builtin builtins[] = {
      "orbit with zoom and pan, transfer function switches, a tighter "
      "target and shading toggled on and off",
      builtin_mixed},
+    {"ao-tf-switch",
+     "still camera with shading and ambient occlusion, switching between "
+     "soft tissue and bone every 40 frames: each switch recomputes the AO "
+     "volume",
+     builtin_ao_tf_switch},
 };
 
 #define RP__SEQ_BUILTINS (sizeof builtins / sizeof builtins[0])
 
 const char *const *rp_sequence_builtin_names(void) {
   static const char *const names[] = {"orbit", "tf-switch", "zoom-in",
-                                      "mixed", NULL};
+                                      "mixed", "ao-tf-switch", NULL};
   return names;
 }
 

@@ -800,7 +800,8 @@ static void file_errors(void **state) {
   assert_non_null(strstr(rp_last_error(ctx), "no_such_sequence.json': no "
                                              "such file, and not a built-in "
                                              "sequence (built-ins: orbit, "
-                                             "tf-switch, zoom-in, mixed)"));
+                                             "tf-switch, zoom-in, mixed, "
+                                             "ao-tf-switch)"));
   /* A near miss of a built-in name is a missing file too. */
   assert_int_equal(rp_sequence_load(ctx, "orbits", &s), RP_ENOENT);
   assert_int_equal(rp_sequence_load(ctx, rp_test_tmp_dir(), &s), RP_EIO);

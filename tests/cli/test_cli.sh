@@ -127,6 +127,20 @@ if [ "$(head -1 "$dir/r.csv" | cut -d, -f1-5)" = \
    [ "$(wc -l <"$dir/r.csv")" -eq $((7 * 24 + 1)) ]; then
   pass=$((pass + 1)); else
   echo "FAIL: replay csv"; head -3 "$dir/r.csv"; fails=$((fails + 1)); fi
+# AO in steps: frames before the switch at 40 render with AO; the switch
+# starts a new AO run, the frames during it render without AO, and one
+# before frame 50 renders with it again (24^3: eight 16^3 jobs at most,
+# at least one per frame).
+check "replay ao" "$rp" replay gen:phantom:24 --backend reference \
+  --sequence ao-tf-switch --frames 50 --settle 2 --size 32x32 \
+  --controller predicted --quiet --csv "$dir/ao.csv"
+ao_col=$(head -1 "$dir/ao.csv" | tr ',' '\n' | grep -nx ao | cut -d: -f1)
+ao_of() { awk -F, -v c="$ao_col" -v f="$1" '$2 == f { print $c }' \
+  "$dir/ao.csv"; }
+if [ -n "$ao_col" ] && [ "$(ao_of 39)" = 1 ] && [ "$(ao_of 40)" = 0 ] &&
+   [ "$(ao_of 49)" = 1 ]; then pass=$((pass + 1)); else
+  echo "FAIL: replay ao (frames 39/40/49: $(ao_of 39)/$(ao_of 40)/$(ao_of 49))"
+  fails=$((fails + 1)); fi
 check "replay table" "$rp" replay gen:ml:16 --backend reference \
   --sequence orbit --frames 4 --settle 1 --size 16x16 --controller vtk \
   --target-ms 5 --space ray --quiet
@@ -276,6 +290,7 @@ has "replay devices imbalance" '"mean_imbalance":'
 has "replay devices alive" '"devices_alive":'
 cols="tf_switch,dev0_share,dev0_busy_ms,dev0_raycast_ms,dev0_samples"
 cols="$cols,dev1_share,dev1_busy_ms,dev1_raycast_ms,dev1_samples,imbalance"
+cols="$cols,ao_ms,ao"
 if [ "$(head -1 "$dir/d.csv" | cut -d, -f16-)" = "$cols" ] &&
    [ "$(wc -l <"$dir/d.csv")" -eq 7 ] &&
    [ "$(awk -F, 'NR > 1 && ($17 + $21 - 1)^2 > 1e-8 { n++ }
