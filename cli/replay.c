@@ -380,10 +380,12 @@ static uint32_t ao_effects(const replay *r, uint32_t effects) {
 static int ao_start(replay *r) {
   rp_ao_schedule sc = {0};
   int err;
-  if (r->ao_tf == r->tf_active ||
-      (r->ao_run != NULL && r->run_tf == r->tf_active))
+  /* A run for another TF goes first: the devices no longer hold its TF,
+   * even when they still hold the AO of the one now active. */
+  if (r->ao_run != NULL && r->run_tf != r->tf_active)
+    ao_drop_run(r);
+  if (r->ao_tf == r->tf_active || r->ao_run != NULL)
     return 0;
-  ao_drop_run(r);
   sc.block = RP_AO_FRAME_BLOCK;
   err = rp_ao_plan_create(r->ctx, r->vol, r->tfs[r->tf_active], NULL,
                           &r->ao_plan);

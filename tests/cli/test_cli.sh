@@ -141,6 +141,23 @@ if [ -n "$ao_col" ] && [ "$(ao_of 39)" = 1 ] && [ "$(ao_of 40)" = 0 ] &&
    [ "$(ao_of 49)" = 1 ]; then pass=$((pass + 1)); else
   echo "FAIL: replay ao (frames 39/40/49: $(ao_of 39)/$(ao_of 40)/$(ao_of 49))"
   fails=$((fails + 1)); fi
+# Back to the first TF while the second's AO is still being computed: the
+# devices still hold the first's AO, so that frame renders with it, and
+# the abandoned run is never stepped against the wrong TF.
+cat >"$dir/back.json" <<'EOF'
+{"frames": 8, "tfs": ["ct-soft", "ct-bone"],
+ "events": [{"frame": 0, "camera": {"azimuth": 30, "distance": 2.5},
+             "tf": 0, "target_fraction": 0.5,
+             "effects": ["shading", "ao", "ert", "skip"]},
+            {"frame": 4, "tf": 1}, {"frame": 5, "tf": 0}]}
+EOF
+check "replay ao back" "$rp" replay gen:phantom:24 --backend reference \
+  --sequence "$dir/back.json" --settle 2 --size 32x32 \
+  --controller predicted --quiet --csv "$dir/ao.csv"
+if [ "$(ao_of 3)" = 1 ] && [ "$(ao_of 4)" = 0 ] && [ "$(ao_of 5)" = 1 ]
+then pass=$((pass + 1)); else
+  echo "FAIL: replay ao back (frames 3/4/5: $(ao_of 3)/$(ao_of 4)/$(ao_of 5))"
+  fails=$((fails + 1)); fi
 check "replay table" "$rp" replay gen:ml:16 --backend reference \
   --sequence orbit --frames 4 --settle 1 --size 16x16 --controller vtk \
   --target-ms 5 --space ray --quiet
