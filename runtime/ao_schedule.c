@@ -646,6 +646,9 @@ int rp_ao_run_step(rp_ao_run *s, double budget_ms, double *fraction) {
   int err = 0;
   if (s == NULL)
     return RP_EINVAL;
+  if (isnan(budget_ms))
+    return RP__AO_FAIL(s->ctx, RP_ENOTFINITE, "rp_ao_run_step: budget_ms "
+                       "is NaN");
   if (!(budget_ms > 0.0))
     return RP__AO_FAIL(s->ctx, RP_ERANGE, "rp_ao_run_step: budget_ms %g "
                        "must be above 0 (INFINITY: to the end)", budget_ms);

@@ -834,6 +834,63 @@ static void test_static_finds_balance(void **state) {
   rp_tf_destroy(tf);
 }
 
+/* Steps: a step with a budget far below one job's time still takes one
+ * job per device (progress every step) and no more; finishing early is
+ * refused and loses nothing; a non-positive or NaN budget is refused;
+ * once every job is done a step does nothing, and the assembled volume
+ * is exactly the reference's. */
+static void test_run_in_steps(void **state) {
+  rp_context *ctx = *state;
+  rp_ao_desc desc = {4, 3, 4.0f, 1.0f, 0};
+  lopsided_scene sn;
+  device_set ds;
+  rp_ao_schedule sc = {0};
+  rp_ao_run *run = NULL;
+  rp_ao *got = (rp_ao *)&sn;
+  rp_ao_report rep;
+  double fraction = -1.0, last = 0.0;
+  int steps = 0;
+  scene_open(ctx, &sn, &desc, 1);
+  open_devices(&ds, 2, &sn, 99, 0);
+  sc.block = 8; /* 6 x 3 x 3 blocks, those with full bricks queued */
+  assert_int_equal(rp_ao_run_create(ctx, ds.dev, 2, sn.plan, &sc, &run), 0);
+  assert_int_equal(rp_ao_run_step(run, 0.0, &fraction), RP_ERANGE);
+  assert_int_equal(rp_ao_run_step(run, NAN, &fraction), RP_ENOTFINITE);
+  assert_int_equal(rp_ao_run_finish(run, &got, &rep), RP_ESTATE);
+  assert_ptr_equal(got, (rp_ao *)&sn);
+  do {
+    uint32_t before = 0, after = 0, i;
+    rp_ao_run_report(run, &rep);
+    for (i = 0; i < 2; i++)
+      before += rep.devices[i].jobs;
+    assert_int_equal(rp_ao_run_step(run, 1e-6, &fraction), 0);
+    rp_ao_run_report(run, &rep);
+    for (i = 0; i < 2; i++)
+      after += rep.devices[i].jobs;
+    /* One job per device at most, at least one in all. */
+    assert_true(after > before && after - before <= 2);
+    assert_true(fraction > last);
+    last = fraction;
+    steps++;
+  } while (fraction < 1.0);
+  assert_true(steps >= 3);
+  assert_int_equal(rp_ao_run_step(run, 1e-6, &fraction), 0);
+  assert_true(fraction == 1.0);
+  assert_int_equal(rp_ao_run_finish(run, &got, &rep), 0);
+  assert_memory_equal(rp_ao_data(got, NULL), rp_ao_data(sn.want, NULL),
+                      44 * 24 * 21);
+  /* The volume went to the caller: a second finish has none. */
+  {
+    rp_ao *again = NULL;
+    assert_int_equal(rp_ao_run_finish(run, &again, NULL), RP_ESTATE);
+    assert_null(again);
+  }
+  rp_ao_destroy(got);
+  rp_ao_run_destroy(run);
+  close_devices(&ds);
+  scene_close(&sn);
+}
+
 /* A device lost mid-computation hands its work to the others and the
  * result is still exact; with every device lost the call fails and
  * leaves *out alone. */
@@ -943,6 +1000,7 @@ int main(void) {
       cmocka_unit_test(test_static_balances),
       cmocka_unit_test(test_static_follows_speed),
       cmocka_unit_test(test_static_finds_balance),
+      cmocka_unit_test(test_run_in_steps),
       cmocka_unit_test(test_device_lost),
       cmocka_unit_test(test_bad_schedule),
   };
