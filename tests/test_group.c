@@ -231,12 +231,15 @@ static void test_shares_follow_speed(void **state) {
 
 /* AO on a pair whose second device is 4x slower (the slowdown stretches
  * AO jobs as it does renders): the first static split knows nothing and
- * splits by bricks alone; from the second on, the group gives the split
- * the speeds it measured, and the fast device takes more of the full
- * bricks. Closed form: 4/5 of them; bound: at least 1.5x the slow one's
- * (timer noise on a loaded machine, not the split, is what can move it).
- * Every result equals the reference computation. Lost devices are
- * dropped like a failed upload drops them. */
+ * splits by bricks alone; the second gets the speeds the group measured
+ * in the first (full bricks per ms of each device's report), and splits
+ * the full bricks in their ratio: within one brick layer (at most 12 x
+ * 12 bricks of the 48^3 volume) and the 2 % tolerance of the even
+ * share. What the speeds come to is wall-time measurement: under a
+ * loaded CI machine the fast device's compute was once descheduled long
+ * enough to measure slower than the sleeping slow one, so the bound is on
+ * the split given the measured speeds, not on 4:1. Every result equals
+ * the reference computation. */
 static void test_ao_follows_speed(void **state) {
   rp_device_desc dd[2];
   rp_group_desc gd = {0};
@@ -254,6 +257,7 @@ static void test_ao_follows_speed(void **state) {
   assert_int_equal(rp_ao_compute_reference(s.ctx, s.vol, s.tf, &desc, NULL,
                                            NULL, &want),
                    0);
+  double speed[2] = {0.0, 0.0};
   for (k = 0; k < 2; k++) {
     rp_ao_schedule sc = {0};
     rp_ao_report rep;
@@ -269,8 +273,15 @@ static void test_ao_follows_speed(void **state) {
                                     rep.devices[i].block_end);
     print_message("AO split %d: full bricks %llu fast, %llu slow\n", k,
                   (unsigned long long)f[0], (unsigned long long)f[1]);
-    if (k == 1)
-      assert_true((double)f[0] >= 1.5 * (double)f[1]);
+    if (k == 1) {
+      double total = (double)(f[0] + f[1]);
+      double want0 = total * speed[0] / (speed[0] + speed[1]);
+      print_message("measured speeds %.3f and %.3f bricks/ms: %.0f for the "
+                    "first\n", speed[0], speed[1], want0);
+      assert_true(fabs((double)f[0] - want0) <= 144.0 + 0.02 * total);
+    }
+    for (i = 0; i < 2; i++)
+      speed[i] = (double)rep.devices[i].full_bricks / rep.devices[i].busy_ms;
     /* Set, then released: no AO memory is left. */
     assert_int_equal(rp_device_group_set_ao(g, got), 0);
     assert_int_equal(rp_device_group_ao_bytes(g), 2 * 48 * 48 * 48);
