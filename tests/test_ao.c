@@ -905,14 +905,21 @@ static void test_device_lost(void **state) {
     rp_ao_schedule sc = {0};
     rp_ao_report rep;
     rp_ao *got = NULL;
-    open_devices(&ds, 3, &sn, 1, 2);
+    /* Device 1 fails at its first job. Static: it owns jobs, so it
+     * fails. Dynamic: a device whose thread starts late may find the
+     * queue empty (seen under CI load), so it fails or took nothing. */
+    open_devices(&ds, 3, &sn, 1, 1);
     sc.scheme = k == 0 ? RP_AO_DYNAMIC : RP_AO_STATIC;
     sc.block = 8;
     assert_int_equal(rp_ao_compute(ctx, ds.dev, 3, sn.plan, &sc, &got, &rep),
                      0);
     assert_memory_equal(rp_ao_data(got, NULL), rp_ao_data(sn.want, NULL),
                         44 * 24 * 21);
-    assert_int_equal(rep.devices[1].status, RP_EDEVICE);
+    if (k == 1 || rep.devices[1].status != 0)
+      assert_int_equal(rep.devices[1].status, RP_EDEVICE);
+    else
+      assert_int_equal(rep.devices[1].jobs, 0);
+    assert_int_equal(rep.devices[1].jobs, 0); /* its job went elsewhere */
     assert_int_equal(rep.devices[0].status, 0);
     rp_ao_destroy(got);
     close_devices(&ds);
