@@ -69,10 +69,8 @@ struct rp_ao_run {
   int first_err;
 };
 
-typedef struct rp_ao_run sched;
-
 typedef struct worker {
-  sched *s;
+  rp_ao_run *s;
   uint32_t index;
   pthread_t thread;
 } worker;
@@ -99,7 +97,7 @@ static void scatter(uint8_t *vol, const uint32_t dims[3], const box *b,
 }
 
 /* The next job device i may take: its own first, then unowned ones. */
-static job *take(sched *s, uint32_t i) {
+static job *take(rp_ao_run *s, uint32_t i) {
   uint32_t k;
   for (k = 0; k < s->njobs; k++)
     if (s->jobs[k].state == 0 && s->jobs[k].owner == (int)i)
@@ -113,7 +111,7 @@ static job *take(sched *s, uint32_t i) {
 /* Whether device i takes a job now: always its first of the step, so
  * that every step makes progress; later ones only when its mean job time
  * so far says it ends before the step's deadline. */
-static int in_time(const sched *s, uint32_t i) {
+static int in_time(const rp_ao_run *s, uint32_t i) {
   const rp_ao_report *r = &s->rep;
   double mean;
   if (s->taken[i] == 0 || s->deadline == INFINITY)
@@ -125,7 +123,7 @@ static int in_time(const sched *s, uint32_t i) {
 
 static void *worker_main(void *arg) {
   worker *w = arg;
-  sched *s = w->s;
+  rp_ao_run *s = w->s;
   rp_device *dev = s->devs[w->index];
   rp_context *dctx = rp__device_context(dev);
   uint8_t *part = NULL;
@@ -553,14 +551,14 @@ int rp__ao_schedule_resolve(rp_context *ctx, const char *fn,
 
 static int check_args(rp_context *ctx, rp_device *const *devs, uint32_t n,
                       const rp_ao_plan *plan, const rp_ao_schedule *in,
-                      rp_ao_schedule *sc, const void *out) {
+                      rp_ao_schedule *sc) {
   static const char *fn = "rp_ao_compute";
   uint32_t i, k;
   int err;
-  if (devs == NULL || plan == NULL || out == NULL) {
+  if (devs == NULL || plan == NULL) {
     /* Not rp__fail's code: the analyzer then sees no caller go on with
      * a NULL. */
-    rp__fail(ctx, RP_EINVAL, "%s: devices, plan and out are required", fn);
+    rp__fail(ctx, RP_EINVAL, "%s: devices and plan are required", fn);
     return RP_EINVAL;
   }
   if (n < 1 || n > RP_AO_MAX_DEVICES)
@@ -595,13 +593,17 @@ int rp_ao_run_create(rp_context *ctx, rp_device *const *devices,
                      uint32_t count, const rp_ao_plan *plan,
                      const rp_ao_schedule *schedule, rp_ao_run **out) {
   rp_ao_schedule sc = {0};
-  sched *s;
+  rp_ao_run *s;
   double balance_ms = 0.0;
   uint32_t i;
   int err;
   if (ctx == NULL)
     return RP_EINVAL;
-  if ((err = check_args(ctx, devices, count, plan, schedule, &sc, out)) != 0)
+  if (out == NULL) {
+    rp__fail(ctx, RP_EINVAL, "rp_ao_run_create: out is required");
+    return RP_EINVAL;
+  }
+  if ((err = check_args(ctx, devices, count, plan, schedule, &sc)) != 0)
     return err;
   if ((s = rp__calloc(ctx, 1, sizeof *s)) == NULL)
     return RP__AO_FAIL(ctx, RP_ENOMEM, "rp_ao_run_create: out of memory");
