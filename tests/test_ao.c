@@ -31,12 +31,6 @@ static rp_tf *constant_tf(rp_context *ctx, float alpha, float ref_step) {
   return tf;
 }
 
-static rp_tf *preset(rp_context *ctx, const char *name) {
-  rp_tf *tf = NULL;
-  assert_int_equal(rp_tf_create_preset(ctx, name, &tf), 0);
-  return tf;
-}
-
 /* Depth along unit-ish direction d from voxel centre v at which the ray
  * leaves the box [-0.5, dims - 0.5]: the slab test's exit. */
 static double box_exit(const uint32_t dims[3], const double v[3],
@@ -160,7 +154,7 @@ static void test_closed_forms(void **state) {
 static void test_transparent(void **state) {
   rp_context *ctx = *state;
   rp_volume *vol = generated(ctx, RP_GEN_PHANTOM, 21, 18, 17);
-  rp_tf *tf = preset(ctx, "transparent");
+  rp_tf *tf = rp_test_preset(ctx, "transparent");
   rp_ao *ao = NULL;
   uint64_t computed, total;
   uint32_t dims[3];
@@ -195,7 +189,7 @@ static void record_progress(double f, void *user) {
 static void test_bricking_is_seamless(void **state) {
   rp_context *ctx = *state;
   rp_volume *vol = generated(ctx, RP_GEN_PHANTOM, 38, 35, 33);
-  rp_tf *tf = preset(ctx, "ct-bone");
+  rp_tf *tf = rp_test_preset(ctx, "ct-bone");
   rp_ao_desc bricked = {8, 6, 5.0f, 1.0f, 0}, full = bricked;
   rp_ao *a = NULL, *b = NULL;
   uint64_t computed, total;
@@ -291,7 +285,7 @@ static void test_plan_counts(void **state) {
   rp_context *ctx = *state;
   uint32_t dims[3] = {30, 27, 25}, g[3] = {8, 7, 7};
   rp_volume *vol = generated(ctx, RP_GEN_PHANTOM, dims[0], dims[1], dims[2]);
-  rp_tf *tf = preset(ctx, "ct-bone");
+  rp_tf *tf = rp_test_preset(ctx, "ct-bone");
   const uint8_t *vox = rp_volume_data(vol);
   rp_volume_info info;
   rp_ao_plan *plan = NULL, *all = NULL;
@@ -358,7 +352,8 @@ static void test_plan_counts(void **state) {
 static void test_reference_device(void **state) {
   rp_context *ctx = *state;
   rp_volume *vol = generated(ctx, RP_GEN_PHANTOM, 27, 22, 19);
-  rp_tf *tf = preset(ctx, "ct-soft"), *other = preset(ctx, "ct-bone");
+  rp_tf *tf = rp_test_preset(ctx, "ct-soft"),
+        *other = rp_test_preset(ctx, "ct-bone");
   rp_histograms *h = NULL;
   rp_occupancy *occ = NULL, *occ2 = NULL;
   rp_device_desc dd = {0};
@@ -458,7 +453,7 @@ static void test_reference_device(void **state) {
 static void test_bad_desc(void **state) {
   rp_context *ctx = *state;
   rp_volume *vol = generated(ctx, RP_GEN_PHANTOM, 8, 8, 8);
-  rp_tf *tf = preset(ctx, "ct-soft");
+  rp_tf *tf = rp_test_preset(ctx, "ct-soft");
   struct {
     rp_ao_desc d;
     int err;
@@ -527,7 +522,7 @@ static void scene_open(rp_context *ctx, lopsided_scene *sc,
                        const rp_ao_desc *desc, int want_reference) {
   memset(sc, 0, sizeof *sc);
   sc->vol = lopsided(ctx);
-  sc->tf = preset(ctx, "ct-bone");
+  sc->tf = rp_test_preset(ctx, "ct-bone");
   assert_int_equal(rp_histograms_build(ctx, sc->vol, &sc->h), 0);
   assert_int_equal(rp_occupancy_build(ctx, sc->h, sc->tf, &sc->occ), 0);
   assert_int_equal(rp_ao_plan_create(ctx, sc->vol, sc->tf, desc, &sc->plan),
@@ -763,7 +758,7 @@ static void test_static_finds_balance(void **state) {
   uint32_t dims[3] = {96, 32, 32}, trial;
   unsigned seed = 99;
   rp_ao_desc desc = {2, 1, 2.0f, 1.0f, 0};
-  rp_tf *tf = preset(ctx, "ct-bone");
+  rp_tf *tf = rp_test_preset(ctx, "ct-bone");
   uint8_t *v = malloc(96 * 32 * 32);
   assert_non_null(v);
   for (trial = 0; trial < 24; trial++) {
@@ -943,7 +938,7 @@ static void test_device_lost(void **state) {
 static void test_bad_schedule(void **state) {
   rp_context *ctx = *state;
   lopsided_scene sn;
-  rp_tf *other = preset(ctx, "ct-soft");
+  rp_tf *other = rp_test_preset(ctx, "ct-soft");
   rp_ao_plan *stale = NULL;
   rp_ao *got = NULL;
   device_set ds;

@@ -79,12 +79,6 @@ static rp_tf *const_tf(rp_context *ctx, float r, float g, float b, float a) {
   return tf;
 }
 
-static rp_tf *preset(rp_context *ctx, const char *name) {
-  rp_tf *tf = NULL;
-  assert_int_equal(rp_tf_create_preset(ctx, name, &tf), 0);
-  return tf;
-}
-
 typedef struct occ_pair {
   rp_histograms *h;
   rp_occupancy *occ;
@@ -300,7 +294,8 @@ static void test_transparent_and_opaque(void **state) {
   rp_context *ctx = rp_test_context();
   rp_volume *ph = generated(ctx, RP_GEN_PHANTOM, 32, 32, 32);
   rp_volume *cv = const_volume(ctx, 12, 12, 12, NULL);
-  rp_tf *clear = preset(ctx, "transparent"), *opaque = preset(ctx, "opaque");
+  rp_tf *clear = rp_test_preset(ctx, "transparent"),
+        *opaque = rp_test_preset(ctx, "opaque");
   occ_pair o = make_occ(ctx, ph, clear), oc = make_occ(ctx, cv, opaque);
   rp_camera cam = orbit(ph, RP_PERSPECTIVE, 30.0f, 20.0f, 2.0f);
   image im = image_new(33, 17);
@@ -683,7 +678,7 @@ static void check_skip_identity(rp_context *ctx, const rp_volume *vol,
   int ncam = camera_cases(vol, cams), p, c, e;
   image off = image_new(24, 19), on = image_new(24, 19);
   for (p = 0; p < 3; p++) {
-    rp_tf *tf = preset(ctx, presets[p]);
+    rp_tf *tf = rp_test_preset(ctx, presets[p]);
     occ_pair o = make_occ(ctx, vol, tf);
     for (c = 0; c < ncam; c++) {
       for (e = 0; e < 2; e++) {
@@ -807,7 +802,7 @@ static void test_ert_bound(void **state) {
   int p, k;
   (void)state;
   for (p = 0; p < 3; p++) {
-    rp_tf *tf = preset(ctx, names[p]);
+    rp_tf *tf = rp_test_preset(ctx, names[p]);
     render(ctx, ph, tf, NULL, &cam, 1.0f, RP_EFFECT_SHADING, &full);
     for (k = 0; k < 3; k++) {
       rp_render_desc d = {cut.w, cut.h, 1.0f,
@@ -845,7 +840,8 @@ static void test_odd_sizes(void **state) {
   rp_context *ctx = rp_test_context();
   rp_volume *ph = generated(ctx, RP_GEN_PHANTOM, 24, 24, 24);
   rp_volume *cv = const_volume(ctx, 20, 20, 20, NULL);
-  rp_tf *tf = preset(ctx, "ct-soft"), *ctf = const_tf(ctx, 1, 1, 1, 0.5f);
+  rp_tf *tf = rp_test_preset(ctx, "ct-soft"),
+        *ctf = const_tf(ctx, 1, 1, 1, 0.5f);
   rp_camera cam;
   image im;
   size_t t;
@@ -908,7 +904,7 @@ static void test_odd_sizes(void **state) {
 static void test_camera_inside(void **state) {
   rp_context *ctx = rp_test_context();
   rp_volume *ph = generated(ctx, RP_GEN_PHANTOM, 40, 40, 40);
-  rp_tf *tf = preset(ctx, "ct-soft");
+  rp_tf *tf = rp_test_preset(ctx, "ct-soft");
   rp_camera out = orbit(ph, RP_PERSPECTIVE, 70.0f, 15.0f, 2.5f);
   rp_camera in = orbit(ph, RP_PERSPECTIVE, 70.0f, 15.0f, 0.25f);
   image a = image_new(24, 24), b = image_new(24, 24);
@@ -1314,7 +1310,7 @@ static void test_bonsai_skip(void **state) {
   err = rp_volume_load(ctx, path, &vol);
   if (err != 0)
     fail_msg("loading %s: %s", path, rp_last_error(ctx));
-  tf = preset(ctx, "ct-bone");
+  tf = rp_test_preset(ctx, "ct-bone");
   o = make_occ(ctx, vol, tf);
   cam = orbit(vol, RP_PERSPECTIVE, 30.0f, 15.0f, 1.8f);
   off = image_new(64, 64);

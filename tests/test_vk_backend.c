@@ -121,10 +121,19 @@ static rp_tf *solid_tf(void) {
   return tf;
 }
 
-static rp_tf *preset(const char *name) {
-  rp_tf *tf = NULL;
-  assert_int_equal(rp_tf_create_preset(g_ctx, name, &tf), 0);
-  return tf;
+/* A uint16 volume of at most 19 x 7 x 3 voxels with anisotropic spacing
+ * and values spread over the range: the thin and tiny cases. */
+static rp_volume *thin_volume(const uint32_t dims[3]) {
+  uint16_t data[19 * 7 * 3];
+  rp_volume_desc d = {
+      {dims[0], dims[1], dims[2]}, RP_U16, {1.0f, 0.5f, 2.0f}, data};
+  rp_volume *vol = NULL;
+  size_t i, n = (size_t)dims[0] * dims[1] * dims[2];
+  assert_true(n <= sizeof data / sizeof data[0]);
+  for (i = 0; i < n; i++)
+    data[i] = (uint16_t)(1000 + 7919 * i % 50000);
+  assert_int_equal(rp_volume_create(g_ctx, &d, &vol), 0);
+  return vol;
 }
 
 static void scene_init(scene *s, rp_volume *vol, rp_tf *tf) {
@@ -341,7 +350,7 @@ static void test_phantom_u8(void **state) {
   scene s;
   (void)state;
   scene_init(&s, generate(RP_GEN_PHANTOM, 48, 48, 48, RP_U8),
-             preset("ct-soft"));
+             rp_test_preset(g_ctx, "ct-soft"));
   check_scene(&s, "phantom u8", 1.0f);
   scene_free(&s);
   /* Mostly empty blocks: skipping has work to do. */
@@ -372,7 +381,8 @@ static void test_float32(void **state) {
 static void test_noise(void **state) {
   scene s;
   (void)state;
-  scene_init(&s, generate(RP_GEN_NOISE, 40, 40, 40, RP_U8), preset("mri"));
+  scene_init(&s, generate(RP_GEN_NOISE, 40, 40, 40, RP_U8),
+             rp_test_preset(g_ctx, "mri"));
   check_scene(&s, "noise u8", 1.0f);
   scene_free(&s);
 }
@@ -393,7 +403,7 @@ static void test_odd_viewports(void **state) {
   size_t i;
   (void)state;
   scene_init(&s, generate(RP_GEN_PHANTOM, 48, 48, 48, RP_U8),
-             preset("ct-soft"));
+             rp_test_preset(g_ctx, "ct-soft"));
   scene_upload(&s, NULL);
   cameras(s.vol, cams);
   for (i = 0; i < sizeof fds / sizeof fds[0]; i++)
@@ -410,14 +420,7 @@ static void test_thin_volumes(void **state) {
   int v, c;
   (void)state;
   for (v = 0; v < 3; v++) {
-    uint16_t data[19 * 7 * 3];
-    rp_volume_desc d = {{dims[v][0], dims[v][1], dims[v][2]}, RP_U16,
-                        {1.0f, 0.5f, 2.0f}, data};
-    rp_volume *vol = NULL;
-    size_t i, n = (size_t)dims[v][0] * dims[v][1] * dims[v][2];
-    for (i = 0; i < n; i++)
-      data[i] = (uint16_t)(1000 + 7919 * i % 50000);
-    assert_int_equal(rp_volume_create(g_ctx, &d, &vol), 0);
+    rp_volume *vol = thin_volume(dims[v]);
     /* Opaque at every value: a single-valued volume sits at x = 0. */
     scene_init(&s, vol, solid_tf());
     scene_upload(&s, NULL);
@@ -618,16 +621,16 @@ static void test_ao_volume(void **state) {
   scene s;
   (void)state;
   scene_init(&s, generate(RP_GEN_PHANTOM, 40, 37, 33, RP_U8),
-             preset("ct-bone"));
+             rp_test_preset(g_ctx, "ct-bone"));
   check_ao_scene(&s, 1, "phantom u8 40x37x33");
   scene_free(&s);
   scene_init(&s, generate(RP_GEN_PHANTOM, 39, 34, 37, RP_U16),
-             preset("ct-soft"));
+             rp_test_preset(g_ctx, "ct-soft"));
   check_ao_scene(&s, 1, "phantom u16 39x34x37");
   scene_free(&s);
   /* The plain layout reads the same voxels. */
   scene_init(&s, generate(RP_GEN_PHANTOM, 40, 37, 33, RP_U8),
-             preset("ct-soft"));
+             rp_test_preset(g_ctx, "ct-soft"));
   rp_vk_hooks.force_plain = 1;
   check_ao_scene(&s, 1, "phantom u8 plain layout");
   rp_vk_hooks.force_plain = 0;
@@ -641,14 +644,7 @@ static void test_ao_volume(void **state) {
     static const uint32_t dims[2][3] = {{19, 1, 2}, {1, 7, 3}};
     int v;
     for (v = 0; v < 2; v++) {
-      uint16_t data[19 * 7 * 3];
-      rp_volume_desc d = {{dims[v][0], dims[v][1], dims[v][2]}, RP_U16,
-                          {1.0f, 0.5f, 2.0f}, data};
-      rp_volume *vol = NULL;
-      size_t i, n = (size_t)dims[v][0] * dims[v][1] * dims[v][2];
-      for (i = 0; i < n; i++)
-        data[i] = (uint16_t)(1000 + 7919 * i % 50000);
-      assert_int_equal(rp_volume_create(g_ctx, &d, &vol), 0);
+      rp_volume *vol = thin_volume(dims[v]);
       scene_init(&s, vol, solid_tf());
       check_ao_scene(&s, 0, "thin volume");
       scene_free(&s);
@@ -732,9 +728,10 @@ static void test_ao_render(void **state) {
   assert_int_equal(rp_device_create(g_ctx, &dv, &vk), 0);
   assert_int_equal(rp_device_create(g_ctx, &dr, &ref), 0);
   for (g = 0; g < 2; g++) {
-    scene_init(&s, g == 0 ? generate(RP_GEN_PHANTOM, 40, 37, 33, RP_U8)
-                          : generate(RP_GEN_PHANTOM, 39, 34, 37, RP_U16),
-               preset(g == 0 ? "ct-bone" : "ct-soft"));
+    scene_init(&s,
+               g == 0 ? generate(RP_GEN_PHANTOM, 40, 37, 33, RP_U8)
+                      : generate(RP_GEN_PHANTOM, 39, 34, 37, RP_U16),
+               rp_test_preset(g_ctx, g == 0 ? "ct-bone" : "ct-soft"));
     assert_int_equal(rp_ao_compute_reference(g_ctx, s.vol, s.tf, NULL, NULL,
                                              NULL, &ao),
                      0);
@@ -804,7 +801,7 @@ static void test_ao_state(void **state) {
   ops->destroy(fresh);
 
   scene_init(&s, generate(RP_GEN_PHANTOM, 24, 20, 18, RP_U8),
-             preset("ct-soft"));
+             rp_test_preset(g_ctx, "ct-soft"));
   scene_upload(&s, NULL);
   cameras(s.vol, cams);
   frame_init(&s, &cams[0], &fd, &f);
@@ -844,7 +841,7 @@ static void test_ao_state(void **state) {
   free(ao);
   scene_free(&s);
   scene_init(&s, generate(RP_GEN_PHANTOM, 20, 20, 18, RP_U8),
-             preset("ct-soft"));
+             rp_test_preset(g_ctx, "ct-soft"));
   scene_upload(&s, NULL);
   rp_vk_get_stats(g_impl, &st);
   assert_int_equal(st.ao_bytes, 0);
@@ -915,7 +912,7 @@ static void test_fetch_counts(void **state) {
   int round;
   (void)state;
   scene_init(&s, generate(RP_GEN_PHANTOM, 48, 48, 48, RP_U8),
-             preset("ct-soft"));
+             rp_test_preset(g_ctx, "ct-soft"));
   scene_upload(&s, NULL);
   cameras(s.vol, cams);
   for (e = 0; e < sizeof effect_sets / sizeof effect_sets[0]; e++) {
@@ -969,7 +966,7 @@ static void test_regions(void **state) {
   int q;
   (void)state;
   scene_init(&s, generate(RP_GEN_PHANTOM, 48, 48, 48, RP_U8),
-             preset("ct-bone"));
+             rp_test_preset(g_ctx, "ct-bone"));
   scene_upload(&s, NULL);
   cameras(s.vol, cams);
   frame_init(&s, &cams[1], &fd, &f);
@@ -1018,7 +1015,7 @@ static void test_depth_pass(void **state) {
   (void)state;
   assert_non_null(fb);
   scene_init(&s, generate(RP_GEN_PHANTOM, 48, 48, 48, RP_U8),
-             preset("ct-bone"));
+             rp_test_preset(g_ctx, "ct-bone"));
   scene_upload(&s, NULL);
   cameras(s.vol, cams);
   for (c = 0; c < 3; c++)
@@ -1194,7 +1191,7 @@ static void test_pipeline_cache(void **state) {
   (void)state;
   setenv("RP_VK_PIPELINE_CACHE", cache_dir(), 1);
   scene_init(&s, generate(RP_GEN_PHANTOM, 24, 24, 24, RP_U8),
-             preset("ct-soft"));
+             rp_test_preset(g_ctx, "ct-soft"));
 
   cached_device_run(&s, &cold);
   snprintf(path, sizeof path, "%s", cold.cache_path);

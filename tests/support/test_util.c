@@ -122,3 +122,9 @@ unsigned rp_test_visible_fetches(uint32_t effects) {
   return ((effects & RP_EFFECT_SHADING) ? 6u : 0u) +
          ((effects & RP_EFFECT_AO) ? 1u : 0u);
 }
+
+rp_tf *rp_test_preset(rp_context *ctx, const char *name) {
+  rp_tf *tf = NULL;
+  assert_int_equal(rp_tf_create_preset(ctx, name, &tf), 0);
+  return tf;
+}

@@ -28,6 +28,8 @@ const char *rp_test_write_file(const char *name, const void *data,
                                size_t len);
 /* A context with defaults; asserts on failure. */
 rp_context *rp_test_context(void);
+/* A transfer-function preset; asserts on failure. */
+rp_tf *rp_test_preset(rp_context *ctx, const char *name);
 
 /* Holds a device's per-tile volume fetches (its counting variant) to the
  * reference's (rp__reference_render), failing the test with `what` and
