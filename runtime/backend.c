@@ -315,6 +315,17 @@ static void injected_stall(rp_device *dev) {
   dev->last_ns += ns;
 }
 
+/* Frees the device's AO memory (backend buffer or reference copy). */
+static int release_ao(rp_device *dev) {
+  int err = 0;
+  if (dev->ops != NULL && dev->ao_bytes != 0)
+    err = dev->ops->upload_ao(dev->impl, NULL);
+  rp_ao_destroy(dev->ref_ao);
+  dev->ref_ao = NULL;
+  dev->ao_bytes = 0;
+  return err;
+}
+
 int rp_device_set_volume(rp_device *dev, const rp_volume *vol) {
   rp_context *ctx;
   size_t bytes;
@@ -355,11 +366,7 @@ int rp_device_set_volume(rp_device *dev, const rp_volume *vol) {
     return err;
   /* A new volume invalidates the TF upload (occupancy is per volume) and
    * the AO volume, whose memory goes with it. */
-  if (dev->ao_bytes != 0 && dev->ops != NULL)
-    (void)dev->ops->upload_ao(dev->impl, NULL); /* a release cannot fail */
-  rp_ao_destroy(dev->ref_ao);
-  dev->ref_ao = NULL;
-  dev->ao_bytes = 0;
+  (void)release_ao(dev); /* a release cannot fail */
   dev->have_volume = 1;
   dev->have_tf = 0;
   dev->depth_valid = 0;
@@ -739,14 +746,8 @@ int rp_device_set_ao(rp_device *dev, const rp_ao *ao) {
   if (dev == NULL)
     return RP_EINVAL;
   ctx = dev->ctx;
-  if (ao == NULL) {
-    if (dev->ops != NULL && dev->ao_bytes != 0)
-      err = dev->ops->upload_ao(dev->impl, NULL);
-    rp_ao_destroy(dev->ref_ao);
-    dev->ref_ao = NULL;
-    dev->ao_bytes = 0;
-    return err;
-  }
+  if (ao == NULL)
+    return release_ao(dev);
   if (!dev->have_volume)
     return rp__fail(ctx, RP_ESTATE, "%s: no volume on the device yet", fn);
   if (ao->vol_id != dev->vol_id)
