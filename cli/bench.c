@@ -465,14 +465,15 @@ static int bench_quality(int argc, char **argv) {
     cli_error(b.ctx, "occupancy", err);
     goto out;
   }
-  if (cli_open_device(b.ctx, "--backend", o.backend, o.device, &dev) != 0 ||
+  if (cli_open_device(b.ctx, "--backend", o.backend, o.device, NULL,
+                      &dev) != 0 ||
       upload(&b, dev) != 0)
     goto out;
   rp_device_get_caps(dev, &caps);
   ref_caps = caps;
   if (o.ref_backend != NULL) {
-    if (cli_open_device(b.ctx, "--ref-backend", o.ref_backend, 0,
-                    &ref_dev) != 0 ||
+    if (cli_open_device(b.ctx, "--ref-backend", o.ref_backend, 0, NULL,
+                        &ref_dev) != 0 ||
         upload(&b, ref_dev) != 0)
       goto out;
     rp_device_get_caps(ref_dev, &ref_caps);

@@ -131,17 +131,46 @@ int cli_open_volume(rp_context *ctx, const char *spec, rp_volume **out) {
   return err != 0 ? cli_error(ctx, spec, err) : 0;
 }
 
+int cli_parse_budget_mb(const char *s, uint64_t *bytes) {
+  char *end;
+  double mb = strtod(s, &end);
+  /* Up to a petabyte: beyond any device, and exact in a double. */
+  if (end == s || *end != '\0' || !(mb > 0.0 && mb <= 1e9))
+    return 1;
+  *bytes = (uint64_t)(mb * 1048576.0);
+  return *bytes == 0;
+}
+
+void cli_print_bricks(const rp_device *dev, const char *prefix) {
+  rp_brick_stats st;
+  if (rp_device_get_brick_stats(dev, &st) != 0 || !st.out_of_core)
+    return;
+  printf("%sout of core: %u bricks of %u^3 (%u visible), pool of %u, "
+         "%u resident; %llu hits, %llu misses, %llu evictions; last "
+         "render in %u part%s, %.2f MB uploaded in %.2f ms\n", prefix,
+         st.bricks, st.brick_size, st.visible, st.slots - 1, st.resident,
+         (unsigned long long)st.hits, (unsigned long long)st.misses,
+         (unsigned long long)st.evictions, st.last_pieces,
+         st.last_pieces == 1 ? "" : "s", st.last_upload_bytes / 1048576.0,
+         st.last_upload_ns * 1e-6);
+}
+
 int cli_open_device(rp_context *ctx, const char *option, const char *backend,
-                    uint32_t index, rp_device **dev) {
+                    uint32_t index, const cli_memory *mem, rp_device **dev) {
   rp_device_desc dd = {0};
   int err;
   dd.backend = backend;
   dd.index = index;
+  if (mem != NULL) {
+    dd.budget_bytes = mem->budget_bytes;
+    dd.brick_size = mem->brick_size;
+  }
   err = rp_device_create(ctx, &dd, dev);
   if (err == RP_ENODEV && backend == NULL && index == 0) {
     fprintf(stderr, "raypace: %s; using the reference\n",
             rp_last_error(ctx));
     dd.backend = "reference";
+    dd.budget_bytes = 0; /* the reference holds the whole volume */
     err = rp_device_create(ctx, &dd, dev);
   }
   return err != 0 ? cli_error(ctx, option, err) : 0;
@@ -150,7 +179,8 @@ int cli_open_device(rp_context *ctx, const char *option, const char *backend,
 /* One SPEC of a device list, [s, e). */
 static int parse_device(const char *option, const char *s, size_t len,
                         rp_device_desc *d) {
-  static const char *const names[] = {"opencl", "vulkan", "reference"};
+  static const char *const names[] = {"opencl", "vulkan", "reference",
+                                      "mpi"};
   char buf[128], *tok, *save = NULL;
   int field = 0, have_cu = 0, have_slow = 0, have_fail = 0;
   size_t i;
@@ -183,7 +213,8 @@ static int parse_device(const char *option, const char *s, size_t len,
           d->backend = names[i];
       if (d->backend == NULL) {
         fprintf(stderr, "raypace: %s: backend '%s' in '%.*s' is not opencl, "
-                        "vulkan or reference\n", option, tok, (int)len, s);
+                        "vulkan, reference or mpi\n", option, tok, (int)len,
+                s);
         return RP_EINVAL;
       }
     } else if (eq == NULL && field == 1) {

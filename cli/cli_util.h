@@ -21,15 +21,28 @@ int cli_parse_floats(const char *s, float *out, int n);
 /* Parses one float > 0: the library reads 0 as "default", so a 0 typed on
  * the command line must not silently become one. */
 int cli_parse_positive(const char *s, float *out);
+/* Out-of-core options (--budget-mb, --brick-size), shared by render and
+ * replay: zeros mean the device's defaults. */
+typedef struct cli_memory {
+  uint64_t budget_bytes;
+  uint32_t brick_size;
+} cli_memory;
+/* Parses --budget-mb (megabytes, 2^20 bytes, > 0) and --brick-size;
+ * returns 0 or 1 (the caller reports the bad value). */
+int cli_parse_budget_mb(const char *s, uint64_t *bytes);
+/* Prints how `dev` holds its volume, when out of core, after `prefix`. */
+void cli_print_bricks(const rp_device *dev, const char *prefix);
+
 /* Opens `backend`'s device `index`, or the first backend with a device;
  * with none at all (and nothing named), the reference, saying so on
  * stderr: an app would rather get a slow image than none. `option` names
  * the command-line option in the error. Returns 0 or 1 (error printed). */
 int cli_open_device(rp_context *ctx, const char *option, const char *backend,
-                    uint32_t index, rp_device **dev);
+                    uint32_t index, const cli_memory *mem, rp_device **dev);
 /* Parses a device list "SPEC[,SPEC...]",
- * SPEC = BACKEND[:INDEX][:cu=N][:slow=S][:fail=F] (BACKEND opencl, vulkan
- * or reference; INDEX default 0; cu = compute units of a sub-device,
+ * SPEC = BACKEND[:INDEX][:cu=N][:slow=S][:fail=F] (BACKEND opencl, vulkan,
+ * reference or mpi, whose device INDEX is MPI rank INDEX + 1 under
+ * mpirun; INDEX default 0; cu = compute units of a sub-device,
  * rp_device_desc.compute_units; slow = rp_device_desc.slowdown; fail =
  * rp_device_desc.fail_at_render) into out[0..*n). At most `max`. On a bad
  * spec prints "OPTION: ..." naming the bad part to stderr and returns

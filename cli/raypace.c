@@ -14,6 +14,7 @@
 #include "commands.h"
 #include "raypace.h"
 #include "raypace_group.h"
+#include "raypace_mpi.h"
 #include "raypace_pace.h"
 
 static void usage_main(FILE *f) {
@@ -70,8 +71,10 @@ static void usage_render(FILE *f) {
           "  --ert-threshold A     stop rays at this opacity (default 0.99)"
           "\n"
           "  --background R,G,B    PNG background in [0,1] (default 0,0,0)\n"
-          "  --backend NAME        opencl, vulkan or reference (the scalar\n"
-          "                        oracle); default: the first with a device\n"
+          "  --backend NAME        opencl, vulkan, reference (the scalar\n"
+          "                        oracle) or mpi (under mpirun: device N is\n"
+          "                        rank N + 1's); default: the first with a\n"
+          "                        device (never mpi)\n"
           "  --device N            device index within the backend (default "
           "0)\n"
           "  --scale S             image scale in (0, 1]: rays per output\n"
@@ -88,7 +91,9 @@ static void usage_render(FILE *f) {
           "                        are PoCL's two one-core parts), slow a\n"
           "                        device S times slower, fail the render "
           "it\n"
-          "                        fails at (testing device loss)\n"
+          "                        fails at (testing device loss); mpi:I is\n"
+          "                        MPI rank I + 1 under mpirun (rank 0 runs\n"
+          "                        the command, the others serve devices)\n"
           "  --overlay-split       with --devices: tint each device's region"
           "\n"
           "                        in its own colour, 1-pixel borders\n"
@@ -98,6 +103,14 @@ static void usage_render(FILE *f) {
           "\n"
           "                        the shares follow their speeds; default "
           "0)\n"
+          "  --budget-mb MB        device memory the volume may take; a\n"
+          "                        larger volume is rendered out of core,\n"
+          "                        from bricks (default: the device's "
+          "largest\n"
+          "                        buffer)\n"
+          "  --brick-size N        out-of-core brick edge in voxels, a power"
+          "\n"
+          "                        of two in [8, 256] (default 16)\n"
           "  --json                print a JSON summary on stdout\n\n"
           "presets:");
   for (p = rp_tf_preset_names(); *p != NULL; p++)
@@ -259,6 +272,7 @@ typedef struct render_opts {
   const char *devices_spec;
   rp_device_desc devices[RP_GROUP_MAX_DEVICES];
   uint32_t ndevices;
+  cli_memory mem;
 } render_opts;
 
 static int parse_render(int argc, char **argv, render_opts *o) {
@@ -283,6 +297,8 @@ static int parse_render(int argc, char **argv, render_opts *o) {
       {"overlay-split", no_argument, 0, 'V'},
       {"warmup", required_argument, 0, 'w'},
       {"json", no_argument, 0, 'j'},
+      {"budget-mb", required_argument, 0, 'M'},
+      {"brick-size", required_argument, 0, 'Z'},
       {"output", required_argument, 0, 'o'},
       {"help", no_argument, 0, 'h'},
       {0, 0, 0, 0}};
@@ -340,6 +356,8 @@ static int parse_render(int argc, char **argv, render_opts *o) {
     case 'V': o->overlay = 1; break;
     case 'w': bad = cli_parse_u32(optarg, 10000, &o->warmup); break;
     case 'j': o->json = 1; break;
+    case 'M': bad = cli_parse_budget_mb(optarg, &o->mem.budget_bytes); break;
+    case 'Z': bad = cli_parse_u32(optarg, 256, &o->mem.brick_size); break;
     case 'o': o->out = optarg; break;
     case 'h': usage_render(stdout); return 1;
     default: usage_render(stderr); return 2;
@@ -354,6 +372,10 @@ static int parse_render(int argc, char **argv, render_opts *o) {
     fprintf(stderr, "raypace render: --devices excludes --backend and "
                     "--device\n");
     return 2;
+  }
+  for (c = 0; c < (int)o->ndevices; c++) {
+    o->devices[c].budget_bytes = o->mem.budget_bytes;
+    o->devices[c].brick_size = o->mem.brick_size;
   }
   if (o->overlay && o->devices_spec == NULL) {
     fprintf(stderr, "raypace render: --overlay-split needs --devices\n");
@@ -641,6 +663,26 @@ out:
   return rc;
 }
 
+/* How the device held the volume, when out of core. */
+static void add_bricks_json(cJSON *root, const rp_device *dev) {
+  rp_brick_stats st;
+  cJSON *b;
+  if (rp_device_get_brick_stats(dev, &st) != 0 || !st.out_of_core)
+    return;
+  b = cJSON_AddObjectToObject(root, "out_of_core");
+  cJSON_AddNumberToObject(b, "brick_size", st.brick_size);
+  cJSON_AddNumberToObject(b, "bricks", st.bricks);
+  cJSON_AddNumberToObject(b, "visible", st.visible);
+  cJSON_AddNumberToObject(b, "pool", st.slots - 1);
+  cJSON_AddNumberToObject(b, "resident", st.resident);
+  cJSON_AddNumberToObject(b, "hits", (double)st.hits);
+  cJSON_AddNumberToObject(b, "misses", (double)st.misses);
+  cJSON_AddNumberToObject(b, "evictions", (double)st.evictions);
+  cJSON_AddNumberToObject(b, "parts", st.last_pieces);
+  cJSON_AddNumberToObject(b, "upload_bytes", (double)st.last_upload_bytes);
+  cJSON_AddNumberToObject(b, "upload_ms", st.last_upload_ns * 1e-6);
+}
+
 static int cmd_render(int argc, char **argv) {
   render_opts o;
   rp_context *ctx = NULL;
@@ -690,7 +732,8 @@ static int cmd_render(int argc, char **argv) {
     rc = render_group(ctx, &o, vol, tf, occ, &cam, &rd);
     goto out;
   }
-  if (cli_open_device(ctx, "--backend", o.backend, o.device, &dev) != 0)
+  if (cli_open_device(ctx, "--backend", o.backend, o.device, &o.mem,
+                      &dev) != 0)
     goto out;
   rp_device_get_caps(dev, &caps);
   if ((err = rp_device_set_volume(dev, vol)) != 0 ||
@@ -767,12 +810,14 @@ static int cmd_render(int argc, char **argv) {
     cJSON_AddNumberToObject(root, "ao_ms", ao_ms);
     cJSON_AddNumberToObject(root, "samples_per_s",
                             t_render > 0 ? samples / t_render : 0.0);
+    add_bricks_json(root, dev);
     rc = print_json(root);
   } else {
     printf("wrote %s (%ux%u on %s '%s', %llu samples, %.1f ms, %.2f M "
            "samples/s)\n", o.out, o.width, o.height, caps.backend,
            caps.device, (unsigned long long)samples, t_render * 1e3,
            t_render > 0 ? samples / t_render / 1e6 : 0.0);
+    cli_print_bricks(dev, "  ");
     rc = 0;
   }
 out:
@@ -789,7 +834,7 @@ out:
   return rc;
 }
 
-int main(int argc, char **argv) {
+static int run_command(int argc, char **argv) {
   if (argc < 2) {
     usage_main(stderr);
     return 2;
@@ -814,4 +859,34 @@ int main(int argc, char **argv) {
   fprintf(stderr, "raypace: unknown command '%s'\n\n", argv[1]);
   usage_main(stderr);
   return 2;
+}
+
+/* A server rank of an MPI job: this rank's device (RP_BACKEND, else the
+ * first with a device) for rank 0's "mpi" devices, until rank 0 ends. */
+static int serve(int rank) {
+  rp_context *ctx = NULL;
+  char what[32];
+  int err;
+  if ((err = rp_context_create(NULL, &ctx)) != 0)
+    return cli_error(ctx, "context", err);
+  err = rp_mpi_serve(ctx, NULL);
+  snprintf(what, sizeof what, "rank %d", rank);
+  if (err != 0)
+    cli_error(ctx, what, err);
+  rp_context_destroy(ctx);
+  return err != 0;
+}
+
+/* Under mpirun (raypace_mpi.h) rank 0 runs the command and ranks 1 and
+ * up serve it their devices as backend "mpi"; started any other way,
+ * rp_mpi_init does nothing and this is one process. */
+int main(int argc, char **argv) {
+  int rank = 0, rc;
+  if (rp_mpi_init(&argc, &argv, &rank, NULL) != 0) {
+    rp_mpi_finalize();
+    return 1;
+  }
+  rc = rank > 0 ? serve(rank) : run_command(argc, argv);
+  rp_mpi_finalize();
+  return rc;
 }

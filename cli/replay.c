@@ -49,6 +49,7 @@ typedef struct replay_opts {
   const char *devices_spec;
   rp_device_desc devices[RP_GROUP_MAX_DEVICES];
   uint32_t ndevices; /* 0: one device, no group */
+  cli_memory mem;
 } replay_opts;
 
 /* One device's part of a frame's last pass (--devices). */
@@ -65,6 +66,8 @@ typedef struct frame_row {
   double last_pass_ms; /* the pass the prediction is for */
   double ao_ms;        /* AO computed this frame (in measured_ms) */
   int ao;              /* rendered with AO */
+  double upload_ms, upload_pred_ms; /* out of core: bricks uploaded in
+                          the last pass (in its time), and predicted */
   double rho;
   float step, scale;
   double samples_est;
@@ -134,7 +137,7 @@ static void usage(FILE *f) {
       "  --space S             ray, image or hybrid (default hybrid)\n"
       "  --base-step D         step at full quality, voxels (default 1)\n"
       "  --size WxH            output size (default 384x384)\n"
-      "  --backend NAME        opencl, vulkan or reference\n"
+      "  --backend NAME        opencl, vulkan, reference or mpi\n"
       "  --device N            device index within the backend\n"
       "  --devices LIST        render every frame on several devices at "
       "once\n"
@@ -144,6 +147,7 @@ static void usage(FILE *f) {
       "[:cu=N]\n"
       "                        [:slow=S][:fail=F] as in 'raypace render'"
       "\n"
+      "                        (mpi:I: MPI rank I + 1, under mpirun)\n"
       "  --settle N            unrecorded frames before the sequence "
       "(default 10)\n"
       "  --frames N            play only the first N frames\n"
@@ -157,6 +161,11 @@ static void usage(FILE *f) {
       "  --json                one JSON summary object per controller, "
       "one\n"
       "                        per line\n"
+      "  --budget-mb MB        device memory the volume may take; a larger"
+      "\n"
+      "                        volume is rendered out of core, from bricks\n"
+      "  --brick-size N        out-of-core brick edge in voxels (8..256, a\n"
+      "                        power of two; default 16)\n"
       "  --quiet               no per-controller progress on stderr\n"
       "  --list                name the built-in sequences and "
       "controllers\n");
@@ -181,6 +190,8 @@ static int parse_opts(int argc, char **argv, replay_opts *o) {
       {"plot", required_argument, 0, 'P'},
       {"json", no_argument, 0, 'j'},
       {"quiet", no_argument, 0, 'Q'},
+      {"budget-mb", required_argument, 0, 'M'},
+      {"brick-size", required_argument, 0, 'Z'},
       {"list", no_argument, 0, 'l'},
       {"help", no_argument, 0, 'h'},
       {0, 0, 0, 0}};
@@ -233,6 +244,8 @@ static int parse_opts(int argc, char **argv, replay_opts *o) {
     case 'P': o->plot = optarg; break;
     case 'j': o->json = 1; break;
     case 'Q': o->quiet = 1; break;
+    case 'M': bad = cli_parse_budget_mb(optarg, &o->mem.budget_bytes); break;
+    case 'Z': bad = cli_parse_u32(optarg, 256, &o->mem.brick_size); break;
     case 'l': o->list = 1; break;
     case 'h': usage(stdout); return 1;
     default: usage(stderr); return 2;
@@ -252,6 +265,10 @@ static int parse_opts(int argc, char **argv, replay_opts *o) {
     fprintf(stderr, "raypace replay: --devices excludes --backend and "
                     "--device\n");
     return 2;
+  }
+  for (c = 0; c < (int)o->ndevices; c++) {
+    o->devices[c].budget_bytes = o->mem.budget_bytes;
+    o->devices[c].brick_size = o->mem.brick_size;
   }
   if (o->list)
     return optind == argc ? 0 : (usage(stderr), 2);
@@ -280,6 +297,7 @@ static int list_all(void) {
 
 typedef struct pass_result {
   double ms, raycast_ms;
+  double upload_ms; /* out of core: brick uploads (in ms, not raycast_ms) */
   uint64_t samples;
   float step, scale;
 } pass_result;
@@ -332,15 +350,39 @@ static int render_pass(replay *r, const rp_camera *cam, uint32_t effects,
   out->samples = 0;
   for (i = 0; i < tx * ty; i++)
     out->samples += r->tiles[i].samples;
+  out->upload_ms = 0.0;
   if (r->group != NULL) {
     out->raycast_ms = group_raycast_ms(&r->rep, out->samples);
+    for (i = 0; i < r->rep.count; i++)
+      out->upload_ms = fmax(out->upload_ms, r->rep.devices[i].upload_ms);
     if (r->rep.lost > 0 && !r->o.quiet)
       fprintf(stderr, "replay: %u device(s) lost, %u left: %s\n",
               r->rep.lost, r->rep.alive, rp_last_error(r->ctx));
   } else {
+    rp_brick_stats bs;
     out->raycast_ms = rp_device_last_time_ns(r->dev) * 1e-6;
+    if (rp_device_get_brick_stats(r->dev, &bs) == 0 && bs.out_of_core) {
+      out->upload_ms = bs.last_upload_ns * 1e-6;
+      out->raycast_ms = fmax(out->raycast_ms - out->upload_ms, 0.0);
+    }
   }
   return 0;
+}
+
+/* Out of core: what the coming pass will spend uploading bricks, as the
+ * runtime predicts it (0 in core, or when the estimate fails). */
+static double predicted_upload_ms(replay *r, const rp_camera *cam,
+                                  uint32_t effects) {
+  rp_render_desc d = {0};
+  rp_upload_estimate e;
+  double ms = 0.0;
+  d.width = r->o.width;
+  d.height = r->o.height;
+  d.effects = effects;
+  if (r->group != NULL)
+    return rp_device_group_upload_ms(r->group, cam, &d, &ms) == 0 ? ms : 0.0;
+  return rp_device_upload_estimate(r->dev, cam, &d, NULL, &e) == 0 ? e.ms
+                                                                   : 0.0;
 }
 
 /* Makes TF `index` current on the host (occupancy) and the device. */
@@ -612,7 +654,7 @@ static int play(replay *r, rp_controller_kind kind, frame_row *rows) {
     rp_cost_estimate est;
     predict_ctx pc;
     pass_result pr;
-    double rho, target, pass_target, frame_ms = 0.0, t0, ao_ms;
+    double rho, target, pass_target, frame_ms = 0.0, t0, ao_ms, upload;
     uint32_t effects;
     int again = 1, passes = 0;
     if ((err = rp_sequence_frame(r->seq, f, &st)) != 0) {
@@ -637,11 +679,15 @@ static int play(replay *r, rp_controller_kind kind, frame_row *rows) {
       ao_ms = (cli_now() - t0) * 1e3;
     }
     effects = ao_effects(r, st.effects);
-    pass_target = target - ao_ms > 0.25 * target ? target - ao_ms
-                                                 : 0.25 * target;
     t0 = cli_now();
     if (probe_frame(r, &cam, effects, f, &probe) != 0)
       goto out;
+    /* Predicted brick uploads come off the passes' budget, as the AO
+     * step does. */
+    upload = predicted_upload_ms(r, &cam, effects);
+    pass_target = target - ao_ms - upload > 0.25 * target
+                      ? target - ao_ms - upload
+                      : 0.25 * target;
     pc.r = r;
     pc.model = model;
     pc.probe = &probe;
@@ -672,7 +718,9 @@ static int play(replay *r, rp_controller_kind kind, frame_row *rows) {
         row->frame = f;
         row->tf_changed = st.tf_changed && f > 0;
         row->target_ms = target;
-        row->predicted_ms = est.ms;
+        row->predicted_ms = est.ms + upload;
+        row->upload_ms = pr.upload_ms;
+        row->upload_pred_ms = upload;
         row->last_pass_ms = pr.ms;
         row->ao_ms = ao_ms;
         row->ao = (effects & RP_EFFECT_AO) != 0;
@@ -693,9 +741,11 @@ static int play(replay *r, rp_controller_kind kind, frame_row *rows) {
                      ? rp_device_group_train(r->group, &probe, pr.step,
                                              pr.scale, pr.ms)
                      : rp_cost_train(model, &probe, pr.step, pr.scale,
-                                     pr.samples, pr.raycast_ms, pr.ms)) !=
-              0 ||
-          (err = rp_controller_end_pass(ctl, pr.ms, &again, &rho)) != 0) {
+                                     pr.samples, pr.raycast_ms,
+                                     fmax(pr.ms - pr.upload_ms,
+                                          pr.raycast_ms))) != 0 ||
+          (err = rp_controller_end_pass(ctl, pr.ms - pr.upload_ms, &again,
+                                        &rho)) != 0) {
         cli_error(r->ctx, "train", err);
         goto out;
       }
@@ -798,7 +848,8 @@ static int write_csv(const char *path, const summary *sums,
     fprintf(f, ",dev%u_share,dev%u_busy_ms,dev%u_raycast_ms,dev%u_samples",
             j, j, j, j);
   /* Appended, so that the earlier columns keep their places. */
-  fprintf(f, "%s,ao_ms,ao\n", ndev > 0 ? ",imbalance" : "");
+  fprintf(f, "%s,ao_ms,ao,upload_ms,upload_predicted_ms\n",
+          ndev > 0 ? ",imbalance" : "");
   for (k = 0; k < nctl; k++) {
     for (i = 0; i < n; i++) {
       const frame_row *w = &rows[k][i];
@@ -816,7 +867,8 @@ static int write_csv(const char *path, const summary *sums,
                 (unsigned long long)w->dev[j].samples);
       if (ndev > 0)
         fprintf(f, ",%.4f", w->imbalance);
-      fprintf(f, ",%.4f,%d\n", w->ao_ms, w->ao);
+      fprintf(f, ",%.4f,%d,%.4f,%.4f\n", w->ao_ms, w->ao, w->upload_ms,
+              w->upload_pred_ms);
     }
   }
   return fclose(f) == 0 ? 0 : 1;
@@ -1078,7 +1130,7 @@ static int open_scene(replay *r) {
       return 1;
   } else {
     if (cli_open_device(r->ctx, "--backend", r->o.backend, r->o.device,
-                        &r->dev) != 0)
+                        &r->o.mem, &r->dev) != 0)
       return 1;
     if ((err = rp_device_set_volume(r->dev, r->vol)) != 0 ||
         (err = rp_device_set_tf(r->dev, r->tfs[st.tf], r->occ)) != 0)

@@ -366,9 +366,11 @@ typedef struct rp_caps {
 typedef struct rp_device rp_device;
 
 typedef struct rp_device_desc {
-  /* "opencl", "vulkan" or "reference". NULL: the RP_BACKEND environment
-   * variable if set, else the first compiled-in backend with a device
-   * ("reference" only when named: it is the slow scalar oracle). */
+  /* "opencl", "vulkan", "reference" or "mpi" (another MPI rank's device,
+   * raypace_mpi.h). NULL: the RP_BACKEND environment variable if set,
+   * else the first compiled-in backend with a device ("reference" and
+   * "mpi" only when named: the slow scalar oracle, and a device
+   * elsewhere). */
   const char *backend;
   uint32_t index;            /* device within the backend */
   /* 0: the whole device; n: a sub-device of n compute units (OpenCL:
@@ -396,7 +398,39 @@ typedef struct rp_device_desc {
    * finite and in [0, 60000]. */
   uint32_t stall_at_render;
   double stall_ms;
+  /* Out-of-core volumes (DESIGN section 9, docs/out_of_core.md): the
+   * device memory a volume may take, in bytes. A volume that fits is
+   * uploaded whole. A larger one stays in host memory as bricks of
+   * brick_size^3 voxels (plus a one-voxel border), and the device keeps a
+   * pool of as many bricks as the budget holds, loading on each render
+   * only the visible bricks its region's frustum touches and replacing
+   * the least recently used; a region whose bricks do not fit is cut into
+   * parts, and a tile into depth slabs. The image is the in-core image. 0: the device's largest buffer
+   * (rp_caps.max_alloc_bytes). Not for the reference device, which always
+   * holds the whole volume. */
+  uint64_t budget_bytes;
+  /* A brick's edge in voxels: a power of two in [8, 256]. 0: 16. */
+  uint32_t brick_size;
 } rp_device_desc;
+
+/** How a device holds its volume (rp_device_get_brick_stats). Counters
+ *  run from the last rp_device_set_volume; the last_ fields are of the
+ *  last render. */
+typedef struct rp_brick_stats {
+  int out_of_core;          /* 0: the whole volume is on the device */
+  uint32_t brick_size;
+  uint32_t bricks;          /* in the volume */
+  uint32_t visible;         /* of those, not empty under the current TF */
+  uint32_t slots;           /* bricks the pool holds (slot 0 reserved) */
+  uint32_t resident;
+  uint64_t hits, misses, evictions;
+  uint64_t uploaded_bytes, upload_ns;
+  uint32_t last_pieces;     /* parts the last render's region was cut into
+                               so that each part's bricks fit the pool */
+  uint32_t last_slabs;      /* of those, depth slabs: passes over a tile
+                               whose bricks do not fit at once */
+  uint64_t last_upload_bytes, last_upload_ns;
+} rp_brick_stats;
 
 /** The compiled-in backends, NULL-terminated. */
 RP_API const char *const *rp_backend_names(void);
@@ -441,6 +475,29 @@ RP_API int rp_device_render(rp_device *dev, const rp_camera *cam,
                             rp_tile_stats *tiles);
 /** Device time of the last operation in nanoseconds (0 if unknown). */
 RP_API uint64_t rp_device_last_time_ns(const rp_device *dev);
+/** What rendering a region would upload to an out-of-core device first:
+ *  the visible bricks its frustum touches (`bricks`), the bricks the
+ *  render would load (`loads`: it follows the render's own plan on a copy
+ *  of the pool's state, so when the bricks do not fit the pool at once
+ *  and the region is cut into parts and depth slabs, a brick two parts
+ *  load counts twice), their bytes, and the time that takes at the device's measured
+ *  upload rate (a nominal 2 GB/s until it has uploaded a megabyte). All
+ *  zero in core. */
+typedef struct rp_upload_estimate {
+  uint32_t bricks, loads;
+  uint64_t bytes;
+  double ms;
+} rp_upload_estimate;
+/** The estimate for `region` (NULL: the whole scaled image) of a render
+ *  with `cam` and `desc`; changes nothing on the device. */
+RP_API int rp_device_upload_estimate(rp_device *dev, const rp_camera *cam,
+                                     const rp_render_desc *desc,
+                                     const rp_region *region,
+                                     rp_upload_estimate *out);
+/** How the device holds its volume: in core, or as bricks (counters of
+ *  hits, misses and evictions of its pool). RP_EINVAL for NULL. */
+RP_API int rp_device_get_brick_stats(const rp_device *dev,
+                                     rp_brick_stats *out);
 
 /** Resamples an RGBA8 premultiplied image bilinearly to another size
  *  (pixel centres aligned, edges clamped): how an image rendered at a

@@ -21,7 +21,7 @@ extern "C" {
 
 /* Bumped whenever rp_backend_ops, rp_backend_bootstrap or rp_frame_params
  * change layout. */
-#define RP_BACKEND_ABI 4
+#define RP_BACKEND_ABI 5
 
 /* Coarse ERT pre-pass geometry (DESIGN section 3). */
 #define RP_ERT_RAY_STRIDE 4    /* one pre-pass ray per 4x4 pixels */
@@ -55,7 +55,41 @@ typedef struct rp_frame_params {
    * axis (an empty range when none is): with RP_EFFECT_SKIP the depth
    * pass may clip rays to that box rather than walk the whole grid. */
   uint32_t occupied_lo[3], occupied_end[3];
+  /* Out-of-core (set_brick_pool): 0 when the volume is whole on the
+   * device; else log2 of the brick size B, and the raycast reads voxel
+   * (x, y, z) from slot table[brick] of the pool at (x mod B, y mod B,
+   * z mod B) of its (B + 1)^3 stored voxels, with brick = x / B +
+   * brick_grid[0] * (y / B + brick_grid[1] * (z / B)), for the low corner
+   * (x, y, z) of each trilinear cell (so a cell never spans two bricks). */
+  uint32_t brick_shift;
+  uint32_t brick_grid[3];
+  /* Out-of-core depth slabs (brick_shift != 0 only): a region whose
+   * bricks do not fit the pool at once, even one tile, is cast in passes
+   * over slabs of depth. A pass takes each ray's samples before
+   * slab_cut (voxel units along the ray; +inf: to its end), resuming
+   * where the previous pass left it (its colour, opacity, next sample,
+   * samples and fetches so far, kept on the device per pixel of the
+   * region) unless slab_flags has RP_SLAB_FIRST; only a pass with
+   * RP_SLAB_LAST writes pixels and tile stats (and is read back). A
+   * single pass is FIRST | LAST with slab_cut = +inf; the result is the
+   * same bit for bit either way. */
+  float slab_cut;
+  uint32_t slab_flags;
 } rp_frame_params;
+
+#define RP_SLAB_FIRST 1u
+#define RP_SLAB_LAST 2u
+
+/* An out-of-core volume's pool (bricks.h): `slots` bricks of
+ * (brick_size + 1)^3 voxels of `type`, and a table of one uint32 slot per
+ * brick of grid[3]. */
+typedef struct rp_brick_pool {
+  rp_voxel_type type;
+  uint32_t dims[3];
+  uint32_t brick_size;
+  uint32_t grid[3];
+  uint32_t slots;
+} rp_brick_pool;
 
 /* One ambient-occlusion job (raypace_ao.h, backends/README.md): voxels
  * [lo, end) of the uploaded volume, under the uploaded TF's LUT. */
@@ -108,6 +142,15 @@ typedef struct rp_backend_ops {
   /* The AO volume (one byte per voxel of the uploaded volume) raycasts
    * with RP_EFFECT_AO read; NULL releases it. */
   int (*upload_ao)(void *impl, const uint8_t *ao);
+  /* Replaces the volume with an empty pool (the front end has checked
+   * that it fits the device); NULL releases the pool. Raycasts with
+   * p->brick_shift != 0 read through it. AO is not computed on a pool. */
+  int (*set_brick_pool)(void *impl, const rp_brick_pool *pool);
+  /* Writes `count` bricks (each (brick_size + 1)^3 voxels at voxels[i])
+   * into slots[i], then the whole table (one uint32 per brick) unless
+   * `table` is NULL. */
+  int (*upload_bricks)(void *impl, uint32_t count, const uint32_t *slots,
+                       const void *const *voxels, const uint32_t *table);
   /* Device time of the last operation, nanoseconds. */
   uint64_t (*last_time_ns)(void *impl);
 } rp_backend_ops;

@@ -80,6 +80,8 @@ typedef struct rp_group_device {
   double depth_ms;      /* its depth pass, wall; 0 when reused */
   uint32_t depth_passes; /* depth passes it ran (0 when reused) */
   double raycast_ms;    /* device time of its raycast */
+  double upload_ms;     /* out of core: device time of the bricks it
+                           uploaded first (not in raycast_ms) */
   double busy_ms;       /* its worker's wall time for the frame: depth
                            pass, raycast, readback */
   uint64_t samples;     /* samples its region took */
@@ -160,6 +162,15 @@ RP_API int rp_device_group_shares(rp_device_group *g,
                                   const rp_frame_probe *p, float step,
                                   float scale, double *shares);
 
+/** Out of core: the time the live devices would spend uploading bricks
+ *  before rendering `cam` and `desc` (rp_device_upload_estimate of the
+ *  whole image times last frame's share; the largest), 0 in core. The
+ *  runtime takes it off the render budget and adds it to the prediction,
+ *  and training leaves measured uploads out of the cost models.
+ *  \since 0.1 */
+RP_API int rp_device_group_upload_ms(rp_device_group *g,
+                                     const rp_camera *cam,
+                                     const rp_render_desc *desc, double *ms);
 /** The frame's predicted time at (step, scale) with those shares: the
  *  slowest device's launch + its share of its whole-frame raycast + its
  *  fixed cost c0. `out->ms` is that; the other fields are the fastest

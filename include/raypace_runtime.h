@@ -91,6 +91,7 @@ typedef struct rp_runtime_counters {
 typedef struct rp_device_frame {
   char name[168];       /* backend:device */
   double raycast_ms;    /* device time of the raycast kernel(s) */
+  double upload_ms;     /* out of core: device time of brick uploads */
   double depth_ms;      /* device depth pass, wall; 0 when reused */
   double readback_ms;   /* its worker's wall time minus the raycast's
                            device time and the depth pass: enqueue and
@@ -148,6 +149,13 @@ typedef struct rp_frame_stats {
                               prediction it made) and the prediction
                               reported above */
   double upscale_ms;       /* the scaled image to the output size */
+  double upload_ms;        /* out of core: bricks uploaded before the
+                              render passes (the device that spent the
+                              most); its prediction, made before the
+                              controller decides and taken off the
+                              passes' budget, is upload_predicted_ms
+                              (also in predicted_ms) */
+  double upload_predicted_ms;
   double train_ms;         /* training on the PREVIOUS frame: it runs
                               after that frame was delivered. Zero when
                               that frame taught nothing: it failed, or

@@ -92,6 +92,7 @@ typedef struct member {
   rp_tile_stats *tiles;
   size_t tiles_cap;
   double depth_ms, raycast_ms, busy_ms;
+  double upload_ms; /* out of core: bricks uploaded for the render */
   uint32_t depth_passes;
   uint64_t samples;
   depth_key key;
@@ -104,7 +105,7 @@ typedef struct member {
   int by_peers;     /* no model yet: deadline from the peers' times */
   int pending, outcome;
   char why[256];
-  double frame_raycast_ms, frame_busy_ms;
+  double frame_raycast_ms, frame_busy_ms, frame_upload_ms;
   uint64_t frame_samples;
   int rendered;     /* rendered a region this frame */
   /* The split's model of the device (see frame_shares): wall ms per unit
@@ -193,6 +194,15 @@ static int do_render(member *w) {
       0)
     return err;
   w->raycast_ms = (double)rp_device_last_time_ns(w->dev) * 1e-6;
+  {
+    /* Bricks uploaded first are no part of the raycast the cost model
+     * learns: the runtime predicts them on their own. */
+    rp_brick_stats st;
+    if (rp_device_get_brick_stats(w->dev, &st) == 0 && st.out_of_core) {
+      w->upload_ms = (double)st.last_upload_ns * 1e-6;
+      w->raycast_ms = fmax(w->raycast_ms - w->upload_ms, 0.0);
+    }
+  }
   for (y = r->y0 / RP_TILE_SIZE; y * RP_TILE_SIZE < r->y1; y++)
     for (x = r->x0 / RP_TILE_SIZE; x * RP_TILE_SIZE < r->x1; x++)
       w->samples += w->tiles[(size_t)y * tx + x].samples;
@@ -204,7 +214,7 @@ static void run_job(member *w, int job) {
   double t0 = now_ms();
   int err = 0;
   rp__clear_error(w->ctx);
-  w->depth_ms = w->raycast_ms = 0.0;
+  w->depth_ms = w->raycast_ms = w->upload_ms = 0.0;
   w->depth_passes = 0;
   w->samples = 0;
   switch (job) {
@@ -877,6 +887,36 @@ int rp_device_group_shares(rp_device_group *g, const rp_frame_probe *p,
   return 0;
 }
 
+int rp_device_group_upload_ms(rp_device_group *g, const rp_camera *cam,
+                              const rp_render_desc *desc, double *ms) {
+  uint32_t i, alive = 0;
+  if (g == NULL)
+    return RP_EINVAL;
+  if (cam == NULL || desc == NULL || ms == NULL)
+    return rp__fail(g->ctx, RP_EINVAL, "rp_device_group_upload_ms: cam, "
+                    "desc and ms are required");
+  *ms = 0.0;
+  for (i = 0; i < g->count; i++)
+    alive += !g->m[i].dropped;
+  for (i = 0; i < g->count; i++) {
+    member *w = &g->m[i];
+    rp_upload_estimate e;
+    double share;
+    int err;
+    if (w->dropped)
+      continue;
+    if ((err = rp_device_upload_estimate(w->dev, cam, desc, NULL, &e)) != 0)
+      return rp__fail(g->ctx, err, "rp_device_group_upload_ms: %s",
+                      rp_last_error(w->ctx));
+    /* Its region is not cut yet: last frame's share of the image's
+     * bricks, an even one before any. */
+    share = g->have_prev ? g->prev_shares[i] : 1.0 / alive;
+    if (e.ms * share > *ms)
+      *ms = e.ms * share;
+  }
+  return 0;
+}
+
 int rp_device_group_predict(rp_device_group *g, const rp_frame_probe *p,
                             float step, float scale, rp_cost_estimate *out) {
   device_cost c[RP_GROUP_MAX_DEVICES];
@@ -1134,10 +1174,12 @@ static int render_round(rp_device_group *g, const rp_camera *cam,
     rd->depth_ms += w->depth_ms;
     rd->depth_passes += w->depth_passes;
     rd->raycast_ms += w->raycast_ms;
+    rd->upload_ms += w->upload_ms;
     rd->busy_ms += w->busy_ms;
     rd->samples += w->samples;
     w->rendered = 1;
     w->frame_raycast_ms += w->raycast_ms;
+    w->frame_upload_ms += w->upload_ms;
     w->frame_busy_ms += w->busy_ms;
     w->frame_samples += w->samples;
   }
@@ -1186,7 +1228,7 @@ int rp_device_group_render(rp_device_group *g, const rp_camera *cam,
     rep->devices[i].dropped = w->dropped;
     rep->devices[i].predicted_ms = NAN;
     w->rendered = 0;
-    w->frame_raycast_ms = w->frame_busy_ms = 0.0;
+    w->frame_raycast_ms = w->frame_busy_ms = w->frame_upload_ms = 0.0;
     w->frame_samples = 0;
   }
   rp_scaled_size(&d, &sw, &sh);
@@ -1360,6 +1402,8 @@ int rp_device_group_train(rp_device_group *g, const rp_frame_probe *p,
             (w->frame_busy_ms - w->frame_raycast_ms);
     if (g->count == 1)
       frame = frame_ms;
+    /* Brick uploads are predicted apart (rp_device_group_upload_ms). */
+    frame = fmax(frame - w->frame_upload_ms, raycast);
     if ((e = rp_cost_train(w->model, p, step, scale, g->last_samples,
                            raycast, frame)) != 0) {
       err = rp__fail(g->ctx, e, "%s: %s", fn, rp_last_error(w->ctx));

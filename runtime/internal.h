@@ -211,6 +211,19 @@ void rp__bin_value_range(const rp__value_range *r, int b, double *lo,
                          double *hi);
 int rp__bin_of(const rp__value_range *r, double value);
 
+/* ---- backend.c ----------------------------------------------------------- */
+
+struct rp_backend_ops;
+/* Opens device `index` of backend `name` as rp_device_create would choose
+ * it (NULL: RP_BACKEND, else the first backend with that device), but
+ * bare: its ops and impl without a front end, for a server running a
+ * backend's ops on another process's behalf (backends/mpi). Neither the
+ * reference (no ops) nor a named-only backend can be opened so
+ * (RP_EUNSUPPORTED). The caller destroys it with ops->destroy(impl). */
+int rp__backend_open(rp_context *ctx, const char *name, uint32_t index,
+                     const struct rp_backend_ops **ops, void **impl,
+                     rp_caps *caps);
+
 /* ---- png.c ------------------------------------------------------------- */
 
 int rp__png_write_rgb(rp_context *ctx, const char *path, const uint8_t *rgb,

@@ -438,7 +438,7 @@ static int render_pass(rp_runtime *rt, double rho, double *pass_ms) {
   rp_render_desc d = {0};
   rp_group_report rep;
   uint32_t sw, sh, tx, ty, i;
-  double t0 = now_ms(), t2;
+  double t0 = now_ms(), t2, pass_upload = 0.0;
   int err, depth = 0;
   rp_space_map(&rt->space, rho, &st->step, &st->scale);
   d.width = s->width;
@@ -469,9 +469,13 @@ static int render_pass(rp_runtime *rt, double rho, double *pass_ms) {
     const rp_group_device *gd = &rep.devices[i];
     snprintf(df->name, sizeof df->name, "%s", gd->name);
     df->raycast_ms += gd->raycast_ms;
+    df->upload_ms += gd->upload_ms;
     df->depth_ms += gd->depth_ms;
     df->busy_ms += gd->busy_ms;
-    df->readback_ms += gd->busy_ms - gd->raycast_ms - gd->depth_ms;
+    df->readback_ms +=
+        gd->busy_ms - gd->raycast_ms - gd->upload_ms - gd->depth_ms;
+    if (gd->upload_ms > pass_upload)
+      pass_upload = gd->upload_ms;
     df->rows += gd->region.y1 - gd->region.y0;
     df->samples += gd->samples;
     df->share = gd->share;
@@ -482,6 +486,7 @@ static int render_pass(rp_runtime *rt, double rho, double *pass_ms) {
     df->dropped = gd->dropped;
     depth |= gd->depth_passes > 0;
   }
+  st->upload_ms += pass_upload;
   if (depth)
     count(rt, &rt->counters.device_depth);
   if (err != 0)
@@ -506,7 +511,24 @@ static int render_pass(rp_runtime *rt, double rho, double *pass_ms) {
   rt->job_train.scale = st->scale;
   *pass_ms = now_ms() - t0;
   rt->job_train.pass_ms = *pass_ms;
+  /* The controller holds the passes to a budget the predicted upload
+   * was already taken off. */
+  *pass_ms = fmax(*pass_ms - pass_upload, 0.0);
   return 0;
+}
+
+/* Out of core: the predicted brick uploads of the coming render (0 in
+ * core, or when the estimate fails: the frame then only runs late). */
+static double predicted_upload_ms(rp_runtime *rt) {
+  scene *s = &rt->s;
+  rp_render_desc d = {0};
+  double ms = 0.0;
+  d.width = s->width;
+  d.height = s->height;
+  d.effects = frame_effects(s);
+  if (rp_device_group_upload_ms(rt->group, &s->cam, &d, &ms) != 0)
+    return 0.0;
+  return ms;
 }
 
 /* The least share of the target a frame's render passes are given when
@@ -524,9 +546,11 @@ static int render_frame(rp_runtime *rt) {
   scene *s = &rt->s;
   rp_frame_stats *st = &rt->stats;
   rp_cost_estimate est;
-  double rho, t0, pass_ms = 0.0, budget;
+  double rho, t0, pass_ms = 0.0, budget, upload_before = 0.0;
   double spent = now_ms() - rt->worker_begin;
   int err, again = 1;
+  st->upload_predicted_ms = predicted_upload_ms(rt);
+  spent += st->upload_predicted_ms;
   budget = s->target_ms - spent;
   if (budget < MIN_RENDER_SHARE * s->target_ms)
     budget = MIN_RENDER_SHARE * s->target_ms;
@@ -544,6 +568,7 @@ static int render_frame(rp_runtime *rt) {
                            ? est.ms
                            : NAN;
     st->predict_ms += now_ms() - t0;
+    upload_before = st->upload_ms;
     if ((err = render_pass(rt, rho, &pass_ms)) != 0) {
       /* The controller's frame stays open otherwise; its history goes
        * with it, which is right after a device failed. */
@@ -559,7 +584,11 @@ static int render_frame(rp_runtime *rt) {
     }
   }
   st->measured_ms = now_ms() - rt->worker_begin;
-  st->predicted_ms += st->measured_ms - pass_ms; /* what was known */
+  /* What was known: the time spent before the last pass, and its
+   * predicted upload (the last pass's measured one is not known). */
+  st->predicted_ms += st->measured_ms - pass_ms -
+                      (st->upload_ms - upload_before) +
+                      st->upload_predicted_ms;
   st->delta = st->predicted_ms > 0.0
                   ? st->measured_ms / st->predicted_ms - 1.0
                   : NAN;

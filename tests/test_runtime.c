@@ -550,6 +550,62 @@ static void test_several_devices(void **state) {
   rp_context_destroy(a.ctx);
 }
 
+/* Out of core (M8): a device with half the volume's memory. Every frame
+ * uploads bricks and predicted it would before it started; the upload
+ * is reported apart from the raycast. (That the predicted bytes are the
+ * uploaded ones is test_bricks'.) */
+static void test_out_of_core(void **state) {
+  app a;
+  rp_device_desc dd = {0};
+  rp_volume *vol;
+  rp_tf *tf;
+  rp_camera cam, back;
+  uint32_t n = 0;
+  int f;
+  (void)state;
+  memset(&a, 0, sizeof a);
+  {
+    rp_context *probe = rp_test_context();
+    int none = rp_device_count(probe, "opencl", &n) != 0 || n == 0;
+    rp_context_destroy(probe);
+    if (none)
+      skip();
+  }
+  dd.backend = "opencl";
+  dd.budget_bytes = 64 * 64 * 64 / 2;
+  dd.brick_size = 8;
+  app_open_devices(&a, &dd, 1);
+  vol = make_volume(a.ctx, 64, 3);
+  cam = orbit(vol, 30.0f);
+  back = orbit(vol, 210.0f);
+  tf = post_scene(a.rt, a.ctx, vol, "ct-bone", &cam);
+  for (f = 0; f < 3; f++) {
+    (void)frame(&a);
+    if (a.s.last.status != 0)
+      fail_msg("frame %d: %s", f, a.s.last.error);
+    if (f == 0) {
+      assert_true(a.s.last.upload_ms > 0.0);
+      assert_true(a.s.last.upload_predicted_ms > 0.0);
+      assert_true(a.s.last.devices[0].upload_ms > 0.0);
+    } else {
+      /* Half the volume holds less than the view needs: the frame is cut
+       * into parts that evict each other's bricks, every frame, and the
+       * prediction knows it. */
+      assert_true(a.s.last.upload_ms > 0.0);
+      assert_true(a.s.last.upload_predicted_ms > 0.0);
+    }
+    assert_true(isfinite(a.s.last.predicted_ms));
+  }
+  assert_int_equal(rp_runtime_set_camera(a.rt, &back), 0);
+  (void)frame(&a);
+  assert_int_equal(a.s.last.status, 0);
+  assert_true(a.s.last.upload_predicted_ms > 0.0);
+  assert_true(a.s.last.upload_ms > 0.0);
+  app_close(&a);
+  rp_tf_destroy(tf);
+  rp_context_destroy(a.ctx);
+}
+
 static void *other_alloc(size_t size, void *user) {
   (void)user;
   return malloc(size);
@@ -839,6 +895,7 @@ int main(void) {
       cmocka_unit_test(test_ao_only_when_on),
       cmocka_unit_test(test_ao_in_steps),
       cmocka_unit_test(test_several_devices),
+      cmocka_unit_test(test_out_of_core),
       cmocka_unit_test(test_volume_other_allocator),
       cmocka_unit_test(test_close_in_flight),
       cmocka_unit_test(test_timer_pacing),

@@ -47,8 +47,8 @@
 #define RP_CL_VOLUME_PAD 16
 
 /* The kernel's rp_cl_frame mirrors rp_frame_params field by field. */
-_Static_assert(sizeof(rp_frame_params) == 45 * 4,
-               "rp_frame_params must stay 45 packed 4-byte fields");
+_Static_assert(sizeof(rp_frame_params) == 51 * 4,
+               "rp_frame_params must stay 51 packed 4-byte fields");
 _Static_assert(sizeof(rp_tile_stats) == 12,
                "rp_tile_stats must match the kernel's rp_cl_tile");
 _Static_assert(sizeof(rp_cl_ao_args) == 24 * 4,
@@ -73,13 +73,14 @@ static void key_options(rp_cl_kind kind, uint32_t key, char *buf,
   if (kind != RP_CL_RAYCAST && kind != RP_CL_AO)
     type = 0;
   snprintf(buf, n,
-           "-cl-std=CL1.2 -cl-mad-enable%s%s%s%s%s -DRP_VOXEL_T=%s "
+           "-cl-std=CL1.2 -cl-mad-enable%s%s%s%s%s%s -DRP_VOXEL_T=%s "
            "-DRP_VOXEL_BYTES=%d -DRP_INDEX_T=%s -DRP_CL_W=%d",
            (key & RP_EFFECT_SHADING) ? " -DRP_SHADING" : "",
            (key & RP_EFFECT_ERT) ? " -DRP_ERT" : "",
            (key & RP_EFFECT_SKIP) ? " -DRP_SKIP" : "",
            (key & RP_EFFECT_AO) ? " -DRP_AO" : "",
            (key & RP_CL_KEY_COUNT) ? " -DRP_COUNT_FETCHES" : "",
+           (key & RP_CL_KEY_BRICKED) ? " -DRP_BRICKED" : "",
            types[type], bytes[type], (key & RP_CL_KEY_BIG) ? "long" : "int",
            RP_CL_PACKET);
 }
@@ -318,6 +319,7 @@ static void cl_destroy(void *p) {
   for (i = 0; i < RP_CL_CACHE_SIZE; i++)
     release_program(&impl->cache[i]);
   release_buffer(&impl->volume);
+  release_buffer(&impl->brick_table);
   release_buffer(&impl->lut);
   release_buffer(&impl->grid);
   release_buffer(&impl->alpha_hist);
@@ -327,6 +329,7 @@ static void cl_destroy(void *p) {
   release_buffer(&impl->rgba);
   release_buffer(&impl->tiles);
   release_buffer(&impl->fetches);
+  release_buffer(&impl->slab_state);
   rp_cl__close(impl);
   rp__free(impl->ctx, impl);
 }
@@ -337,6 +340,8 @@ static int cl_upload_volume(void *p, const rp_volume *vol) {
   int rc = upload(impl, &impl->volume, vol->data, bytes, RP_CL_VOLUME_PAD,
                   "the volume");
   if (rc == 0) {
+    release_buffer(&impl->brick_table);
+    impl->bricked = 0;
     memcpy(impl->dims, vol->dims, sizeof impl->dims);
     impl->voxels = vol->voxel_count;
     impl->voxel_type = vol->type;
@@ -429,6 +434,7 @@ static uint32_t raycast_key(const rp_cl_impl *impl, uint32_t effects,
                             int count) {
   return (effects & RP_CL_EFFECT_BITS) | (count ? RP_CL_KEY_COUNT : 0u) |
          (impl->big_volume ? RP_CL_KEY_BIG : 0u) |
+         (impl->bricked ? RP_CL_KEY_BRICKED : 0u) |
          ((uint32_t)impl->voxel_type << RP_CL_KEY_TYPE_SHIFT);
 }
 
@@ -460,6 +466,11 @@ static int cl_raycast(void *p, const rp_frame_params *fp, const rp_region *r,
       impl->front_back.mem == NULL)
     return rp__fail(impl->ctx, RP_ESTATE, "opencl: raycast before the "
                     "volume, transfer function or depth pass");
+  if ((fp->brick_shift != 0) != impl->bricked)
+    return rp__fail(impl->ctx, RP_ESTATE, "opencl: raycast %s a brick "
+                    "table, but the device holds %s", fp->brick_shift != 0
+                    ? "through" : "without", impl->bricked
+                    ? "a brick pool" : "the whole volume");
   if ((fp->effects & RP_EFFECT_AO) &&
       (impl->ao.mem == NULL || impl->ao_voxels != impl->voxels))
     return rp__fail(impl->ctx, RP_ESTATE, "opencl: raycast with "
@@ -474,7 +485,11 @@ static int cl_raycast(void *p, const rp_frame_params *fp, const rp_region *r,
                           CL_MEM_WRITE_ONLY, "the tile stats")) != 0 ||
       (fetches != NULL &&
        (rc = ensure_buffer(impl, &impl->fetches, tw * th * sizeof *fetches,
-                           CL_MEM_WRITE_ONLY, "the fetch counts")) != 0))
+                           CL_MEM_WRITE_ONLY, "the fetch counts")) != 0) ||
+      (impl->bricked && fp->slab_flags != (RP_SLAB_FIRST | RP_SLAB_LAST) &&
+       (rc = ensure_buffer(impl, &impl->slab_state,
+                           rw * rh * 8 * sizeof(float), CL_MEM_READ_WRITE,
+                           "the depth slabs' ray state")) != 0))
     return rc;
   if ((rc = set_arg(impl, k, 0, sizeof *fp, fp, name)) != 0)
     return rc;
@@ -489,8 +504,13 @@ static int cl_raycast(void *p, const rp_frame_params *fp, const rp_region *r,
       (rc = set_mem(impl, k, 10, &impl->tiles, name)) != 0 ||
       (rc = set_mem(impl, k, 11, &impl->fetches, name)) != 0 ||
       (rc = set_mem(impl, k, 12, &impl->ao, name)) != 0 ||
+      (rc = set_mem(impl, k, 13, &impl->brick_table, name)) != 0 ||
+      (rc = set_mem(impl, k, 14, &impl->slab_state, name)) != 0 ||
       (rc = launch_tiles(impl, k, rw, rh, name)) != 0)
     return rc;
+  /* A slab before the last leaves its rays' state on the device. */
+  if (impl->bricked && !(fp->slab_flags & RP_SLAB_LAST))
+    return 0;
   if ((rc = read_rect(impl, &impl->rgba, rgba, (size_t)r->x0 * 4, r->y0,
                       rw * 4, rh, (size_t)fp->width * 4, "the image")) != 0)
     return rc;
@@ -537,9 +557,12 @@ static int cl_compute_ao(void *p, const rp_ao_job *job, uint8_t *out) {
   cl_kernel k;
   int rc, i;
   impl->last_ns = 0;
-  if (impl->volume.mem == NULL || impl->lut.mem == NULL)
-    return rp__fail(impl->ctx, RP_ESTATE, "opencl: compute_ao before the "
-                    "volume or transfer function");
+  if (impl->volume.mem == NULL || impl->lut.mem == NULL || impl->bricked)
+    return rp__fail(impl->ctx, RP_ESTATE, "opencl: compute_ao %s",
+                    impl->bricked ? "on a brick pool (AO needs the whole "
+                                    "volume)"
+                                  : "before the volume or transfer "
+                                    "function");
   for (i = 0; i < 3; i++)
     n[i] = job->end[i] > job->lo[i] ? job->end[i] - job->lo[i] : 0;
   total = n[0] * n[1] * n[2];
@@ -610,9 +633,9 @@ static int cl_upload_ao(void *p, const uint8_t *ao) {
     impl->last_ns = 0;
     return 0;
   }
-  if (impl->volume.mem == NULL)
-    return rp__fail(impl->ctx, RP_ESTATE, "opencl: upload_ao before the "
-                    "volume");
+  if (impl->volume.mem == NULL || impl->bricked)
+    return rp__fail(impl->ctx, RP_ESTATE, "opencl: upload_ao %s",
+                    impl->bricked ? "on a brick pool" : "before the volume");
   /* Padded as the volume is: trilinear reads bytes in 32-bit words. */
   rc = upload(impl, &impl->ao, ao, impl->voxels, RP_CL_VOLUME_PAD,
               "the AO volume");
@@ -621,14 +644,135 @@ static int cl_upload_ao(void *p, const uint8_t *ao) {
   return rc;
 }
 
+/* ---- out-of-core ---------------------------------------------------------- */
+
+static int cl_set_brick_pool(void *p, const rp_brick_pool *pool) {
+  rp_cl_impl *impl = p;
+  static const uint32_t zero = 0;
+  size_t s, count, bytes, padded;
+  cl_int err;
+  int rc;
+  impl->last_ns = 0;
+  release_buffer(&impl->volume);
+  release_buffer(&impl->brick_table);
+  release_buffer(&impl->ao);
+  impl->ao_voxels = 0;
+  impl->bricked = 0;
+  impl->voxels = 0;
+  if (pool == NULL)
+    return 0;
+  s = (size_t)pool->brick_size + 1;
+  count = (size_t)pool->grid[0] * pool->grid[1] * pool->grid[2];
+  impl->brick_bytes = s * s * s * rp__voxel_size(pool->type);
+  bytes = impl->brick_bytes * pool->slots;
+  /* Padded as the whole volume is (voxel pairs are read as words), and
+   * to the fill pattern's size. */
+  padded = round_up(bytes + RP_CL_VOLUME_PAD, sizeof zero);
+  if ((rc = ensure_buffer(impl, &impl->volume, padded, CL_MEM_READ_ONLY,
+                          "the brick pool")) != 0 ||
+      (rc = ensure_buffer(impl, &impl->brick_table, count * sizeof zero,
+                          CL_MEM_READ_ONLY, "the brick table")) != 0)
+    return rc;
+  /* Every brick starts in slot 0 (the transparent one), and the pad is
+   * defined. */
+  err = clEnqueueFillBuffer(impl->queue, impl->brick_table.mem, &zero,
+                            sizeof zero, 0, count * sizeof zero, 0, NULL,
+                            NULL);
+  if (err == CL_SUCCESS)
+    err = clEnqueueFillBuffer(impl->queue, impl->volume.mem, &zero,
+                              sizeof zero, 0, padded, 0, NULL, NULL);
+  if (err == CL_SUCCESS)
+    err = clFinish(impl->queue);
+  if (err != CL_SUCCESS)
+    return rp_cl__fail(impl->ctx, err, "clearing the brick pool");
+  memcpy(impl->dims, pool->dims, sizeof impl->dims);
+  impl->voxel_type = pool->type;
+  impl->brick_count = count;
+  impl->bricked = 1;
+  impl->big_volume =
+      bytes / rp__voxel_size(pool->type) + RP_CL_VOLUME_PAD >= 0x7fffffffu;
+  return 0;
+}
+
+/* Keeps the first and the latest of a run of events. */
+static void keep_event(cl_event ev, cl_event *first, cl_event *last) {
+  if (*first == NULL) {
+    *first = ev;
+    return;
+  }
+  if (*last != NULL)
+    clReleaseEvent(*last);
+  *last = ev;
+}
+
+static int cl_upload_bricks(void *p, uint32_t count, const uint32_t *slots,
+                            const void *const *voxels,
+                            const uint32_t *table) {
+  rp_cl_impl *impl = p;
+  cl_event first = NULL, last = NULL, ev;
+  cl_ulong t0 = 0, t1 = 0;
+  cl_int err = CL_SUCCESS, done;
+  uint32_t i;
+  impl->last_ns = 0;
+  if (!impl->bricked)
+    return rp__fail(impl->ctx, RP_ESTATE, "opencl: upload_bricks without "
+                    "a brick pool");
+  /* Non-blocking writes on the in-order queue; the first and the last
+   * event bound the device time of them all. */
+  for (i = 0; i < count && err == CL_SUCCESS; i++) {
+    ev = NULL;
+    err = clEnqueueWriteBuffer(impl->queue, impl->volume.mem, CL_FALSE,
+                               (size_t)slots[i] * impl->brick_bytes,
+                               impl->brick_bytes, voxels[i], 0, NULL, &ev);
+    if (err == CL_SUCCESS)
+      keep_event(ev, &first, &last);
+  }
+  if (err == CL_SUCCESS && table != NULL) {
+    ev = NULL;
+    err = clEnqueueWriteBuffer(impl->queue, impl->brick_table.mem, CL_FALSE,
+                               0, impl->brick_count * sizeof *table, table, 0,
+                               NULL, &ev);
+    if (err == CL_SUCCESS)
+      keep_event(ev, &first, &last);
+  }
+  /* The host's bricks must stay put until every write is done, failed
+   * or not. */
+  done = clFinish(impl->queue);
+  if (err == CL_SUCCESS)
+    err = done;
+  if (err == CL_SUCCESS && first != NULL) {
+    clGetEventProfilingInfo(first, CL_PROFILING_COMMAND_START, sizeof t0,
+                            &t0, NULL);
+    clGetEventProfilingInfo(last != NULL ? last : first,
+                            CL_PROFILING_COMMAND_END, sizeof t1, &t1, NULL);
+    impl->last_ns = t1 > t0 ? t1 - t0 : 0;
+  }
+  if (first != NULL)
+    clReleaseEvent(first);
+  if (last != NULL)
+    clReleaseEvent(last);
+  if (err != CL_SUCCESS)
+    return rp_cl__fail(impl->ctx, err, "writing bricks to the pool");
+  return 0;
+}
+
 static uint64_t cl_last_time_ns(void *p) {
   return ((const rp_cl_impl *)p)->last_ns;
 }
 
 static const rp_backend_ops cl_ops = {
-    cl_destroy,    cl_upload_volume, cl_upload_tf,  cl_upload_occupancy,
-    cl_depth_pass, cl_ert_prepass,   cl_raycast,    cl_compute_ao,
-    cl_upload_ao,  cl_last_time_ns};
+    .destroy = cl_destroy,
+    .upload_volume = cl_upload_volume,
+    .upload_tf = cl_upload_tf,
+    .upload_occupancy = cl_upload_occupancy,
+    .depth_pass = cl_depth_pass,
+    .ert_prepass = cl_ert_prepass,
+    .raycast = cl_raycast,
+    .compute_ao = cl_compute_ao,
+    .upload_ao = cl_upload_ao,
+    .set_brick_pool = cl_set_brick_pool,
+    .upload_bricks = cl_upload_bricks,
+    .last_time_ns = cl_last_time_ns};
 
 /* ---- bootstrap ----------------------------------------------------------- */
 

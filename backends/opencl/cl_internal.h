@@ -27,7 +27,8 @@ typedef enum rp_cl_kind {
  * only). */
 #define RP_CL_KEY_COUNT (1u << 8)
 #define RP_CL_KEY_BIG (1u << 9) /* 2^31 voxels or more: 64-bit indices */
-#define RP_CL_KEY_TYPE_SHIFT 10
+#define RP_CL_KEY_TYPE_SHIFT 10 /* two bits */
+#define RP_CL_KEY_BRICKED (1u << 12) /* the volume is a brick pool */
 #define RP_CL_CACHE_SIZE 32
 
 typedef struct rp_cl_program {
@@ -73,9 +74,15 @@ typedef struct rp_cl_impl {
   uint32_t dims[3];         /* of the uploaded volume */
   size_t voxels;            /* its voxel count */
   size_t ao_voxels;         /* the AO volume's, when one is uploaded */
+  /* Out-of-core: `volume` holds the pool, brick_table its table. */
+  int bricked;
+  size_t brick_bytes;       /* one stored brick */
+  size_t brick_count;       /* entries of the table */
+  rp_cl_buffer brick_table;
   rp_cl_buffer volume, lut, grid, alpha_hist;
   rp_cl_buffer ao; /* the AO volume (RP_EFFECT_AO); none when AO is off */
   rp_cl_buffer front_back, d_ert, rgba, tiles, fetches;
+  rp_cl_buffer slab_state; /* out-of-core depth slabs: 8 floats a pixel */
   uint64_t last_ns;
 } rp_cl_impl;
 

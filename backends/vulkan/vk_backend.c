@@ -29,7 +29,15 @@
  *   in slabs of whole bricks, through buffers that live only during the
  *   call; upload_ao keeps one byte per voxel in an R8 texel buffer that
  *   the raycast's RP_AO variant reads, and nothing AO-sized while no AO
- *   volume is uploaded (its binding then holds the 256-byte stand-in). */
+ *   volume is uploaded (its binding then holds the 256-byte stand-in).
+ * - Out-of-core (set_brick_pool, upload_bricks): the volume binding holds
+ *   a pool of bricks in the plain layout (the quad one would take four
+ *   times the memory budget the pool was sized to), and an R32 texel
+ *   buffer the slot of each brick; the raycast's RP_BRICKED variant reads
+ *   through it and gives the in-core floats (kernels/common.glsl). A
+ *   region cast in depth slabs keeps 32 bytes of ray state per pixel in
+ *   a device-local buffer from pass to pass; only the last pass writes
+ *   the outputs and is read back (kernels/raycast.comp). */
 #include <math.h>
 #include <stdio.h>
 #include <string.h>
@@ -56,10 +64,18 @@ static const struct {
     {"ao", rp_vk_spv_ao, sizeof rp_vk_spv_ao},
 };
 
-_Static_assert(sizeof(rp_vk_params) == 288,
+_Static_assert(sizeof(rp_vk_params) == 320,
                "rp_vk_params must match the Params block in common.glsl");
 
 static const rp_backend_ops vk_ops;
+
+/* Texel formats of the volume per rp_voxel_type: one voxel per texel
+ * (plain), or the 2x2 footprint of the quad layout. */
+static const VkFormat plain_fmt[4] = {VK_FORMAT_UNDEFINED, VK_FORMAT_R8_UINT,
+                                      VK_FORMAT_R16_UINT, VK_FORMAT_R32_UINT};
+static const VkFormat quad_fmt[4] = {
+    VK_FORMAT_UNDEFINED, VK_FORMAT_R8G8B8A8_UINT, VK_FORMAT_R16G16B16A16_UINT,
+    VK_FORMAT_R32G32B32A32_UINT};
 
 static uint64_t now_ns(void) {
   struct timespec ts;
@@ -113,7 +129,8 @@ static int make_modules(rp_vk_impl *impl) {
 static int is_texel(int binding) {
   return (binding >= RP_VK_BIND_VOLUME && binding <= RP_VK_BIND_ALPHA) ||
          binding == RP_VK_BIND_AO || binding == RP_VK_BIND_AO_DIRS ||
-         binding == RP_VK_BIND_AO_BRICKS;
+         binding == RP_VK_BIND_AO_BRICKS ||
+         binding == RP_VK_BIND_BRICK_TABLE;
 }
 
 static int make_layout(rp_vk_impl *impl) {
@@ -200,7 +217,7 @@ static void bind_all(rp_vk_impl *impl) {
       &impl->params, &impl->volume, &impl->lut,    &impl->grid,
       &impl->alpha,  &impl->depth,  &impl->image,  &impl->tiles,
       &impl->ert,    &impl->ao,     &impl->ao_out, &impl->ao_dirs,
-      &impl->ao_bricks};
+      &impl->ao_bricks, &impl->brick_table, &impl->slab_state};
   VkDescriptorBufferInfo info[RP_VK_BIND_COUNT];
   VkWriteDescriptorSet w[RP_VK_BIND_COUNT];
   VkBufferView views[RP_VK_BIND_COUNT];
@@ -216,6 +233,8 @@ static void bind_all(rp_vk_impl *impl) {
   views[RP_VK_BIND_AO_DIRS] = view_or(impl->ao_dirs_view, impl->dummy_f_view);
   views[RP_VK_BIND_AO_BRICKS] =
       view_or(impl->ao_bricks_view, impl->dummy_u_view);
+  views[RP_VK_BIND_BRICK_TABLE] =
+      view_or(impl->brick_table_view, impl->dummy_u_view);
   for (i = 0; i < RP_VK_BIND_COUNT; i++) {
     const rp_vk_buffer *b = bufs[i];
     w[i].sType = VK_STRUCTURE_TYPE_WRITE_DESCRIPTOR_SET;
@@ -280,6 +299,7 @@ static void vk_destroy(void *p) {
     free_view(impl, &impl->ao_view);
     free_view(impl, &impl->ao_dirs_view);
     free_view(impl, &impl->ao_bricks_view);
+    free_view(impl, &impl->brick_table_view);
     free_view(impl, &impl->dummy_u_view);
     free_view(impl, &impl->dummy_f_view);
     rp_vk__buffer_free(impl, &impl->params);
@@ -295,6 +315,8 @@ static void vk_destroy(void *p) {
     rp_vk__buffer_free(impl, &impl->ao_out);
     rp_vk__buffer_free(impl, &impl->ao_dirs);
     rp_vk__buffer_free(impl, &impl->ao_bricks);
+    rp_vk__buffer_free(impl, &impl->brick_table);
+    rp_vk__buffer_free(impl, &impl->slab_state);
     rp_vk__buffer_free(impl, &impl->dummy);
     if (impl->desc_pool != VK_NULL_HANDLE)
       vkDestroyDescriptorPool(impl->dev, impl->desc_pool, NULL);
@@ -360,6 +382,7 @@ static uint32_t pipeline_key(rp_vk_kernel k, const rp_frame_params *p,
     key |= counting ? RP_VK_KEY_COUNT : 0;
     key |= quad ? RP_VK_KEY_QUAD : 0;
     key |= (uint32_t)type << RP_VK_KEY_TYPE_SHIFT;
+    key |= p->brick_shift != 0 ? RP_VK_KEY_BRICKED : 0;
   } else if (k == RP_VK_DEPTH) {
     key |= effects & RP_EFFECT_SKIP;
   }
@@ -407,6 +430,7 @@ static int get_pipeline(rp_vk_impl *impl, uint32_t key, VkPipeline *out) {
     values[RP_VK_SPEC_VOXEL] = RP_U8;
   values[RP_VK_SPEC_QUAD] = (key & RP_VK_KEY_QUAD) != 0;
   values[RP_VK_SPEC_CORRECT] = (key & RP_VK_KEY_CORRECT) != 0;
+  values[RP_VK_SPEC_BRICKED] = (key & RP_VK_KEY_BRICKED) != 0;
   for (i = 0; i < RP_VK_SPEC_TOTAL; i++) {
     map[i].constantID = i;
     map[i].offset = i * (uint32_t)sizeof(uint32_t);
@@ -684,13 +708,21 @@ static void drop_ao(rp_vk_impl *impl) {
   bind_all(impl);
 }
 
+/* Releases the volume, whole or a brick pool, and its table. The caller
+ * rebinds. */
+static void drop_volume(rp_vk_impl *impl) {
+  free_view(impl, &impl->volume_view);
+  rp_vk__buffer_free(impl, &impl->volume);
+  free_view(impl, &impl->brick_table_view);
+  rp_vk__buffer_free(impl, &impl->brick_table);
+  impl->bricked = 0;
+  impl->brick_slots = impl->brick_count = 0;
+  impl->brick_bytes = 0;
+  impl->voxel_type = 0;
+  impl->depth_ok = 0;
+}
+
 static int vk_upload_volume(void *p, const rp_volume *vol) {
-  static const VkFormat quad_fmt[4] = {
-      VK_FORMAT_UNDEFINED, VK_FORMAT_R8G8B8A8_UINT,
-      VK_FORMAT_R16G16B16A16_UINT, VK_FORMAT_R32G32B32A32_UINT};
-  static const VkFormat plain_fmt[4] = {VK_FORMAT_UNDEFINED,
-                                        VK_FORMAT_R8_UINT, VK_FORMAT_R16_UINT,
-                                        VK_FORMAT_R32_UINT};
   rp_vk_impl *impl = p;
   rp_context *ctx = impl->ctx;
   uint64_t n = vol->voxel_count, es = rp__voxel_size(vol->type);
@@ -712,10 +744,7 @@ static int vk_upload_volume(void *p, const rp_volume *vol) {
   quad = !rp_vk_hooks.force_plain && format_ok(impl, quad_fmt[vol->type]) &&
          4 * es * n <= impl->max_alloc && 4 * es * n <= quad_budget(impl);
 
-  free_view(impl, &impl->volume_view);
-  rp_vk__buffer_free(impl, &impl->volume);
-  impl->voxel_type = 0;
-  impl->depth_ok = 0;
+  drop_volume(impl);
   /* An AO volume is one byte per voxel of the volume it was uploaded
    * for: it cannot survive a change of shape (whether it still fits the
    * new voxels is the front end's to judge). */
@@ -737,8 +766,7 @@ static int vk_upload_volume(void *p, const rp_volume *vol) {
                     quad ? quad_fmt[vol->type] : plain_fmt[vol->type],
                     &impl->volume_view);
   if (err != 0) {
-    free_view(impl, &impl->volume_view);
-    rp_vk__buffer_free(impl, &impl->volume);
+    drop_volume(impl);
     drop_ao(impl);
     bind_all(impl);
     return err;
@@ -891,6 +919,11 @@ static void set_params(rp_vk_impl *impl, const rp_frame_params *p) {
   u->misc[2] = gh;
   u->seed[0] = p->ert_seed;
   u->seed[1] = p->frame;
+  for (a = 0; a < 3; a++)
+    u->brick[a] = p->brick_grid[a];
+  u->brick[3] = p->brick_shift;
+  u->slab[0] = p->slab_flags;
+  memcpy(&u->slab[1], &p->slab_cut, sizeof(float));
 }
 
 /* The region a dispatch covers. Each operation records its dispatches
@@ -935,6 +968,13 @@ static int depth_current(const rp_vk_impl *impl, const rp_frame_params *p) {
   a.lut_size = b.lut_size = 0;
   a.value_min = b.value_min = 0.0f;
   a.value_max = b.value_max = 0.0f;
+  /* The depth pass reads the block grid, never the volume. */
+  a.brick_shift = b.brick_shift = 0;
+  memset(a.brick_grid, 0, sizeof a.brick_grid);
+  memset(b.brick_grid, 0, sizeof b.brick_grid);
+  /* Every depth slab of a region reuses the frame's depth pass. */
+  a.slab_cut = b.slab_cut = 0.0f;
+  a.slab_flags = b.slab_flags = 0;
   a.effects &= RP_EFFECT_SKIP;
   b.effects &= RP_EFFECT_SKIP;
   return memcmp(&a, &b, sizeof a) == 0;
@@ -1025,11 +1065,21 @@ static int vk_raycast(void *ip, const rp_frame_params *p, const rp_region *r,
   uint32_t ntx = div_up(rw, RP_TILE_SIZE), nty = div_up(rh, RP_TILE_SIZE);
   uint32_t tiles_x, tx, ty, y;
   int skip = (p->effects & RP_EFFECT_SKIP) != 0, redo_depth, err;
+  /* Out-of-core depth slabs: a pass of several keeps its rays' state on
+   * the device, and only the last writes (and reads back) the outputs. */
+  int slabs = impl->bricked &&
+              p->slab_flags != (RP_SLAB_FIRST | RP_SLAB_LAST);
+  int last_slab = !impl->bricked || (p->slab_flags & RP_SLAB_LAST) != 0;
   VkPipeline cast = VK_NULL_HANDLE, depth = VK_NULL_HANDLE;
   const uint32_t *tile_words;
   const uint8_t *px;
   if ((err = alive(impl)) != 0)
     return err;
+  if ((p->brick_shift != 0) != impl->bricked)
+    return rp__fail(impl->ctx, RP_ESTATE, "vulkan: raycast %s a brick "
+                    "table, but the device holds %s",
+                    p->brick_shift != 0 ? "through" : "without",
+                    impl->bricked ? "a brick pool" : "the whole volume");
   if ((p->effects & RP_EFFECT_AO) && impl->ao.buf == VK_NULL_HANDLE)
     return rp__fail(impl->ctx, RP_ESTATE, "vulkan: a raycast with "
                     "RP_EFFECT_AO needs an AO volume, and none is uploaded "
@@ -1049,6 +1099,9 @@ static int vk_raycast(void *ip, const rp_frame_params *p, const rp_region *r,
       (err = ensure(impl, &impl->tiles, "tile statistics",
                     (VkDeviceSize)ntx * nty * 4 * sizeof(uint32_t),
                     VK_BUFFER_USAGE_STORAGE_BUFFER_BIT, 1)) != 0 ||
+      (slabs && (err = ensure(impl, &impl->slab_state, "depth slabs' ray "
+                              "state", (VkDeviceSize)rw * rh * 32,
+                              VK_BUFFER_USAGE_STORAGE_BUFFER_BIT, 0)) != 0) ||
       (err = get_pipeline(impl,
                           pipeline_key(RP_VK_RAYCAST, p, fetches != NULL,
                                        impl->voxel_type, impl->quad),
@@ -1076,6 +1129,9 @@ static int vk_raycast(void *ip, const rp_frame_params *p, const rp_region *r,
     impl->depth_gen = impl->occupancy_gen;
     impl->depth_ok = 1;
   }
+  /* A slab before the last leaves its rays' state on the device. */
+  if (!last_slab)
+    return 0;
 
   px = impl->image.map;
   for (y = 0; y < rh; y++)
@@ -1121,6 +1177,9 @@ static int vk_upload_ao(void *p, const uint8_t *ao) {
   if (impl->voxel_type == 0)
     return rp__fail(impl->ctx, RP_ESTATE, "vulkan: an AO volume needs the "
                     "volume it belongs to uploaded first");
+  if (impl->bricked)
+    return rp__fail(impl->ctx, RP_ESTATE, "vulkan: upload_ao on a brick "
+                    "pool (AO needs the whole volume on the device)");
   if (!format_ok(impl, VK_FORMAT_R8_UINT))
     return rp__fail(impl->ctx, RP_EUNSUPPORTED, "vulkan: device cannot "
                     "read bytes from a texel buffer (AO volume)");
@@ -1232,6 +1291,9 @@ static int check_ao_job(rp_vk_impl *impl, const rp_ao_job *job) {
   if (impl->voxel_type == 0 || !impl->have_lut)
     return rp__fail(impl->ctx, RP_ESTATE, "vulkan: compute_ao needs the "
                     "volume and the transfer function uploaded");
+  if (impl->bricked)
+    return rp__fail(impl->ctx, RP_ESTATE, "vulkan: compute_ao on a brick "
+                    "pool (AO needs the whole volume on the device)");
   for (a = 0; a < 3; a++) {
     if (job->lo[a] > job->end[a] || job->end[a] > impl->dims[a])
       return rp__fail(impl->ctx, RP_EINVAL, "vulkan: AO box [%u, %u) on "
@@ -1333,6 +1395,189 @@ static int vk_compute_ao(void *p, const rp_ao_job *job, uint8_t *out) {
   return err;
 }
 
+/* ---- out-of-core --------------------------------------------------------- */
+
+/* Staging bytes one upload_bricks submission uses at most (more only
+ * where a single brick or the table is larger). */
+#define RP_VK_BRICK_CHUNK ((VkDeviceSize)16 << 20)
+
+static int vk_set_brick_pool(void *p, const rp_brick_pool *pool) {
+  rp_vk_impl *impl = p;
+  const VkBufferUsageFlags usage = VK_BUFFER_USAGE_UNIFORM_TEXEL_BUFFER_BIT |
+                                   VK_BUFFER_USAGE_TRANSFER_DST_BIT;
+  uint64_t stored, es, voxels, count, bytes;
+  uint32_t limit = impl->props.limits.maxTexelBufferElements;
+  int err;
+  impl->last_ns = 0;
+  /* The pool replaces the volume, and AO is not rendered from one. */
+  drop_volume(impl);
+  drop_ao(impl);
+  memset(impl->dims, 0, sizeof impl->dims);
+  if (pool == NULL) {
+    bind_all(impl);
+    return 0;
+  }
+  if ((err = alive(impl)) != 0) {
+    bind_all(impl);
+    return err;
+  }
+  stored = (uint64_t)pool->brick_size + 1;
+  es = rp__voxel_size(pool->type);
+  voxels = stored * stored * stored * pool->slots;
+  count = (uint64_t)pool->grid[0] * pool->grid[1] * pool->grid[2];
+  /* Whole 32-bit words, so that one fill clears every byte. */
+  bytes = (voxels * es + 3) / 4 * 4;
+  /* texelFetch takes an int, and a view holds at most the limit. */
+  if (bytes / es > limit || bytes / es > INT32_MAX || count > limit) {
+    bind_all(impl);
+    return rp__fail(impl->ctx, RP_EUNSUPPORTED, "vulkan: a pool of %u "
+                    "bricks of %u^3 voxels (and a border) takes %llu "
+                    "voxels, its table %llu entries; this device reads at "
+                    "most %u per buffer (maxTexelBufferElements): a smaller "
+                    "budget_bytes", pool->slots, pool->brick_size,
+                    (unsigned long long)voxels, (unsigned long long)count,
+                    (unsigned)limit);
+  }
+  if (!format_ok(impl, plain_fmt[pool->type]) ||
+      !format_ok(impl, VK_FORMAT_R32_UINT)) {
+    bind_all(impl);
+    return rp__fail(impl->ctx, RP_EUNSUPPORTED, "vulkan: device cannot "
+                    "read %s voxels and 32-bit slots from texel buffers "
+                    "(brick pool)", rp_voxel_type_name(pool->type));
+  }
+  if ((err = rp_vk__buffer(impl, "brick pool", bytes, usage, 0,
+                           &impl->volume)) == 0 &&
+      (err = rp_vk__buffer(impl, "brick table", count * sizeof(uint32_t),
+                           usage, 0, &impl->brick_table)) == 0 &&
+      (err = make_view(impl, impl->volume.buf, plain_fmt[pool->type],
+                       &impl->volume_view)) == 0 &&
+      (err = make_view(impl, impl->brick_table.buf, VK_FORMAT_R32_UINT,
+                       &impl->brick_table_view)) == 0 &&
+      (err = begin(impl)) == 0) {
+    /* Every brick starts in slot 0 (the front end's transparent one), and
+     * the pool is defined before any brick arrives. */
+    vkCmdFillBuffer(impl->cmd, impl->volume.buf, 0, VK_WHOLE_SIZE, 0);
+    vkCmdFillBuffer(impl->cmd, impl->brick_table.buf, 0, VK_WHOLE_SIZE, 0);
+    barrier(impl, VK_PIPELINE_STAGE_TRANSFER_BIT,
+            VK_ACCESS_TRANSFER_WRITE_BIT,
+            VK_PIPELINE_STAGE_TRANSFER_BIT |
+                VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT,
+            VK_ACCESS_TRANSFER_WRITE_BIT | VK_ACCESS_SHADER_READ_BIT);
+    err = finish(impl, "clearing the brick pool");
+  }
+  if (err != 0) {
+    drop_volume(impl);
+    bind_all(impl);
+    return err;
+  }
+  bind_all(impl);
+  impl->bricked = 1;
+  impl->brick_slots = pool->slots;
+  impl->brick_count = (uint32_t)count;
+  impl->brick_bytes = (VkDeviceSize)(stored * stored * stored * es);
+  impl->voxel_type = pool->type;
+  memcpy(impl->dims, pool->dims, sizeof impl->dims);
+  /* One voxel per texel: the quad layout would take four times the
+   * memory the front end sized the pool to. */
+  impl->quad = 0;
+  impl->stats.quad_layout = 0;
+  return 0;
+}
+
+/* upload_bricks through a staging buffer and copies, in chunks of whole
+ * bricks; the table goes with the last. */
+static int upload_bricks_staged(rp_vk_impl *impl, uint32_t count,
+                                const uint32_t *slots,
+                                const void *const *voxels,
+                                const uint32_t *table) {
+  VkDeviceSize bb = impl->brick_bytes;
+  VkDeviceSize tb = table != NULL ? impl->brick_count * sizeof *table : 0;
+  VkDeviceSize total = (VkDeviceSize)count * bb + tb;
+  VkDeviceSize size = RP_VK_BRICK_CHUNK, used;
+  rp_vk_buffer staging;
+  uint64_t ns = 0;
+  uint32_t i = 0;
+  int table_done = table == NULL, err;
+  size = size > bb ? size : bb;
+  size = size > tb ? size : tb;
+  size = size < total ? size : total;
+  if (size == 0)
+    return 0;
+  if ((err = rp_vk__buffer(impl, "brick staging", size,
+                           VK_BUFFER_USAGE_TRANSFER_SRC_BIT, 1, &staging)) !=
+      0)
+    return err;
+  /* Each round moves at least one brick, or the table once all bricks
+   * have gone, so the loop ends. */
+  while (err == 0 && (i < count || !table_done)) {
+    uint8_t *dst = staging.map;
+    if ((err = begin(impl)) != 0)
+      break;
+    for (used = 0; i < count && used + bb <= size; i++, used += bb) {
+      VkBufferCopy c;
+      c.srcOffset = used;
+      c.dstOffset = (VkDeviceSize)slots[i] * bb;
+      c.size = bb;
+      memcpy(dst + used, voxels[i], (size_t)bb);
+      vkCmdCopyBuffer(impl->cmd, staging.buf, impl->volume.buf, 1, &c);
+    }
+    if (i == count && !table_done && used + tb <= size) {
+      VkBufferCopy c;
+      c.srcOffset = used;
+      c.dstOffset = 0;
+      c.size = tb;
+      memcpy(dst + used, table, (size_t)tb);
+      vkCmdCopyBuffer(impl->cmd, staging.buf, impl->brick_table.buf, 1, &c);
+      table_done = 1;
+    }
+    barrier(impl, VK_PIPELINE_STAGE_TRANSFER_BIT,
+            VK_ACCESS_TRANSFER_WRITE_BIT,
+            VK_PIPELINE_STAGE_TRANSFER_BIT |
+                VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT,
+            VK_ACCESS_TRANSFER_WRITE_BIT | VK_ACCESS_SHADER_READ_BIT);
+    if ((err = finish(impl, "brick upload")) == 0)
+      ns += impl->last_ns;
+  }
+  rp_vk__buffer_free(impl, &staging);
+  impl->last_ns = err == 0 ? ns : 0;
+  return err;
+}
+
+static int vk_upload_bricks(void *p, uint32_t count, const uint32_t *slots,
+                            const void *const *voxels,
+                            const uint32_t *table) {
+  rp_vk_impl *impl = p;
+  uint64_t t0;
+  uint32_t i;
+  int err;
+  impl->last_ns = 0;
+  if ((err = alive(impl)) != 0)
+    return err;
+  if (!impl->bricked)
+    return rp__fail(impl->ctx, RP_ESTATE, "vulkan: upload_bricks without "
+                    "a brick pool (set_brick_pool)");
+  /* A slot past the pool would be written outside its buffer (in place
+   * below, with nothing to catch it). */
+  for (i = 0; i < count; i++)
+    if (slots[i] >= impl->brick_slots)
+      return rp__fail(impl->ctx, RP_EINVAL, "vulkan: brick slot %u of a "
+                      "pool of %u", slots[i], impl->brick_slots);
+  if (impl->volume.map == NULL || impl->brick_table.map == NULL ||
+      rp_vk_hooks.force_staging)
+    return upload_bricks_staged(impl, count, slots, voxels, table);
+  /* Mapped (coherent) memory, and no kernel runs between operations:
+   * written in place, and the time is the host's. */
+  t0 = now_ns();
+  for (i = 0; i < count; i++)
+    memcpy((uint8_t *)impl->volume.map + (size_t)slots[i] * impl->brick_bytes,
+           voxels[i], (size_t)impl->brick_bytes);
+  if (table != NULL)
+    memcpy(impl->brick_table.map, table,
+           (size_t)impl->brick_count * sizeof *table);
+  impl->last_ns = now_ns() - t0;
+  return 0;
+}
+
 static uint64_t vk_last_time_ns(void *ip) {
   return ((rp_vk_impl *)ip)->last_ns;
 }
@@ -1351,6 +1596,8 @@ static const rp_backend_ops vk_ops = {
     .raycast = vk_raycast,
     .compute_ao = vk_compute_ao,
     .upload_ao = vk_upload_ao,
+    .set_brick_pool = vk_set_brick_pool,
+    .upload_bricks = vk_upload_bricks,
     .last_time_ns = vk_last_time_ns};
 
 const rp_backend_bootstrap rp_vk_bootstrap = {"vulkan", vk_probe, vk_create,

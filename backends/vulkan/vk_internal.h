@@ -32,7 +32,8 @@ enum {
   RP_VK_SPEC_VOXEL = 5,
   RP_VK_SPEC_QUAD = 6,
   RP_VK_SPEC_CORRECT = 7,
-  RP_VK_SPEC_TOTAL = 8
+  RP_VK_SPEC_BRICKED = 8,
+  RP_VK_SPEC_TOTAL = 9
 };
 
 /* Descriptor bindings of the one set all kernels share. */
@@ -50,13 +51,17 @@ enum {
   RP_VK_BIND_AO_OUT = 10,   /* compute_ao: its output words */
   RP_VK_BIND_AO_DIRS = 11,  /* compute_ao: the directions */
   RP_VK_BIND_AO_BRICKS = 12, /* compute_ao: the brick mask */
-  RP_VK_BIND_COUNT = 13
+  RP_VK_BIND_BRICK_TABLE = 13, /* out-of-core: slot of each brick */
+  RP_VK_BIND_SLABS = 14,    /* out-of-core: the depth slabs' ray state */
+  RP_VK_BIND_COUNT = 15
 };
 
 /* Pipeline key: the kernel, the effect bits it was specialised for, the
- * counting variant, the voxel type, the layout and whether opacity needs
- * correcting (raycast and AO). Bits that do not change a kernel are cleared
- * so that variants are shared. */
+ * counting variant, the voxel type, the layout, whether opacity needs
+ * correcting (raycast and AO) and whether the volume is a brick pool
+ * (raycast). Bits that do not change a kernel are cleared so that variants
+ * are shared. */
+#define RP_VK_KEY_BRICKED (1u << 6)
 #define RP_VK_KEY_CORRECT (1u << 7)
 #define RP_VK_KEY_COUNT (1u << 8)
 #define RP_VK_KEY_QUAD (1u << 9)
@@ -82,6 +87,8 @@ typedef struct rp_vk_params {
   uint32_t rect[4];   /* region x0, y0, width, height */
   float box_lo[4];    /* xyz the occupied blocks' box, voxel space */
   float box_hi[4];
+  uint32_t brick[4];  /* out-of-core: xyz brick grid, w log2 brick size */
+  uint32_t slab[4];   /* out-of-core: slab_flags, slab_cut's bits */
 } rp_vk_params;
 
 /* A buffer with its own memory. `map` is the persistent mapping when the
@@ -149,6 +156,18 @@ typedef struct rp_vk_impl {
    * is off. compute_ao's inputs and output exist only during the call. */
   rp_vk_buffer ao, ao_out, ao_dirs, ao_bricks;
   VkBufferView ao_view, ao_dirs_view, ao_bricks_view;
+  /* Out-of-core (set_brick_pool): `volume` holds the pool, `brick_slots`
+   * bricks of brick_bytes in the plain layout, and brick_table the slot
+   * of each of the volume's brick_count bricks (an R32 texel each). */
+  int bricked;
+  uint32_t brick_slots, brick_count;
+  VkDeviceSize brick_bytes;
+  rp_vk_buffer brick_table;
+  VkBufferView brick_table_view;
+  /* Depth slabs (raycast with slab_flags other than FIRST | LAST): 32
+   * bytes of ray state per pixel of the region, device-local, read and
+   * written by the raycast only (kernels/raycast.comp). */
+  rp_vk_buffer slab_state;
   /* Stand-ins bound before the real data exists, so that every binding
    * of the set is always valid. */
   rp_vk_buffer dummy;

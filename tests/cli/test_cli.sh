@@ -296,6 +296,33 @@ if "$rp" render gen:ml:8 --size 8x8 --backend opencl -o "$g" \
   check "group opencl fail text" "$rp" render gen:phantom:64 \
     --size 64x64 --devices opencl:0:fail=1,opencl:0 -o "$g"
   has "group opencl fail text" "device 0 .*LOST (EDEVICE"
+  # Out of core: a 96^3 phantom (864 KB) through a pool of 0.2 MB renders
+  # the PNG the whole volume gives, byte for byte.
+  check "render in core" "$rp" render gen:phantom:96 --size 160x120 \
+    --shading --backend opencl -o "$dir/ic.png"
+  check "render out of core" "$rp" render gen:phantom:96 --size 160x120 \
+    --shading --backend opencl --budget-mb 0.2 --brick-size 8 --json \
+    -o "$dir/oc.png"
+  has "out of core json" '"out_of_core":'
+  has "out of core parts" '"parts":'
+  if cmp -s "$dir/ic.png" "$dir/oc.png"; then pass=$((pass + 1)); else
+    echo "FAIL: out-of-core PNG differs from in-core"; fails=$((fails + 1))
+  fi
+  check "render out of core text" "$rp" render gen:phantom:96 \
+    --size 160x120 --backend opencl --budget-mb 0.2 -o "$dir/oc.png"
+  has "out of core text" "out of core: .* bricks of 16^3"
+  refuse "budget too small" "at least 2" "$rp" render gen:phantom:96 \
+    --size 16x16 --backend opencl --budget-mb 0.001 -o "$dir/oc.png"
+  refuse "bad brick size" "brick_size 12" "$rp" render gen:phantom:96 \
+    --size 16x16 --backend opencl --budget-mb 0.2 --brick-size 12 \
+    -o "$dir/oc.png"
+  check "replay out of core" "$rp" replay gen:phantom:64 --backend opencl \
+    --budget-mb 0.2 --brick-size 8 --sequence orbit --frames 6 --settle 1 \
+    --size 64x64 --controller predicted --quiet --csv "$dir/oc.csv"
+  if head -1 "$dir/oc.csv" | grep -q "upload_ms,upload_predicted_ms$"
+  then pass=$((pass + 1)); else
+    echo "FAIL: replay csv lacks upload columns"; head -1 "$dir/oc.csv"
+    fails=$((fails + 1)); fi
 else
   echo "SKIP: no OpenCL device: group renders on opencl"
 fi
@@ -307,7 +334,7 @@ has "replay devices imbalance" '"mean_imbalance":'
 has "replay devices alive" '"devices_alive":'
 cols="tf_switch,dev0_share,dev0_busy_ms,dev0_raycast_ms,dev0_samples"
 cols="$cols,dev1_share,dev1_busy_ms,dev1_raycast_ms,dev1_samples,imbalance"
-cols="$cols,ao_ms,ao"
+cols="$cols,ao_ms,ao,upload_ms,upload_predicted_ms"
 if [ "$(head -1 "$dir/d.csv" | cut -d, -f16-)" = "$cols" ] &&
    [ "$(wc -l <"$dir/d.csv")" -eq 7 ] &&
    [ "$(awk -F, 'NR > 1 && ($17 + $21 - 1)^2 > 1e-8 { n++ }

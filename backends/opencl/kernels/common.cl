@@ -75,6 +75,10 @@ typedef struct rp_cl_frame {
   uint lut_size;
   uint ert_seed, frame;
   uint occupied_lo[3], occupied_end[3];
+  uint brick_shift;
+  uint brick_grid[3];
+  float slab_cut;
+  uint slab_flags;
 } rp_cl_frame;
 
 /* A packet of rays in voxel space, structure of arrays: p(t) = p0 +

@@ -24,6 +24,11 @@
  *                     volume at its point (one more fetch for those)
  *   RP_ERT            early ray termination at fp.ert_threshold
  *   RP_SKIP           refine the depth pass's limits on the block grid
+ *   RP_BRICKED        the volume is a brick pool read through a table
+ *                     (out-of-core; sample.cl), and a region may be cast
+ *                     in depth slabs: each pass takes the samples before
+ *                     fp.slab_cut and leaves its rays' state for the
+ *                     next (rp_cl_slab below)
  *   RP_COUNT_FETCHES  also count volume fetches per tile */
 
 typedef struct rp_cl_tile {
@@ -101,6 +106,40 @@ void rp_cl_shade(vfloat *r, vfloat *g, vfloat *b, vfloat gx, vfloat gy,
 }
 #endif
 
+#ifdef RP_BRICKED
+/* Depth slabs (out-of-core tiles whose bricks do not fit the pool at
+ * once): per pixel of the region, 8 floats carried from one pass to the
+ * next: colour and opacity, the last sample's depth, the index of the
+ * next sample (RP_CL_DONE once the ray has no more), and the samples and
+ * fetches so far (their bits). The first pass (fp.slab_flags & 1) starts
+ * from nothing; only the last (& 2) writes pixels and tile stats, from
+ * the carried figures, so that the result is the single pass's bit for
+ * bit: samples are taken in the same order with the same arithmetic. */
+#define RP_CL_SLAB_FIRST 1u
+#define RP_CL_SLAB_LAST 2u
+/* Past every lattice index (those stop at 2^24) yet small enough that a
+ * finished lane's unused sample position, (index + 1) * step, stays
+ * finite at any step: an infinite one times a zero direction is NaN,
+ * which the cell lookup would turn into a brick index out of the table. */
+#define RP_CL_DONE 33554432.0f
+
+/* The last lattice index whose position lies before `cut` (as a float; a
+ * lane's whole range when cut is +inf): the same predicate-decided walk
+ * as rp_cl_lattice_last. */
+vfloat rp_cl_lattice_before(const rp_cl_packet *k, float step, float cut) {
+  vfloat i;
+  vint over;
+  if (isinf(cut))
+    return (vfloat)(RP_CL_DONE);
+  i = clamp(ceil((cut - k->s) / step) - 1.0f, -1.0f, 16777216.0f);
+  while (any(over = (i >= 0.0f) & (k->s + i * step >= cut)))
+    i -= to_vfloat(over & 1);
+  while (any(over = k->s + (i + 1.0f) * step < cut))
+    i += to_vfloat(over & 1);
+  return i;
+}
+#endif
+
 /* Global size (region tiles across, region tiles down * 64 / RP_CL_W),
  * local size (1, 64 / RP_CL_W): one work-group per tile of the region
  * [x0, x1) x [y0, y1), whose pixels are written compactly (row pitch
@@ -115,7 +154,9 @@ void rp_cl_raycast(rp_cl_frame fp, uint x0, uint y0, uint x1, uint y1,
                    __global const float2 *front_back, __global uint *rgba,
                    __global rp_cl_tile *tiles,
                    __global ulong *tile_fetches,
-                   __global const uchar *ao) {
+                   __global const uchar *ao,
+                   __global const uint *brick_table,
+                   __global float *slab_state) {
   __local uint l_samples[RP_CL_TILE * RP_CL_TILE];
   __local float l_depth[RP_CL_TILE * RP_CL_TILE];
 #ifdef RP_COUNT_FETCHES
@@ -127,20 +168,31 @@ void rp_cl_raycast(rp_cl_frame fp, uint x0, uint y0, uint x1, uint y1,
   vint inside = (px < (float)x1) & (py < (float)y1);
   vuint samples = 0;
   vfloat last_t = 0.0f;
+#ifdef RP_BRICKED
+  /* This lane's pixel in the region (lanes outside it: pixel 0, unused). */
+  vuint at_px = select((vuint)0u,
+                       (to_vuint(py) - y0) * (x1 - x0) + to_vuint(px) - x0,
+                       to_vuint(inside));
+#endif
 
   if (any(inside)) {
     rp_cl_packet k = rp_cl_make_packet(&fp, px + 0.5f, py + 0.5f, inside);
     /* Lane j takes samples i0_j .. i1_j of its lattice s + i * step. */
     vfloat i0 = 0.0f, i1 = rp_cl_lattice_last(&k, fp.step);
+#ifdef RP_BRICKED
+    rp_cl_grid g = rp_cl_grid_bricked(fp.dims, fp.idims, fp.brick_shift,
+                                      fp.brick_grid, brick_table);
+#else
     rp_cl_grid g = rp_cl_grid_make(fp.dims, fp.idims);
+#endif
     rp_cl_lutpos lp =
         rp_cl_lutpos_make(fp.value_min, fp.value_max, fp.lut_size);
     vfloat cr = 0.0f, cg = 0.0f, cb = 0.0f, acc = 0.0f, step_i = 0.0f;
     vfloat front, back;
     vint live;
-    float range = fp.value_max - fp.value_min;
     float ratio = fp.step / fp.ref_step;
 #ifdef RP_SHADING
+    float range = fp.value_max - fp.value_min;
     float gsx = 0.5f * fp.inv_spacing[0], gsy = 0.5f * fp.inv_spacing[1];
     float gsz = 0.5f * fp.inv_spacing[2];
 #endif
@@ -180,7 +232,46 @@ void rp_cl_raycast(rp_cl_frame fp, uint x0, uint y0, uint x1, uint y1,
         i1 -= to_vfloat(more & 1);
     }
 #endif
-    while (any(live = i0 + step_i <= i1)) {
+#ifdef RP_BRICKED
+    /* Resume where the last slab left each ray, and stop before the cut:
+     * i1 keeps the ray's own end, i_cut this pass's. */
+    vfloat i_cut;
+    {
+      vfloat i_end = fmin(i1, rp_cl_lattice_before(&k, fp.step,
+                                                    fp.slab_cut));
+      if (!(fp.slab_flags & RP_CL_SLAB_FIRST)) {
+        vfloat next;
+#define RP_CL_LOAD(j)                                                         \
+  if (inside.s##j) {                                                          \
+    __global const float *q = slab_state + 8u * at_px.s##j;                   \
+    cr.s##j = q[0];                                                           \
+    cg.s##j = q[1];                                                           \
+    cb.s##j = q[2];                                                           \
+    acc.s##j = q[3];                                                          \
+    last_t.s##j = q[4];                                                       \
+    next.s##j = q[5];                                                         \
+    samples.s##j = as_uint(q[6]);                                             \
+    RP_CL_LOAD_FETCHES(j)                                                     \
+  } else {                                                                    \
+    next.s##j = RP_CL_DONE;                                                   \
+  }
+#ifdef RP_COUNT_FETCHES
+#define RP_CL_LOAD_FETCHES(j) fetches.s##j = as_uint(q[7]);
+#else
+#define RP_CL_LOAD_FETCHES(j)
+#endif
+        RP_CL_LANES(RP_CL_LOAD)
+#undef RP_CL_LOAD
+#undef RP_CL_LOAD_FETCHES
+        i0 = fmax(i0, next);
+      }
+      i_cut = i_end;
+    }
+#define RP_CL_END i_cut
+#else
+#define RP_CL_END i1
+#endif
+    while (any(live = i0 + step_i <= RP_CL_END)) {
       vfloat t = k.s + (i0 + step_i) * fp.step;
       vfloat qx = k.p0x + t * k.dpx, qy = k.p0y + t * k.dpy;
       vfloat qz = k.p0z + t * k.dpz;
@@ -236,9 +327,41 @@ void rp_cl_raycast(rp_cl_frame fp, uint x0, uint y0, uint x1, uint y1,
 #ifdef RP_ERT
       /* A lane that reached the threshold ends its range here. */
       i1 = select(i1, (vfloat)(-1.0f), live & (acc >= fp.ert_threshold));
+#ifdef RP_BRICKED
+      i_cut = fmin(i_cut, i1);
+#endif
 #endif
       step_i += 1.0f;
     }
+#undef RP_CL_END
+#ifdef RP_BRICKED
+    if (!(fp.slab_flags & RP_CL_SLAB_LAST)) {
+      /* The next sample of each ray: past the cut, or none (ended by ERT,
+       * or its range is done). */
+      vfloat next = select((vfloat)(RP_CL_DONE), i_cut + 1.0f, i_cut < i1);
+      next = select(next, (vfloat)(RP_CL_DONE), i1 < 0.0f);
+#define RP_CL_SAVE(j)                                                         \
+  if (inside.s##j) {                                                          \
+    __global float *q = slab_state + 8u * at_px.s##j;                         \
+    q[0] = cr.s##j;                                                           \
+    q[1] = cg.s##j;                                                           \
+    q[2] = cb.s##j;                                                           \
+    q[3] = acc.s##j;                                                          \
+    q[4] = last_t.s##j;                                                       \
+    q[5] = fmax(next.s##j, i0.s##j);                                          \
+    q[6] = as_float(samples.s##j);                                            \
+    RP_CL_SAVE_FETCHES(j)                                                     \
+  }
+#ifdef RP_COUNT_FETCHES
+#define RP_CL_SAVE_FETCHES(j) q[7] = as_float(fetches.s##j);
+#else
+#define RP_CL_SAVE_FETCHES(j)
+#endif
+      RP_CL_LANES(RP_CL_SAVE)
+#undef RP_CL_SAVE
+#undef RP_CL_SAVE_FETCHES
+    }
+#endif
     {
       vuint pr = to_vuint_sat(floor(clamp(cr, 0.0f, 1.0f) * 255.0f + 0.5f));
       vuint pg = to_vuint_sat(floor(clamp(cg, 0.0f, 1.0f) * 255.0f + 0.5f));
@@ -256,6 +379,13 @@ void rp_cl_raycast(rp_cl_frame fp, uint x0, uint y0, uint x1, uint y1,
     }
   }
 
+#ifdef RP_BRICKED
+  /* A slab before the last leaves pixels and stats to the last one (the
+   * flag is uniform: every work-item returns, none waits at the barrier
+   * below). */
+  if (!(fp.slab_flags & RP_CL_SLAB_LAST))
+    return;
+#endif
   vstore_w(samples, 0, l_samples + slot);
   vstore_w(last_t, 0, l_depth + slot);
 #ifdef RP_COUNT_FETCHES

@@ -26,6 +26,16 @@ typedef struct rp_cl_grid {
   float topx, topy, topz; /* dims - 1: where coordinates clamp */
   int lomx, lomy, lomz;   /* max(dims - 2, 0) */
   RP_INDEX_T row, slice, dy, dz; /* strides; upper y and z neighbours */
+#ifdef RP_BRICKED
+  /* Out-of-core (raypace_backend.h, rp_frame_params.brick_shift): `row`
+   * and `slice` are a stored brick's, and a cell's brick is found in
+   * the table. The border is replicated past the volume's end, so the
+   * upper neighbours are always one row and one slice on. */
+  __global const uint *table;
+  int shift, mask;
+  int bgx, bgxy;          /* bricks per row and per slice of the grid */
+  RP_INDEX_T brick_voxels;
+#endif
 } rp_cl_grid;
 
 /* The grid of a volume of idims voxels; dims is the same in float. */
@@ -43,6 +53,27 @@ rp_cl_grid rp_cl_grid_make(const float dims[3], const uint idims[3]) {
   g.dz = idims[2] > 1u ? g.slice : 0u;
   return g;
 }
+
+#ifdef RP_BRICKED
+/* The same grid read through a brick table. */
+rp_cl_grid rp_cl_grid_bricked(const float dims[3], const uint idims[3],
+                              uint shift, const uint grid[3],
+                              __global const uint *table) {
+  rp_cl_grid g = rp_cl_grid_make(dims, idims);
+  int stored = (1 << shift) + 1;
+  g.table = table;
+  g.shift = (int)shift;
+  g.mask = (1 << shift) - 1;
+  g.bgx = (int)grid[0];
+  g.bgxy = (int)(grid[0] * grid[1]);
+  g.row = stored;
+  g.slice = (RP_INDEX_T)stored * stored;
+  g.dy = g.row;
+  g.dz = g.slice;
+  g.brick_voxels = g.slice * stored;
+  return g;
+}
+#endif
 
 /* Two x-adjacent voxels read as one unaligned integer: the unit the
  * gathers below move. uchar reads four bytes and keeps two (the buffer is
@@ -102,8 +133,26 @@ rp_cl_cell rp_cl_cell_at(const rp_cl_grid *g, vfloat px, vfloat py,
   c.wx = cx - to_vfloat(ix);
   c.wy = cy - to_vfloat(iy);
   c.wz = cz - to_vfloat(iz);
+#ifdef RP_BRICKED
+  {
+    /* Each lane's brick, its slot from the table, and the cell within. */
+    vint brick = (ix >> g->shift) + (iy >> g->shift) * g->bgx +
+                 (iz >> g->shift) * g->bgxy;
+    int at[RP_CL_W], j;
+    uint slot[RP_CL_W];
+    vstore_w(brick, 0, at);
+    /* A gather: no vectorize pragma here, clang cannot honour one and
+     * would warn at every kernel build. */
+    for (j = 0; j < RP_CL_W; j++)
+      slot[j] = g->table[at[j]];
+    c.base = to_vindex(vload_w(0, slot)) * g->brick_voxels +
+             to_vindex(ix & g->mask) + to_vindex(iy & g->mask) * g->row +
+             to_vindex(iz & g->mask) * g->slice;
+  }
+#else
   c.base = to_vindex(ix) + to_vindex(iy) * g->row +
            to_vindex(iz) * g->slice;
+#endif
   return c;
 }
 

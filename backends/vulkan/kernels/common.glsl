@@ -35,6 +35,10 @@ layout(constant_id = 6) const bool RP_QUAD = true;
  * exponential are a sixth of a sample's cost on lavapipe, where a branch
  * on a uniform value does not skip the code it guards. */
 layout(constant_id = 7) const bool RP_CORRECT = true;
+/* Out-of-core: the volume binding holds a pool of bricks read through a
+ * table (sample_volume). A variant, so that the in-core raycast pays
+ * nothing for it. */
+layout(constant_id = 8) const bool RP_BRICKED = false;
 
 /* The host's rp_vk_params (vec4-packed, so std430 and the C struct agree
  * without vec3 alignment rules).
@@ -61,6 +65,9 @@ struct Params {
   uvec4 rect;    /* the region: x0, y0, width, height (scaled pixels) */
   vec4 box_lo;   /* xyz: the box of the occupied blocks, voxel space */
   vec4 box_hi;
+  uvec4 brick;   /* RP_BRICKED: xyz the brick grid, w log2 brick size */
+  uvec4 slab;    /* RP_BRICKED depth slabs (raycast.comp): x slab_flags,
+                    y slab_cut's bits */
 };
 
 layout(set = 0, binding = 0, std430) readonly buffer Frame {
@@ -163,6 +170,9 @@ bool block_occupied(uint b) {
 layout(set = 0, binding = 1) uniform usamplerBuffer volume;
 /* lut_size RGBA32F entries, straight colour, alpha per reference step. */
 layout(set = 0, binding = 2) uniform samplerBuffer lut;
+/* RP_BRICKED: the pool slot of each brick of the volume, x fastest (one
+ * R32 texel each; a stand-in texel otherwise). */
+layout(set = 0, binding = 13) uniform usamplerBuffer brick_table;
 
 /* a + w (b - a): one fused multiply-add after the subtraction. It differs
  * from the reference's (1 - w) a + w b in the last bit only. */
@@ -185,17 +195,41 @@ vec4 texel(uint i) {
  * [0, dims - 1]. Quad layout: texel (x, y, z) holds voxels (x, y),
  * (x+1, y), (x, y+1), (x+1, y+1) of slice z, repeated at the far faces,
  * so the eight corners are two fetches. Plain layout: one voxel per
- * texel, eight fetches. Interpolates along x, then y, then z. */
+ * texel, eight fetches. Interpolates along x, then y, then z.
+ *
+ * RP_BRICKED (raypace_backend.h, rp_frame_params.brick_shift): the
+ * plain layout, per brick. Each slot holds (B + 1)^3 voxels, x fastest:
+ * a brick and its upper border, replicated past the volume's end. The
+ * brick is the one of the cell's low corner clamped to dims - 2, where
+ * the front end's footprints place it (runtime/bricks.h), so the eight
+ * corners are in one slot. `lo` itself stays unclamped, as in core: at a
+ * far face lo = dims - 1 is that brick's border voxel and its upper
+ * neighbour is itself, so every fetch reads the voxel the in-core layout
+ * holds there and the weights are the same: the same floats. Each call
+ * looks its own brick up, gradient fetches included. */
 float sample_volume(vec3 p) {
   p = clamp(p, vec3(0.0), P.dims.xyz - 1.0);
   vec3 fl = floor(p);
   uvec3 lo = uvec3(fl);
   vec3 w = p - fl;
-  uint sx = P.idims.x, sxy = P.idims.x * P.idims.y;
-  uint i = (lo.z * P.idims.y + lo.y) * sx + lo.x;
+  uint sx, sxy, i;
+  if (RP_BRICKED) {
+    uint shift = P.brick.w;
+    uvec3 b = min(lo, max(P.idims.xyz, uvec3(2u)) - 2u) >> shift;
+    uint slot = texelFetch(brick_table,
+                           int((b.z * P.brick.y + b.y) * P.brick.x + b.x)).x;
+    uvec3 l = lo - (b << shift); /* in [0, B]: B on the border only */
+    sx = (1u << shift) + 1u;
+    sxy = sx * sx;
+    i = slot * sxy * sx + (l.z * sx + l.y) * sx + l.x;
+  } else {
+    sx = P.idims.x;
+    sxy = P.idims.x * P.idims.y;
+    i = (lo.z * P.idims.y + lo.y) * sx + lo.x;
+  }
   uint dz = lo.z + 1u < P.idims.z ? sxy : 0u;
   vec4 z0, z1;
-  if (RP_QUAD) {
+  if (RP_QUAD && !RP_BRICKED) {
     z0 = texel(i);
     z1 = texel(i + dz);
   } else {

@@ -21,6 +21,31 @@ layout(set = 0, binding = 7, std430) writeonly buffer Tiles {
   uvec4 tiles[];
 };
 
+/* RP_BRICKED depth slabs (raypace_backend.h: slab_cut, slab_flags): a
+ * region whose bricks do not fit the pool is cast in passes, each taking
+ * the lattice samples before the cut and resuming where the last left
+ * each ray. Per pixel of the region, what a pass hands the next: the
+ * colour and opacity, the last sample's depth, the index of the next
+ * sample (RP_DONE once the ray has no more), and the samples and fetches
+ * so far. Only the last pass writes pixels and tile statistics, from the
+ * carried figures: the same samples in the same order with the same
+ * arithmetic, so the result is the single pass's bit for bit. A stand-in
+ * buffer outside the bricked variant, never touched there. */
+struct SlabRay {
+  vec4 C;
+  float last;
+  int next;
+  uint samples;
+  uint fetches;
+};
+layout(set = 0, binding = 14, std430) buffer Slabs {
+  SlabRay slab_state[];
+};
+const uint RP_SLAB_FIRST = 1u;
+const uint RP_SLAB_LAST = 2u;
+/* Past any lattice index lattice_last gives (it caps them at 2e9). */
+const int RP_DONE = 0x7fffffff;
+
 /* The AO volume (RP_AO): one R8 texel per voxel, 255 unoccluded; a
  * stand-in texel when AO is off. */
 layout(set = 0, binding = 9) uniform usamplerBuffer ao_volume;
@@ -87,6 +112,17 @@ int lattice_last(float s, float t1, float step) {
   return k;
 }
 
+/* Index of the last lattice sample s + i * step < cut (-1: none), the
+ * same quotient-then-predicate walk as lattice_last. */
+int lattice_before(float s, float cut, float step) {
+  int k = int(clamp(ceil((cut - s) / step) - 1.0, -1.0, 2.0e9));
+  for (int g = 0; g < 4 && k >= 0 && s + float(k) * step >= cut; g++)
+    k--;
+  for (int g = 0; g < 4 && s + float(k + 1) * step < cut; g++)
+    k++;
+  return k;
+}
+
 bool sample_occupied(Ray ray, int i) {
   float t = ray.s + float(i) * P.up.w;
   return block_occupied(block_index(block_cell(ray.p0 + t * ray.dp)));
@@ -98,7 +134,8 @@ struct Result {
   float last;
 };
 
-Result cast_ray(uvec2 pix) {
+/* rpix: the pixel within the region, where its slab state is. */
+Result cast_ray(uvec2 pix, uvec2 rpix) {
   Result res = Result(vec4(0.0), 0u, 0.0);
   Ray ray = make_ray(float(pix.x) + 0.5, float(pix.y) + 0.5);
   if (!ray.hit)
@@ -123,16 +160,37 @@ Result cast_ray(uvec2 pix) {
     while (last >= first && !sample_occupied(ray, last))
       last--;
   }
+  /* This pass takes samples start .. end: all of them in core, in a depth
+   * slab those of [first, last] before the cut not taken yet. Samples
+   * and fetches are carried, so those of this pass are added. */
+  int start = first, end = last;
+  if (RP_BRICKED) {
+    float cut = uintBitsToFloat(P.slab.y);
+    if (cut < RP_BIG) /* +inf: to the ray's end */
+      end = min(last, lattice_before(ray.s, cut, step));
+    if ((P.slab.x & RP_SLAB_FIRST) == 0u) {
+      SlabRay q = slab_state[rpix.y * P.rect.z + rpix.x];
+      res.C = q.C;
+      res.last = q.last;
+      res.samples = q.samples;
+      if (RP_COUNT)
+        fetches = q.fetches;
+      start = max(first, q.next);
+    }
+  }
   /* Software pipelining: the value of sample i + 1 is fetched while
    * sample i is classified and composited, so that the gathers' memory
    * latency overlaps arithmetic instead of stalling it (measured: a
    * quarter less time per sample on lavapipe). The fetch past the last
    * sample is clamped into the volume and wasted. Only the value, the
    * colour and the index are carried from sample to sample: on lavapipe
-   * each loop-carried variable costs a masked store per sample. */
-  int i = first;
+   * each loop-carried variable costs a masked store per sample. The
+   * slab cut bounds the samples consumed, not the fetches: the one past
+   * `end` is wasted as the one past `last` is, and the next pass fetches
+   * that sample again with the same expression. */
+  int i = start;
   float v = sample_volume(ray.p0 + (ray.s + float(i) * step) * ray.dp);
-  while (i <= last) {
+  while (i <= end) {
     vec4 c;
     float a;
     /* With shading or AO, march over transparent samples in a loop of
@@ -152,7 +210,13 @@ Result cast_ray(uvec2 pix) {
       c = classify(v);
       v = v_next;
       a = RP_CORRECT ? correct(c.a) : c.a;
-      if (!(RP_SHADING || RP_AO) || a > 0.0 || i >= last)
+      /* A transparent sample at a slab's `end` (before `last`) leaves
+       * here and is composited with weight 0 where the single pass skips
+       * it: adding 0 changes no bit, and the ERT test after it sees the
+       * opacity it saw at the last sample that showed (below the
+       * threshold, or the ray would have ended; a ray starts at 0, and
+       * the front end keeps the threshold in (0, 1]). */
+      if (!(RP_SHADING || RP_AO) || a > 0.0 || i >= end)
         break;
       i++;
     }
@@ -178,9 +242,20 @@ Result cast_ray(uvec2 pix) {
     if (RP_ERT && res.C.a >= P.inv_sp.w)
       break;
   }
-  if (i > first) {
-    res.samples = uint(i - first);
+  if (i > start) {
+    res.samples += uint(i - start);
     res.last = ray.s + float(i - 1) * step; /* the same expression */
+  }
+  if (RP_BRICKED && (P.slab.x & RP_SLAB_LAST) == 0u) {
+    /* The ray ended when the last sample it took reached the ERT
+     * threshold (the loop broke there, or would have at the next), or
+     * when this pass took it to the end of its range. max: a cut whose
+     * index lies before where this pass resumed never goes back. */
+    bool ended = (RP_ERT && i > start && res.C.a >= P.inv_sp.w) ||
+                 end >= last;
+    int next = ended ? RP_DONE : max(end + 1, start);
+    slab_state[rpix.y * P.rect.z + rpix.x] =
+        SlabRay(res.C, res.last, next, res.samples, fetches);
   }
   return res;
 }
@@ -203,11 +278,17 @@ void main() {
   uvec2 pix = P.rect.xy + rpix;
   Result res = Result(vec4(0.0), 0u, 0.0);
   if (rpix.x < P.rect.z && rpix.y < P.rect.w) {
-    res = cast_ray(pix);
+    res = cast_ray(pix, rpix);
     uvec4 q = uvec4(floor(clamp(res.C, 0.0, 1.0) * 255.0 + 0.5));
-    image[rpix.y * P.rect.z + rpix.x] =
-        q.x | (q.y << 8) | (q.z << 16) | (q.w << 24);
+    if (!RP_BRICKED || (P.slab.x & RP_SLAB_LAST) != 0u)
+      image[rpix.y * P.rect.z + rpix.x] =
+          q.x | (q.y << 8) | (q.z << 16) | (q.w << 24);
   }
+  /* A slab before the last leaves pixels and statistics to the last one.
+   * The flags are the same in every invocation: all return here, none
+   * waits at a barrier below. */
+  if (RP_BRICKED && (P.slab.x & RP_SLAB_LAST) == 0u)
+    return;
   s_samples[lid] = res.samples;
   s_hits[lid] = res.samples > 0u ? 1u : 0u;
   s_depth[lid] = res.samples > 0u ? res.last : 0.0;

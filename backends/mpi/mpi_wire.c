@@ -1,0 +1,468 @@
+/* The MPI backend's module: MPI set-up and shutdown (raypace_mpi.h), the
+ * server ranks as rank 0 sees them, the payload layouts and the polled,
+ * chunked transfers both sides use (mpi_internal.h). */
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <time.h>
+#include <uv.h>
+
+#include "mpi_internal.h"
+#include "passes.h"
+#include "raypace_mpi.h"
+
+/* A server rank as rank 0 sees it. */
+typedef struct rank_state {
+  int open; /* a proxy device has it */
+  int lost; /* given up on: never waited on again */
+  char why[256];
+} rank_state;
+
+static struct {
+  int ready;  /* rp_mpi_init set MPI up and it is not finalised */
+  int owns;   /* rp_mpi_init initialised MPI, so finalises it */
+  MPI_Comm comm;
+  int rank, size;
+  uv_mutex_t lock;
+  rank_state *ranks; /* size entries (rank 0's unused) */
+  rp_mpi__xfer *abandoned;
+} mod;
+
+/* ---- Set-up ---------------------------------------------------------------- */
+
+/* Whether an MPI launcher started this process: Open MPI's mpirun sets
+ * OMPI_COMM_WORLD_SIZE, MPICH's hydra and Slurm's PMI set PMI_SIZE, a
+ * PMIx launcher PMIX_RANK. Without one, MPI_Init would start a singleton
+ * (and, with Open MPI, its daemon) for nothing. */
+static int launched(void) {
+  return getenv("OMPI_COMM_WORLD_SIZE") != NULL ||
+         getenv("PMI_SIZE") != NULL || getenv("PMIX_RANK") != NULL;
+}
+
+int rp_mpi_init(int *argc, char ***argv, int *rank, int *size) {
+  int inited = 0, provided = 0, rc;
+  char msg[MPI_MAX_ERROR_STRING];
+  if (rank != NULL)
+    *rank = 0;
+  if (size != NULL)
+    *size = 1;
+  if (mod.ready) {
+    if (rank != NULL)
+      *rank = mod.rank;
+    if (size != NULL)
+      *size = mod.size;
+    return 0;
+  }
+  MPI_Initialized(&inited);
+  if (!inited && !launched())
+    return 0;
+  if (!inited) {
+    rc = MPI_Init_thread(argc, argv, MPI_THREAD_MULTIPLE, &provided);
+    if (rc != MPI_SUCCESS) {
+      rp_mpi__error_string(rc, msg, sizeof msg);
+      fprintf(stderr, "raypace: MPI_Init_thread failed: %s\n", msg);
+      return RP_EDEVICE;
+    }
+    mod.owns = 1;
+  } else {
+    MPI_Query_thread(&provided);
+  }
+  if (provided < MPI_THREAD_SERIALIZED) {
+    fprintf(stderr, "raypace: MPI provides thread level %d; the mpi "
+                    "backend needs MPI_THREAD_SERIALIZED (%d) or more: "
+                    "device groups call it from their worker threads\n",
+            provided, MPI_THREAD_SERIALIZED);
+    return RP_EUNSUPPORTED;
+  }
+  /* A communicator of our own: our tags cannot meet the application's
+   * messages, and its errors come back as codes instead of aborting the
+   * job, which is what lets a lost rank be survived. */
+  if ((rc = MPI_Comm_dup(MPI_COMM_WORLD, &mod.comm)) != MPI_SUCCESS) {
+    rp_mpi__error_string(rc, msg, sizeof msg);
+    fprintf(stderr, "raypace: MPI_Comm_dup failed: %s\n", msg);
+    return RP_EDEVICE;
+  }
+  MPI_Comm_set_errhandler(mod.comm, MPI_ERRORS_RETURN);
+  MPI_Comm_rank(mod.comm, &mod.rank);
+  MPI_Comm_size(mod.comm, &mod.size);
+  mod.ranks = calloc((size_t)mod.size, sizeof *mod.ranks);
+  if (mod.ranks == NULL || uv_mutex_init(&mod.lock) != 0) {
+    free(mod.ranks);
+    mod.ranks = NULL;
+    fprintf(stderr, "raypace: out of memory setting up MPI\n");
+    return RP_EDEVICE;
+  }
+  mod.ready = 1;
+  if (rank != NULL)
+    *rank = mod.rank;
+  if (size != NULL)
+    *size = mod.size;
+  return 0;
+}
+
+/* Rank 0: a shutdown request to every server. A rank given up on is sent
+ * one too (a stalled rank that wakes up should leave, not wait forever),
+ * but never waited on; the others' sends are tiny and complete at once,
+ * within RP_MPI_DEFAULT_SILENCE_MS in any case. */
+static void shutdown_servers(void) {
+  static rp_mpi_request bye; /* static: a send left pending reads it */
+  MPI_Request *reqs = calloc((size_t)mod.size, sizeof *reqs);
+  double deadline = rp_mpi__now_ms() + RP_MPI_DEFAULT_SILENCE_MS;
+  uint32_t us = 0;
+  int r, pending;
+  if (reqs == NULL)
+    return; /* the servers die with the job: mpirun ends them */
+  bye.magic = RP_MPI_MAGIC;
+  bye.op = RP_MPI_SHUTDOWN;
+  uv_mutex_lock(&mod.lock);
+  for (r = 1; r < mod.size; r++) {
+    reqs[r] = MPI_REQUEST_NULL;
+    if (MPI_Isend(&bye, (int)sizeof bye, MPI_BYTE, r, RP_MPI_TAG_REQUEST,
+                  mod.comm, &reqs[r]) != MPI_SUCCESS)
+      reqs[r] = MPI_REQUEST_NULL;
+    else if (mod.ranks[r].lost)
+      MPI_Request_free(&reqs[r]);
+  }
+  uv_mutex_unlock(&mod.lock);
+  do {
+    pending = 0;
+    uv_mutex_lock(&mod.lock);
+    for (r = 1; r < mod.size; r++) {
+      int done = 1;
+      if (reqs[r] != MPI_REQUEST_NULL &&
+          MPI_Test(&reqs[r], &done, MPI_STATUS_IGNORE) != MPI_SUCCESS)
+        done = 1;
+      pending |= !done;
+    }
+    uv_mutex_unlock(&mod.lock);
+    if (pending)
+      rp_mpi__backoff(&us, 1000);
+  } while (pending && rp_mpi__now_ms() < deadline);
+  uv_mutex_lock(&mod.lock);
+  for (r = 1; r < mod.size; r++)
+    if (reqs[r] != MPI_REQUEST_NULL)
+      MPI_Request_free(&reqs[r]);
+  uv_mutex_unlock(&mod.lock);
+  free(reqs);
+}
+
+void rp_mpi_finalize(void) {
+  int finalized = 0;
+  if (!mod.ready) {
+    /* rp_mpi_init may have initialised MPI and then refused it (thread
+     * level): finalise what it started. */
+    if (mod.owns && MPI_Finalized(&finalized) == MPI_SUCCESS && !finalized)
+      MPI_Finalize();
+    mod.owns = 0;
+    return;
+  }
+  if (mod.rank == 0)
+    shutdown_servers();
+  mod.ready = 0;
+  if (!mod.owns)
+    return; /* the application's MPI: it finalises, and the abandoned
+               transfers stay the module's (see rp_mpi__abandon) */
+  MPI_Finalize();
+  mod.owns = 0;
+  while (mod.abandoned != NULL) {
+    rp_mpi__xfer *x = mod.abandoned;
+    mod.abandoned = x->next;
+    rp_mpi__xfer_free(x);
+  }
+  free(mod.ranks);
+  mod.ranks = NULL;
+  uv_mutex_destroy(&mod.lock);
+}
+
+int rp_mpi__ready(int *rank, int *size) {
+  if (!mod.ready)
+    return 0;
+  if (rank != NULL)
+    *rank = mod.rank;
+  if (size != NULL)
+    *size = mod.size;
+  return 1;
+}
+
+MPI_Comm rp_mpi__comm(void) { return mod.comm; }
+void rp_mpi__lock(void) { uv_mutex_lock(&mod.lock); }
+void rp_mpi__unlock(void) { uv_mutex_unlock(&mod.lock); }
+
+void rp_mpi__error_string(int code, char *buf, size_t size) {
+  char s[MPI_MAX_ERROR_STRING];
+  int len = 0;
+  if (MPI_Error_string(code, s, &len) != MPI_SUCCESS)
+    snprintf(s, sizeof s, "MPI error %d", code);
+  snprintf(buf, size, "%s", s);
+}
+
+double rp_mpi__now_ms(void) { return (double)uv_hrtime() * 1e-6; }
+
+void rp_mpi__backoff(uint32_t *us, uint32_t max_us) {
+  struct timespec ts;
+  *us = *us == 0 ? 20 : *us * 2 > max_us ? max_us : *us * 2;
+  ts.tv_sec = 0;
+  ts.tv_nsec = (long)*us * 1000;
+  nanosleep(&ts, NULL);
+}
+
+/* ---- Server ranks -------------------------------------------------------- */
+
+int rp_mpi__rank_claim(rp_context *ctx, int rank) {
+  int err = 0;
+  uv_mutex_lock(&mod.lock);
+  if (mod.ranks[rank].lost)
+    err = rp__fail(ctx, RP_EDEVICE, "mpi: rank %d was given up on "
+                   "earlier (%s)", rank, mod.ranks[rank].why);
+  else if (mod.ranks[rank].open)
+    err = rp__fail(ctx, RP_EBUSY, "mpi: rank %d is already open as "
+                   "another device of this process (one device per rank)",
+                   rank);
+  else
+    mod.ranks[rank].open = 1;
+  uv_mutex_unlock(&mod.lock);
+  return err;
+}
+
+void rp_mpi__rank_release(int rank) {
+  uv_mutex_lock(&mod.lock);
+  mod.ranks[rank].open = 0;
+  uv_mutex_unlock(&mod.lock);
+}
+
+void rp_mpi__rank_lose(int rank, const char *why) {
+  uv_mutex_lock(&mod.lock);
+  if (!mod.ranks[rank].lost) {
+    mod.ranks[rank].lost = 1;
+    snprintf(mod.ranks[rank].why, sizeof mod.ranks[rank].why, "%s", why);
+  }
+  uv_mutex_unlock(&mod.lock);
+}
+
+int rp_mpi__rank_lost(int rank) {
+  int lost;
+  uv_mutex_lock(&mod.lock);
+  lost = mod.ranks[rank].lost;
+  uv_mutex_unlock(&mod.lock);
+  return lost;
+}
+
+/* ---- Layouts --------------------------------------------------------------- */
+
+/* Appends a piece of count * size bytes; -1 on overflow. */
+static int piece(rp_mpi__layout *l, uint64_t count, uint64_t size) {
+  size_t off = (l->total + 15) / 16 * 16;
+  if (size != 0 && count > SIZE_MAX / size)
+    return -1;
+  if (off < l->total || count * size > SIZE_MAX - off)
+    return -1;
+  l->off[l->n] = off;
+  l->len[l->n] = (size_t)(count * size);
+  l->total = off + l->len[l->n];
+  l->n++;
+  return 0;
+}
+
+void rp_mpi__region_tiles(const rp_region *r, uint32_t *tx0, uint32_t *ty0,
+                          uint32_t *tw, uint32_t *th) {
+  *tx0 = r->x0 / RP_TILE_SIZE;
+  *ty0 = r->y0 / RP_TILE_SIZE;
+  *tw = r->x1 > r->x0 ? (r->x1 + RP_TILE_SIZE - 1) / RP_TILE_SIZE - *tx0
+                      : 0;
+  *th = r->y1 > r->y0 ? (r->y1 + RP_TILE_SIZE - 1) / RP_TILE_SIZE - *ty0
+                      : 0;
+}
+
+int rp_mpi__request_layout(const rp_mpi_request *q, rp_mpi__layout *l) {
+  memset(l, 0, sizeof *l);
+  switch (q->op) {
+  case RP_MPI_UPLOAD_VOLUME: {
+    const rp_mpi_volume_args *a = &q->a.volume;
+    if (a->type != RP_U8 && a->type != RP_U16 && a->type != RP_F32)
+      return -1;
+    return piece(l, a->voxels, rp__voxel_size((rp_voxel_type)a->type));
+  }
+  case RP_MPI_UPLOAD_TF:
+    return piece(l, q->a.tf.lut_size, 4 * sizeof(float));
+  case RP_MPI_UPLOAD_OCCUPANCY: {
+    const uint32_t *b = q->a.occupancy.blocks;
+    uint64_t n = (uint64_t)b[0] * b[1] * b[2];
+    return piece(l, n, 1) || piece(l, n, RP_OPACITY_BINS) ? -1 : 0;
+  }
+  case RP_MPI_COMPUTE_AO: {
+    const rp_mpi_ao_args *a = &q->a.ao;
+    if (piece(l, a->directions, 4 * sizeof(float)) != 0)
+      return -1;
+    return a->has_bricks ? piece(l, (uint64_t)a->brick_grid[0] *
+                                        a->brick_grid[1] * a->brick_grid[2],
+                                 1)
+                         : 0;
+  }
+  case RP_MPI_UPLOAD_AO:
+    return q->a.upload_ao.present ? piece(l, q->a.upload_ao.bytes, 1) : 0;
+  case RP_MPI_UPLOAD_BRICKS: {
+    const rp_mpi_bricks_args *a = &q->a.bricks;
+    if (piece(l, a->count, sizeof(uint32_t)) != 0 ||
+        piece(l, a->count, a->brick_bytes) != 0)
+      return -1;
+    return a->has_table ? piece(l, a->table_entries, sizeof(uint32_t)) : 0;
+  }
+  case RP_MPI_OPEN:
+  case RP_MPI_CLOSE:
+  case RP_MPI_DEPTH_PASS:
+  case RP_MPI_ERT_PREPASS:
+  case RP_MPI_RAYCAST:
+  case RP_MPI_SET_BRICK_POOL:
+  case RP_MPI_SHUTDOWN:
+    return 0;
+  default:
+    return -1;
+  }
+}
+
+int rp_mpi__reply_layout(const rp_mpi_request *q, rp_mpi__layout *l) {
+  const rp_mpi_frame_args *f = &q->a.frame;
+  memset(l, 0, sizeof *l);
+  switch (q->op) {
+  case RP_MPI_DEPTH_PASS:
+    if (!(f->want & RP_MPI_WANT_FRONT_BACK))
+      return 0;
+    return piece(l, (uint64_t)f->p.width * f->p.height, 2 * sizeof(float));
+  case RP_MPI_ERT_PREPASS: {
+    uint32_t gw, gh;
+    rp__ert_grid(f->p.width, f->p.height, &gw, &gh);
+    return piece(l, (uint64_t)gw * gh, sizeof(float));
+  }
+  case RP_MPI_RAYCAST: {
+    uint32_t tx0, ty0, tw, th;
+    uint64_t px = (uint64_t)(f->region.x1 - f->region.x0) *
+                  (f->region.y1 - f->region.y0);
+    if (f->region.x1 < f->region.x0 || f->region.y1 < f->region.y0)
+      return -1;
+    rp_mpi__region_tiles(&f->region, &tx0, &ty0, &tw, &th);
+    if (piece(l, px, 4) != 0)
+      return -1;
+    if ((f->want & RP_MPI_WANT_TILES) &&
+        piece(l, (uint64_t)tw * th, sizeof(rp_tile_stats)) != 0)
+      return -1;
+    if ((f->want & RP_MPI_WANT_FETCHES) &&
+        piece(l, (uint64_t)tw * th, sizeof(uint64_t)) != 0)
+      return -1;
+    return 0;
+  }
+  case RP_MPI_COMPUTE_AO: {
+    const rp_mpi_ao_args *a = &q->a.ao;
+    uint64_t n = 1;
+    int i;
+    for (i = 0; i < 3; i++)
+      n *= a->end[i] > a->lo[i] ? a->end[i] - a->lo[i] : 0;
+    return piece(l, n, 1);
+  }
+  default:
+    return q->op >= RP_MPI_OPEN && q->op < RP_MPI_OP_END ? 0 : -1;
+  }
+}
+
+const char *rp_mpi__op_name(uint32_t op) {
+  static const char *const names[] = {
+      "?",          "open",           "close",       "upload_volume",
+      "upload_tf",  "upload_occupancy", "depth_pass", "ert_prepass",
+      "raycast",    "compute_ao",     "upload_ao",   "set_brick_pool",
+      "upload_bricks", "shutdown"};
+  return op < sizeof names / sizeof names[0] ? names[op] : "?";
+}
+
+/* ---- Transfers ------------------------------------------------------------- */
+
+rp_mpi__xfer *rp_mpi__xfer_new(int peer) {
+  rp_mpi__xfer *x = calloc(1, sizeof *x);
+  if (x != NULL)
+    x->peer = peer;
+  return x;
+}
+
+void rp_mpi__xfer_free(rp_mpi__xfer *x) {
+  if (x == NULL)
+    return;
+  free(x->reqs);
+  free(x->idx);
+  free(x->out);
+  free(x->in);
+  free(x);
+}
+
+int rp_mpi__post(rp_mpi__xfer *x, int send, void *buf, size_t bytes,
+                 int tag) {
+  size_t chunks = bytes == 0 ? 1 : (bytes + RP_MPI_CHUNK - 1) / RP_MPI_CHUNK;
+  size_t c;
+  int rc = MPI_SUCCESS;
+  if ((size_t)(x->cap - x->nreq) < chunks) {
+    size_t cap = (size_t)x->nreq + chunks + 4;
+    MPI_Request *r;
+    int *idx;
+    if (cap > (size_t)(INT32_MAX / 2))
+      return MPI_ERR_NO_MEM;
+    if ((r = realloc(x->reqs, cap * sizeof *r)) == NULL)
+      return MPI_ERR_NO_MEM;
+    x->reqs = r;
+    if ((idx = realloc(x->idx, cap * sizeof *idx)) == NULL)
+      return MPI_ERR_NO_MEM;
+    x->idx = idx;
+    x->cap = (int)cap;
+  }
+  uv_mutex_lock(&mod.lock);
+  for (c = 0; c < chunks && rc == MPI_SUCCESS; c++) {
+    size_t at = c * RP_MPI_CHUNK;
+    int n = (int)(bytes - at < RP_MPI_CHUNK ? bytes - at : RP_MPI_CHUNK);
+    char *p = (char *)buf + at;
+    rc = send ? MPI_Isend(p, n, MPI_BYTE, x->peer, tag, mod.comm,
+                          &x->reqs[x->nreq])
+              : MPI_Irecv(p, n, MPI_BYTE, x->peer, tag, mod.comm,
+                          &x->reqs[x->nreq]);
+    if (rc == MPI_SUCCESS)
+      x->nreq++;
+  }
+  uv_mutex_unlock(&mod.lock);
+  return rc;
+}
+
+int rp_mpi__test(rp_mpi__xfer *x, int *done, int *progress) {
+  int rc, count = 0, i;
+  *done = 1;
+  *progress = 0;
+  if (x->nreq == 0)
+    return MPI_SUCCESS;
+  /* Testsome rather than Testall: a chunk of a long transfer arriving is
+   * a sign of life. Completed requests become MPI_REQUEST_NULL, and
+   * count is MPI_UNDEFINED once none is left active. */
+  uv_mutex_lock(&mod.lock);
+  rc = MPI_Testsome(x->nreq, x->reqs, &count, x->idx, MPI_STATUSES_IGNORE);
+  uv_mutex_unlock(&mod.lock);
+  if (rc != MPI_SUCCESS)
+    return rc;
+  *progress = count != MPI_UNDEFINED && count > 0;
+  for (i = 0; i < x->nreq; i++)
+    if (x->reqs[i] != MPI_REQUEST_NULL)
+      *done = 0;
+  if (*done)
+    x->nreq = 0;
+  return MPI_SUCCESS;
+}
+
+void rp_mpi__abandon(rp_mpi__xfer *x) {
+  int i;
+  if (x == NULL)
+    return;
+  uv_mutex_lock(&mod.lock);
+  /* Receives are cancelled (Open MPI cancels a receive not yet matched);
+   * a send cannot be. Whatever stays pending keeps its buffer here. */
+  for (i = 0; i < x->nreq; i++)
+    if (x->reqs[i] != MPI_REQUEST_NULL) {
+      MPI_Cancel(&x->reqs[i]);
+      MPI_Request_free(&x->reqs[i]);
+    }
+  x->nreq = 0;
+  x->next = mod.abandoned;
+  mod.abandoned = x;
+  uv_mutex_unlock(&mod.lock);
+}
