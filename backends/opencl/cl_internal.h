@@ -79,6 +79,12 @@ typedef struct rp_cl_impl {
   size_t brick_bytes;       /* one stored brick */
   size_t brick_count;       /* entries of the table */
   rp_cl_buffer brick_table;
+  /* upload_bricks' host scratch: the bricks of runs of consecutive slots
+   * side by side, and the uploads' order by slot. */
+  uint8_t *brick_staging;
+  size_t brick_staging_cap;
+  uint32_t *brick_order;
+  size_t brick_order_cap;
   rp_cl_buffer volume, lut, grid, alpha_hist;
   rp_cl_buffer ao; /* the AO volume (RP_EFFECT_AO); none when AO is off */
   rp_cl_buffer front_back, d_ert, rgba, tiles, fetches;
