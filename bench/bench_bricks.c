@@ -15,7 +15,7 @@
  * each part's bricks fit the pool, and the pool's hit rate.
  *
  * usage: bench_bricks [--backend NAME] [--frames N] [--brick-size N]
- *                     [--size N] [VOLUME ...]
+ *                     [--size N] [--no-shading] [VOLUME ...]
  *        (default volumes: bonsai and engine from $RP_SHARED_DATA, else
  *        a generated 256^3 phantom) */
 #include <stdio.h>
@@ -26,6 +26,10 @@
 #include "raypace.h"
 
 #define MAX_FRAMES 64
+
+/* The frames' effects: shading, ERT and skipping (--no-shading: the last
+ * two). */
+static uint32_t effects = RP_EFFECT_SHADING | RP_EFFECT_ERT | RP_EFFECT_SKIP;
 
 typedef struct path_result {
   double median_ms, upload_share, mb_per_frame, parts, hit_rate;
@@ -43,7 +47,7 @@ static int run_path(rp_device *dev, const rp_volume *vol, int orbit,
   if (img == NULL)
     return RP_ENOMEM;
   d.width = d.height = size;
-  d.effects = RP_EFFECT_SHADING | RP_EFFECT_ERT | RP_EFFECT_SKIP;
+  d.effects = effects;
   for (f = 0; f <= frames && err == 0; f++) {
     rp_camera cam = {0};
     rp_brick_stats st;
@@ -100,9 +104,10 @@ static int bench_volume(rp_context *ctx, const char *backend,
       (err = rp_histograms_build(ctx, vol, &h)) != 0 ||
       (err = rp_occupancy_build(ctx, h, tf, &occ)) != 0)
     goto out;
-  printf("\n%s (%ux%ux%u, %.1f MB), %ux%u, bricks of %u^3, %s\n", name,
+  printf("\n%s (%ux%ux%u, %.1f MB), %ux%u, bricks of %u^3, %s%s\n", name,
          info.dims[0], info.dims[1], info.dims[2],
-         bytes / 1048576.0, size, size, brick, backend);
+         bytes / 1048576.0, size, size, brick, backend,
+         (effects & RP_EFFECT_SHADING) ? "" : ", no shading");
   printf("%-8s %-6s %10s %8s %9s %9s %7s %8s\n", "budget", "path",
          "frame ms", "x core", "upload %", "MB/frame", "parts", "hits %");
   for (i = 0; i < sizeof fractions / sizeof fractions[0]; i++) {
@@ -166,11 +171,14 @@ int main(int argc, char **argv) {
       brick = (uint32_t)atoi(argv[++i]);
     else if (strcmp(argv[i], "--size") == 0 && i + 1 < argc)
       size = (uint32_t)atoi(argv[++i]);
+    else if (strcmp(argv[i], "--no-shading") == 0)
+      effects &= ~(uint32_t)RP_EFFECT_SHADING;
     else if (argv[i][0] != '-' && nnames < 16)
       names[nnames++] = argv[i];
     else {
       fprintf(stderr, "usage: bench_bricks [--backend NAME] [--frames N] "
-                      "[--brick-size N] [--size N] [VOLUME ...]\n");
+                      "[--brick-size N] [--size N] [--no-shading] "
+                      "[VOLUME ...]\n");
       return 2;
     }
   }

@@ -182,6 +182,7 @@ void rp_cl_raycast(rp_cl_frame fp, uint x0, uint y0, uint x1, uint y1,
 #ifdef RP_BRICKED
     rp_cl_grid g = rp_cl_grid_bricked(fp.dims, fp.idims, fp.brick_shift,
                                       fp.brick_grid, brick_table);
+    rp_cl_brick_cache bcache = {(vint)(-1), (vindex)(0)};
 #else
     rp_cl_grid g = rp_cl_grid_make(fp.dims, fp.idims);
 #endif
@@ -275,7 +276,11 @@ void rp_cl_raycast(rp_cl_frame fp, uint x0, uint y0, uint x1, uint y1,
       vfloat t = k.s + (i0 + step_i) * fp.step;
       vfloat qx = k.p0x + t * k.dpx, qy = k.p0y + t * k.dpy;
       vfloat qz = k.p0z + t * k.dpz;
+#ifdef RP_BRICKED
+      rp_cl_cell cell = rp_cl_cell_at_cached(&g, &bcache, qx, qy, qz);
+#else
       rp_cl_cell cell = rp_cl_cell_at(&g, qx, qy, qz);
+#endif
       vfloat v = rp_cl_sample_cell(vol, &g, &cell), w, r, gr, b, a, wgt;
       vint e = rp_cl_lut_entry(&lp, v, &w);
 #if defined(RP_SHADING) || defined(RP_AO)
