@@ -70,16 +70,21 @@ RP_API int rp_mpi_init(int *argc, char ***argv, int *rank, int *size);
 
 /** Serves this rank's local device to rank 0 until rank 0 shuts the
  *  servers down (rp_mpi_finalize on rank 0); for ranks >= 1. The device is
- *  `backend`'s device 0, NULL: the RP_BACKEND environment variable if
- *  set, else the first compiled-in backend with a device, as
- *  rp_device_create chooses ("reference" and "mpi" cannot be served). It
- *  is opened when rank 0 first opens this rank, and kept between rank
- *  0's sessions; when it cannot be opened, the server still runs and
- *  answers every open with the error. Testing knobs (environment): RP_MPI_DIE_AT=N kills this rank
- *  (SIGKILL) at its N-th raycast; RP_MPI_STALL_AT=N makes its N-th
- *  raycast take RP_MPI_STALL_MS (default 5000) longer.
+ *  device RP_MPI_DEVICE (environment; default 0) of `backend`, NULL: the
+ *  RP_BACKEND environment variable if set, else the first compiled-in
+ *  backend with that device, as rp_device_create chooses ("reference" and
+ *  "mpi" cannot be served). A machine with several devices runs one rank
+ *  per device, each with its own RP_MPI_DEVICE (an MPMD launch: `mpirun
+ *  -np 2 app : -np 1 env RP_MPI_DEVICE=1 app` serves devices 0 and 1 of
+ *  one machine from ranks 1 and 2). It is opened when rank 0 first opens
+ *  this rank, and kept between rank 0's sessions; when it cannot be
+ *  opened, the server still runs and answers every open with the error.
+ *  Testing knobs (environment): RP_MPI_DIE_AT=N kills this rank (SIGKILL)
+ *  at its N-th raycast; RP_MPI_STALL_AT=N makes its N-th raycast take
+ *  RP_MPI_STALL_MS (default 5000) longer.
  *  \returns 0 after a shutdown, RP_ESTATE (MPI not initialised by
- *  rp_mpi_init, or rank 0), RP_EINVAL (a bad testing knob),
+ *  rp_mpi_init, or rank 0), RP_EINVAL (RP_MPI_DEVICE or a testing knob
+ *  is not a whole number),
  *  RP_EUNSUPPORTED (built without MPI), RP_EDEVICE (MPI failed: the
  *  message says how). \since 0.2 */
 RP_API int rp_mpi_serve(rp_context *ctx, const char *backend);

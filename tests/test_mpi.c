@@ -10,6 +10,8 @@
  *          proxy's timeout; every frame is still whole and right
  *   kill   rank 2 is started with RP_MPI_DIE_AT (and mpirun with
  *          --enable-recovery): it dies on a raycast; the same holds
+ *   device ranks 1 and 2 are started with RP_MPI_DEVICE=1 and 99: rank
+ *          1 serves its backend's device 1, rank 2 no device
  *
  * The oracle is a local device of the servers' backend, so images are
  * compared byte for byte (a region's pixels depend only on its rays, as
@@ -519,6 +521,53 @@ static void test_kill(void **state) {
   lose_rank_2(0, NULL);
 }
 
+/* ---- which device a rank serves ---------------------------------------------- */
+
+/* Rank 1 runs with RP_MPI_DEVICE=1, rank 2 with RP_MPI_DEVICE=99: rank 1
+ * serves its backend's device 1 (the caps a local device 1 has), rank 2
+ * none, and every open of it says why. */
+static void test_device_choice(void **state) {
+  rp_context *ctx = rp_test_context();
+  rp_device_desc dd = {0};
+  rp_device *dev = NULL, *local = NULL;
+  rp_caps remote, mine;
+  char backend[32];
+  uint32_t n = 0;
+  int err;
+  (void)state;
+  dd.backend = "mpi";
+  dd.index = 1;
+  assert_int_not_equal(rp_device_create(ctx, &dd, &dev), 0);
+  print_message("mpi:1: %s\n", rp_last_error(ctx));
+  assert_non_null(strstr(rp_last_error(ctx), "device 99 (RP_MPI_DEVICE)"));
+  dd.index = 0;
+  if ((err = rp_device_create(ctx, &dd, &dev)) != 0) {
+    /* A backend with one device here: device 1 is refused the same way. */
+    print_message("mpi:0: %s\n", rp_last_error(ctx));
+    assert_non_null(strstr(rp_last_error(ctx), "device 1 (RP_MPI_DEVICE)"));
+    rp_context_destroy(ctx);
+    skip();
+  }
+  rp_device_get_caps(dev, &remote);
+  rp_device_destroy(dev);
+  remote_backend(&remote, backend, sizeof backend);
+  if (rp_device_count(ctx, backend, &n) == 0 && n >= 2) {
+    rp_device_desc ld = {0};
+    ld.backend = backend;
+    ld.index = 1;
+    assert_int_equal(rp_device_create(ctx, &ld, &local), 0);
+    rp_device_get_caps(local, &mine);
+    rp_device_destroy(local);
+    print_message("mpi:0 serves '%s' (%u compute units); local %s:1 is "
+                  "'%s' (%u)\n", remote.device, remote.compute_units,
+                  backend, mine.device, mine.compute_units);
+    assert_non_null(strstr(remote.device, mine.device));
+    assert_int_equal(remote.compute_units, mine.compute_units);
+    assert_int_equal(remote.sub_device, mine.sub_device);
+  }
+  rp_context_destroy(ctx);
+}
+
 int main(int argc, char **argv) {
   static const struct CMUnitTest group[] = {
       cmocka_unit_test(test_ops_match_local),
@@ -529,6 +578,8 @@ int main(int argc, char **argv) {
   };
   static const struct CMUnitTest stall[] = {cmocka_unit_test(test_stall)};
   static const struct CMUnitTest kill[] = {cmocka_unit_test(test_kill)};
+  static const struct CMUnitTest device[] = {
+      cmocka_unit_test(test_device_choice)};
   const char *mode;
   int rank = 0, size = 1, rc;
   if (rp_mpi_init(&argc, &argv, &rank, &size) != 0) {
@@ -556,6 +607,8 @@ int main(int argc, char **argv) {
     rc = cmocka_run_group_tests_name("mpi stall", stall, NULL, NULL);
   else if (strcmp(mode, "kill") == 0)
     rc = cmocka_run_group_tests_name("mpi kill", kill, NULL, NULL);
+  else if (strcmp(mode, "device") == 0)
+    rc = cmocka_run_group_tests_name("mpi device", device, NULL, NULL);
   else
     rc = cmocka_run_group_tests_name("mpi", group, NULL, NULL);
   /* The verdict, before MPI_Finalize: tests/cli/test_mpi_kill.sh reads it

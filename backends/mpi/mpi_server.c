@@ -26,6 +26,7 @@ typedef struct server {
   rp_context *ctx;
   int rank;
   const char *backend; /* rp_mpi_serve's */
+  uint32_t device;     /* its index within the backend (RP_MPI_DEVICE) */
   int tried;           /* the device was opened, or failed to open */
   const rp_backend_ops *ops; /* NULL: not open */
   void *impl;
@@ -580,11 +581,13 @@ static int op_upload_bricks(server *s, rp_mpi__xfer *x) {
 static void open_device(server *s) {
   int err;
   s->tried = 1;
-  if ((err = rp__backend_open(s->ctx, s->backend, 0, &s->ops, &s->impl,
-                              &s->caps)) != 0) {
+  if ((err = rp__backend_open(s->ctx, s->backend, s->device, &s->ops,
+                              &s->impl, &s->caps)) != 0) {
     s->ops = NULL;
     s->open_err = err;
-    snprintf(s->open_msg, sizeof s->open_msg, "%s", rp_last_error(s->ctx));
+    snprintf(s->open_msg, sizeof s->open_msg, "rank %d, device %u "
+             "(RP_MPI_DEVICE): %s", s->rank, s->device,
+             rp_last_error(s->ctx));
   }
 }
 
@@ -706,7 +709,7 @@ static int env_u32(rp_context *ctx, const char *name, uint32_t *out) {
   v = strtoul(s, &end, 10);
   if (end == s || *end != '\0' || s[0] == '-' || v > UINT32_MAX)
     return rp__fail(ctx, RP_EINVAL, "rp_mpi_serve: %s='%s' is not a "
-                    "count (0: never)", name, s);
+                    "whole number >= 0", name, s);
   *out = (uint32_t)v;
   return 0;
 }
@@ -715,7 +718,8 @@ static int read_knobs(server *s) {
   const char *ms = getenv("RP_MPI_STALL_MS");
   int err;
   s->stall_ms = 5000.0;
-  if ((err = env_u32(s->ctx, "RP_MPI_DIE_AT", &s->die_at)) != 0 ||
+  if ((err = env_u32(s->ctx, "RP_MPI_DEVICE", &s->device)) != 0 ||
+      (err = env_u32(s->ctx, "RP_MPI_DIE_AT", &s->die_at)) != 0 ||
       (err = env_u32(s->ctx, "RP_MPI_STALL_AT", &s->stall_at)) != 0)
     return err;
   if (ms != NULL && ms[0] != '\0') {
