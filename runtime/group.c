@@ -1403,7 +1403,8 @@ int rp_device_group_train(rp_device_group *g, const rp_frame_probe *p,
     if (g->count == 1)
       frame = frame_ms;
     /* Brick uploads are predicted apart (rp_device_group_upload_ms). */
-    frame = fmax(frame - w->frame_upload_ms, raycast);
+    if (w->frame_upload_ms > 0.0)
+      frame = fmax(frame - w->frame_upload_ms, raycast);
     if ((e = rp_cost_train(w->model, p, step, scale, g->last_samples,
                            raycast, frame)) != 0) {
       err = rp__fail(g->ctx, e, "%s: %s", fn, rp_last_error(w->ctx));
