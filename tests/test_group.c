@@ -306,7 +306,12 @@ static void test_ao_follows_speed(void **state) {
  * the median difference from a control (the same pair without the
  * stall, frame for frame: equal devices need not split 1/2, the tile
  * cost map may favour one side) within 0.15 (measured under ASan and
- * TSan: -0.03 to 0.08). */
+ * TSan: -0.03 to 0.08). Which side is favoured is noise: under TSan
+ * either pair settled on about 0.63 or on its mirror 0.37 for the same
+ * device (5 of 16 runs apart by 0.24-0.27, either way round),
+ * so the difference is taken to the control's share or its mirror,
+ * whichever is nearer. A device squeezed out (0.02, as before the
+ * median of three) is as far from both. */
 static void test_stall_recovers(void **state) {
   uint8_t *img = malloc(4 * W * H * 4);
   rp_device_desc dd[2], cd[2];
@@ -338,13 +343,14 @@ static void test_stall_recovers(void **state) {
       fail_msg("frame 3: the stalled device's share is %.3f (the "
                "control's %.3f)", shares[1], control[1]);
     if (f >= 3)
-      diff[f - 3] = shares[1] - control[1];
+      diff[f - 3] = fmin(fabs(shares[1] - control[1]),
+                         fabs(shares[1] - (1.0 - control[1])));
   }
   qsort(diff, 9, sizeof *diff, cmp_double);
-  print_message("stalled device's share less the control's after the "
-                "stall: median %.3f (range %.3f to %.3f)\n", diff[4],
-                diff[0], diff[8]);
-  assert_true(fabs(diff[4]) <= 0.15);
+  print_message("stalled device's share off the control's (or its "
+                "mirror) after the stall: median %.3f (range %.3f to "
+                "%.3f)\n", diff[4], diff[0], diff[8]);
+  assert_true(diff[4] <= 0.15);
   rp_device_group_destroy(c);
   rp_device_group_destroy(g);
   scene_free(&sc);
