@@ -909,7 +909,7 @@ static void test_fetch_counts(void **state) {
   uint64_t shaded, plain, t_shaded, t_plain, n_shaded, n_plain;
   frame_desc fd = {64, 64, 1.0f, 1.0f, 0};
   size_t e;
-  int round;
+  int round, attempt;
   (void)state;
   scene_init(&s, generate(RP_GEN_PHANTOM, 48, 48, 48, RP_U8),
              rp_test_preset(g_ctx, "ct-soft"));
@@ -921,9 +921,13 @@ static void test_fetch_counts(void **state) {
     counted(&s, &f, &n_plain);
   }
   /* Timing on a shared machine: a larger frame, both variants measured
-   * in alternating rounds, each at its best, so a burst of load lands on
-   * both rather than on one. Shading does up to 7 fetches per sample
-   * against 1, far beyond what noise left in the minima moves. */
+   * in alternating rounds, each at its best of nine, so a burst of load
+   * lands on both rather than on one. Shading does up to 7 fetches per
+   * sample against 1 (here about 1.5 on average: only visible samples
+   * are shaded). Best of five was once reversed under ASan in CI, with
+   * a test beside this one; a reversal is measured again, up to three
+   * times: a real one (shading that costs nothing, or plain rendering
+   * that pays for it) stays reversed every time. */
   fd.width = fd.height = 160;
   fd.effects = RP_EFFECT_SHADING;
   frame_init(&s, &cams[0], &fd, &fs);
@@ -932,18 +936,25 @@ static void test_fetch_counts(void **state) {
   frame_init(&s, &cams[0], &fd, &f);
   plain = counted(&s, &f, &n_plain);
   t_shaded = t_plain = UINT64_MAX;
-  for (round = 0; round < 5; round++) {
-    uint64_t a = device_time(&fs), b = device_time(&f);
-    t_shaded = a < t_shaded ? a : t_shaded;
-    t_plain = b < t_plain ? b : t_plain;
+  for (attempt = 0; attempt < 3 && !(t_plain < t_shaded); attempt++) {
+    t_shaded = t_plain = UINT64_MAX;
+    for (round = 0; round < 9; round++) {
+      uint64_t a = device_time(&fs), b = device_time(&f);
+      t_shaded = a < t_shaded ? a : t_shaded;
+      t_plain = b < t_plain ? b : t_plain;
+    }
   }
   /* Shading changes colour, never opacity: the same samples; of them,
    * the ones that show are shaded, and this view has both kinds. */
   assert_true(plain > 0 && plain == n_plain && n_shaded == n_plain);
   assert_true(plain < shaded && shaded < 7 * plain);
   if (!(t_plain < t_shaded))
-    fail_msg("no-shading render took %llu ns, shaded %llu ns",
-             (unsigned long long)t_plain, (unsigned long long)t_shaded);
+    fail_msg("no-shading render took %llu ns, shaded %llu ns (best of "
+             "nine, three times)", (unsigned long long)t_plain,
+             (unsigned long long)t_shaded);
+  print_message("device time %.2f ms vs %.2f ms (no shading vs shading), "
+                "attempt %d\n", (double)t_plain * 1e-6,
+                (double)t_shaded * 1e-6, attempt);
   scene_free(&s);
 }
 
