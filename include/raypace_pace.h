@@ -142,6 +142,9 @@ typedef struct rp_controller_desc {
   double vtk_f;       /* VTK's time factor f, > 0; 0: VTK's own choice,
                          1.66 for targets under 1000 ms, else 1 (see
                          runtime/control.c) */
+  double tune_time_us; /* PREDICTED: the tuner's wall-clock budget per
+                          frame (rp_tune_desc.max_time_us), >= 0; 0: its
+                          default, 200 */
 } rp_controller_desc;
 
 /** "none", "last-frame", "two-pass", "predicted", "vtk", "ue5", "valve"

@@ -129,7 +129,8 @@ static int check_desc(rp_context *ctx, const rp_controller_desc *d) {
            {"rho_max", d->rho_max},
            {"rho_start", d->rho_start},
            {"raise_limit", d->raise_limit},
-           {"vtk_f", d->vtk_f}};
+           {"vtk_f", d->vtk_f},
+           {"tune_time_us", d->tune_time_us}};
   size_t i;
   if ((unsigned)d->kind >= RP_CONTROL_COUNT)
     return rp__fail(ctx, RP_EINVAL, "controller: field 'kind' = %d is not "
@@ -151,6 +152,9 @@ static int check_desc(rp_context *ctx, const rp_controller_desc *d) {
   if (d->vtk_f < 0)
     return rp__fail(ctx, RP_EINVAL, "controller: field 'vtk_f' = %g is "
                     "negative", d->vtk_f);
+  if (d->tune_time_us < 0)
+    return rp__fail(ctx, RP_EINVAL, "controller: field 'tune_time_us' = %g "
+                    "is negative", d->tune_time_us);
   return 0;
 }
 
@@ -403,6 +407,7 @@ int rp_controller_begin_frame(rp_controller *c, double target_ms,
     td.rho_min = c->d.rho_min;
     td.rho_max = c->d.rho_max;
     td.raise_limit = c->d.raise_limit;
+    td.max_time_us = c->d.tune_time_us; /* 0: rp_tune's default */
     if ((err = rp_tune(&td, predict, user, &res)) != 0)
       return rp__fail(c->ctx, err, "controller: rp_tune failed (%s)",
                       rp_err_name(err));
