@@ -414,17 +414,9 @@ static int mpi_compute_ao(void *p, const rp_ao_job *job, uint8_t *out) {
   if ((x = begin(px, RP_MPI_COMPUTE_AO)) == NULL)
     return RP_ENOMEM;
   a = &x->req.a.ao;
-  memcpy(a->lo, job->lo, sizeof a->lo);
-  memcpy(a->end, job->end, sizeof a->end);
-  memcpy(a->brick_grid, job->brick_grid, sizeof a->brick_grid);
-  a->directions = job->directions;
-  a->samples = job->samples;
-  a->offset = job->offset;
-  a->step = job->step;
-  a->ref_step = job->ref_step;
-  a->value_min = job->value_min;
-  a->value_max = job->value_max;
-  a->lut_size = job->lut_size;
+  a->job = *job;
+  a->job.dirs = NULL;
+  a->job.bricks = NULL;
   a->has_bricks = job->bricks != NULL;
   if ((err = stage(px, x, &l)) != 0)
     return err;

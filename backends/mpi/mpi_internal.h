@@ -107,13 +107,10 @@ typedef struct rp_mpi_frame_args {
   uint32_t want;    /* RP_MPI_WANT_* */
 } rp_mpi_frame_args;
 
-/* rp_ao_job without its pointers (dirs and bricks travel as payload). */
+/* The job as the backend op takes it, its pointers NULL on the wire: dirs
+ * and bricks travel as payload and are pointed at there on receipt. */
 typedef struct rp_mpi_ao_args {
-  uint32_t lo[3], end[3];
-  uint32_t directions, samples;
-  float offset, step, ref_step, value_min, value_max;
-  uint32_t lut_size;
-  uint32_t brick_grid[3];
+  rp_ao_job job;
   uint32_t has_bricks;
 } rp_mpi_ao_args;
 

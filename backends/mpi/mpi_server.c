@@ -460,24 +460,13 @@ static int op_compute_ao(server *s, rp_mpi__xfer *x) {
   if (s->voxels == 0)
     return rp__fail(s->ctx, RP_ESTATE, "compute_ao without a volume");
   for (i = 0; i < 3; i++)
-    if (a->lo[i] >= a->end[i])
+    if (a->job.lo[i] >= a->job.end[i])
       return rp__fail(s->ctx, RP_EINVAL, "an empty AO box along axis %d",
                       i);
   if ((err = reply_buffer(s, x, &out)) != 0)
     return err;
   (void)rp_mpi__request_layout(&x->req, &in); /* checked on receipt */
-  memset(&job, 0, sizeof job);
-  memcpy(job.lo, a->lo, sizeof job.lo);
-  memcpy(job.end, a->end, sizeof job.end);
-  memcpy(job.brick_grid, a->brick_grid, sizeof job.brick_grid);
-  job.directions = a->directions;
-  job.samples = a->samples;
-  job.offset = a->offset;
-  job.step = a->step;
-  job.ref_step = a->ref_step;
-  job.value_min = a->value_min;
-  job.value_max = a->value_max;
-  job.lut_size = a->lut_size;
+  job = a->job;
   job.dirs = (const float *)((const char *)x->in + in.off[0]);
   job.bricks = a->has_bricks ? (const uint8_t *)x->in + in.off[1] : NULL;
   return s->ops->compute_ao(s->impl, &job, x->out);

@@ -290,13 +290,14 @@ int rp_mpi__request_layout(const rp_mpi_request *q, rp_mpi__layout *l) {
     return piece(l, n, 1) || piece(l, n, RP_OPACITY_BINS) ? -1 : 0;
   }
   case RP_MPI_COMPUTE_AO: {
-    const rp_mpi_ao_args *a = &q->a.ao;
-    if (piece(l, a->directions, 4 * sizeof(float)) != 0)
+    const rp_ao_job *j = &q->a.ao.job;
+    if (piece(l, j->directions, 4 * sizeof(float)) != 0)
       return -1;
-    return a->has_bricks ? piece(l, (uint64_t)a->brick_grid[0] *
-                                        a->brick_grid[1] * a->brick_grid[2],
-                                 1)
-                         : 0;
+    return q->a.ao.has_bricks
+               ? piece(l, (uint64_t)j->brick_grid[0] * j->brick_grid[1] *
+                              j->brick_grid[2],
+                       1)
+               : 0;
   }
   case RP_MPI_UPLOAD_AO:
     return q->a.upload_ao.present ? piece(l, q->a.upload_ao.bytes, 1) : 0;
@@ -351,11 +352,11 @@ int rp_mpi__reply_layout(const rp_mpi_request *q, rp_mpi__layout *l) {
     return 0;
   }
   case RP_MPI_COMPUTE_AO: {
-    const rp_mpi_ao_args *a = &q->a.ao;
+    const rp_ao_job *j = &q->a.ao.job;
     uint64_t n = 1;
     int i;
     for (i = 0; i < 3; i++)
-      n *= a->end[i] > a->lo[i] ? a->end[i] - a->lo[i] : 0;
+      n *= j->end[i] > j->lo[i] ? j->end[i] - j->lo[i] : 0;
     return piece(l, n, 1);
   }
   default:
