@@ -23,7 +23,6 @@
 #include <pthread.h>
 #include <stdio.h>
 #include <string.h>
-#include <time.h>
 
 #include "ao.h"
 
@@ -75,12 +74,6 @@ typedef struct worker {
   pthread_t thread;
 } worker;
 
-static double now_ms(void) {
-  struct timespec ts;
-  clock_gettime(CLOCK_MONOTONIC, &ts);
-  return (double)ts.tv_sec * 1e3 + (double)ts.tv_nsec * 1e-6;
-}
-
 static uint64_t box_voxels(const box *b) {
   return (uint64_t)(b->end[0] - b->lo[0]) * (b->end[1] - b->lo[1]) *
          (b->end[2] - b->lo[2]);
@@ -118,7 +111,7 @@ static int in_time(const rp_ao_run *s, uint32_t i) {
     return 1;
   mean = r->devices[i].jobs > 0 ? r->devices[i].busy_ms / r->devices[i].jobs
                                 : 0.0;
-  return now_ms() + mean <= s->deadline;
+  return rp__now_ms() + mean <= s->deadline;
 }
 
 static void *worker_main(void *arg) {
@@ -159,12 +152,12 @@ static void *worker_main(void *arg) {
         err = rp__fail(dctx, RP_ENOMEM, "rp_ao_compute: out of memory "
                        "for a block of %zu voxels", need);
     }
-    t0 = now_ms();
+    t0 = rp__now_ms();
     if (err == 0)
       err = rp_device_compute_ao(dev, s->plan, j->b.lo, j->b.end, part);
     if (err == 0 && part != NULL)
       scatter(s->ao->data, s->plan->dims, &j->b, part);
-    took = now_ms() - t0;
+    took = rp__now_ms() - t0;
     pthread_mutex_lock(&s->mu);
     s->rep.devices[w->index].busy_ms += took;
     if (err != 0) {
@@ -341,7 +334,7 @@ static void bsp_balance(const rp_ao_plan *plan, bsp_node *nodes, int k,
     double smaller, d = imbalance(plan, nd, nd->plane, &smaller), d2, s2;
     uint32_t next;
     if (fabs(d) <= tolerance * (smaller > 1.0 ? smaller : 1.0) ||
-        now_ms() > deadline)
+        rp__now_ms() > deadline)
       break;
     if (bracketed) {
       uint32_t lo = other < nd->plane ? other : nd->plane;
@@ -424,14 +417,14 @@ static int static_jobs(rp_context *ctx, const rp_ao_plan *plan, uint32_t n,
   int count = 1, k;
   uint32_t nj = 0, s;
   job *jobs;
-  double t0 = now_ms();
+  double t0 = rp__now_ms();
   memset(nodes, 0, sizeof nodes);
   memcpy(nodes[0].b.end, plan->dims, sizeof nodes[0].b.end);
   nodes[0].devices = n;
   bsp_build(nodes, &count, 0, sc->speed);
   if (balanced)
     bsp_balance(plan, nodes, 0, sc->tolerance, t0 + sc->balance_ms);
-  *balance_ms = balanced ? now_ms() - t0 : 0.0;
+  *balance_ms = balanced ? rp__now_ms() - t0 : 0.0;
   jobs = rp__calloc(ctx, (size_t)count * STATIC_SLABS, sizeof *jobs);
   if (jobs == NULL)
     return RP__AO_FAIL(ctx, RP_ENOMEM, "rp_ao_compute: out of memory");
@@ -611,7 +604,7 @@ int rp_ao_run_create(rp_context *ctx, rp_device *const *devices,
   s->plan = plan;
   s->n = count;
   s->sc = sc;
-  s->t0 = now_ms();
+  s->t0 = rp__now_ms();
   s->rep.device_count = count;
   for (i = 0; i < count; i++) {
     s->devs[i] = devices[i];
@@ -655,7 +648,7 @@ int rp_ao_run_step(rp_ao_run *s, double budget_ms, double *fraction) {
     return RP__AO_FAIL(s->ctx, RP_ERANGE, "rp_ao_run_step: budget_ms %g "
                        "must be above 0 (INFINITY: to the end)", budget_ms);
   pthread_mutex_lock(&s->mu);
-  s->deadline = budget_ms == INFINITY ? INFINITY : now_ms() + budget_ms;
+  s->deadline = budget_ms == INFINITY ? INFINITY : rp__now_ms() + budget_ms;
   memset(s->taken, 0, sizeof s->taken);
   reported = s->done;
   pthread_mutex_unlock(&s->mu);
@@ -715,7 +708,7 @@ int rp_ao_run_finish(rp_ao_run *s, rp_ao **out, rp_ao_report *report) {
                        "done", s->done, s->njobs);
   if (s->sc.progress != NULL)
     s->sc.progress(1.0, s->sc.user);
-  s->rep.total_ms = now_ms() - s->t0;
+  s->rep.total_ms = rp__now_ms() - s->t0;
   s->rep.min_ms = INFINITY;
   s->rep.max_ms = 0.0;
   for (i = 0; i < s->n; i++) {

@@ -369,12 +369,6 @@ uint64_t rp_device_last_time_ns(const rp_device *dev) {
   return dev != NULL ? dev->last_ns : 0;
 }
 
-static uint64_t now_ns(void) {
-  struct timespec ts;
-  clock_gettime(CLOCK_MONOTONIC, &ts);
-  return (uint64_t)ts.tv_sec * 1000000000u + (uint64_t)ts.tv_nsec;
-}
-
 static void sleep_ns(uint64_t ns) {
   struct timespec ts;
   ts.tv_sec = (time_t)(ns / 1000000000u);
@@ -399,7 +393,7 @@ static void record_ns(rp_device *dev, uint64_t ns) {
  * wall time since `start`). */
 static void record_time(rp_device *dev, uint64_t start) {
   record_ns(dev, dev->ops != NULL ? dev->ops->last_time_ns(dev->impl)
-                                  : now_ns() - start);
+                                  : rp__now_ns() - start);
 }
 
 /* rp_device_desc's stall, on its render. */
@@ -785,7 +779,7 @@ int rp_device_set_volume(rp_device *dev, const rp_volume *vol) {
   rp_context *ctx;
   size_t bytes;
   int err, a;
-  uint64_t t0 = now_ns();
+  uint64_t t0 = rp__now_ns();
   if (dev == NULL)
     return RP_EINVAL;
   ctx = dev->ctx;
@@ -843,7 +837,7 @@ int rp_device_set_tf(rp_device *dev, const rp_tf *tf,
   rp_context *ctx;
   uint32_t nb;
   int err;
-  uint64_t t0 = now_ns();
+  uint64_t t0 = rp__now_ns();
   if (dev == NULL)
     return RP_EINVAL;
   ctx = dev->ctx;
@@ -1018,7 +1012,7 @@ int rp_device_depth_pass(rp_device *dev, const rp_camera *cam,
   rp_render_desc d = {0};
   rp__raygen rg = {0};
   rp_frame_params p = {0};
-  uint64_t t0 = now_ns();
+  uint64_t t0 = rp__now_ns();
   int err;
   if (dev == NULL)
     return RP_EINVAL;
@@ -1048,7 +1042,7 @@ int rp_device_ert_prepass(rp_device *dev, const rp_camera *cam,
   rp_render_desc d = {0};
   rp__raygen rg = {0};
   rp_frame_params p = {0};
-  uint64_t t0 = now_ns();
+  uint64_t t0 = rp__now_ns();
   int err;
   if (dev == NULL)
     return RP_EINVAL;
@@ -1139,7 +1133,7 @@ int rp__device_render(rp_device *dev, const rp_camera *cam,
     return rp__fail(dev->ctx, RP_EDEVICE, "rp_device_render: device '%s' "
                     "(%s) failed (injected at render %u)", dev->caps.device,
                     dev->caps.backend, dev->fail_at_render);
-  t0 = now_ns();
+  t0 = rp__now_ns();
   if (dev->ops == NULL) {
     rp_volume ao_view;
     if (dev->ref_ao != NULL)
@@ -1189,7 +1183,7 @@ int rp_device_compute_ao(rp_device *dev, const rp_ao_plan *plan,
                          uint8_t *out) {
   static const char *fn = "rp_device_compute_ao";
   rp_context *ctx;
-  uint64_t t0 = now_ns();
+  uint64_t t0 = rp__now_ns();
   int a, err = 0;
   if (dev == NULL)
     return RP_EINVAL;

@@ -4,6 +4,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <time.h>
 #include <unistd.h>
 
 #include "internal.h"
@@ -152,6 +153,14 @@ uint64_t rp__next_id(void) {
   static atomic_uint_fast64_t next = 1;
   return atomic_fetch_add(&next, 1);
 }
+
+uint64_t rp__now_ns(void) {
+  struct timespec ts;
+  clock_gettime(CLOCK_MONOTONIC, &ts);
+  return (uint64_t)ts.tv_sec * 1000000000u + (uint64_t)ts.tv_nsec;
+}
+
+double rp__now_ms(void) { return (double)rp__now_ns() * 1e-6; }
 
 int rp__thread_count(const rp_context *ctx) { return ctx->desc.threads; }
 

@@ -114,6 +114,9 @@ void rp__clear_error(rp_context *ctx);
  * so derived data (histograms, occupancy, device uploads) can be checked
  * against what it was derived from. */
 uint64_t rp__next_id(void);
+/* CLOCK_MONOTONIC, for every duration the library measures. */
+uint64_t rp__now_ns(void);
+double rp__now_ms(void);
 int rp__thread_count(const rp_context *ctx);
 /* Runs fn(i, user) for i in [0, n) on up to ctx's thread count threads,
  * each thread taking a contiguous range. Returns 0 or RP_ENOMEM. */

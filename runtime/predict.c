@@ -112,7 +112,6 @@
  *   6, 7 max and mean span over the volume diagonal. */
 #include <math.h>
 #include <string.h>
-#include <time.h>
 
 #include "internal.h"
 #include "krls.h"
@@ -173,12 +172,6 @@ struct rp_cost_model {
   uint32_t n_recent, next_recent;
   double log_q;
 };
-
-static double now_ms(void) {
-  struct timespec ts;
-  clock_gettime(CLOCK_MONOTONIC, &ts);
-  return (double)ts.tv_sec * 1e3 + (double)ts.tv_nsec * 1e-6;
-}
 
 static double clamp01(double v) {
   return v > 0.0 ? (v < 1.0 ? v : 1.0) : 0.0; /* NaN -> 0 */
@@ -336,7 +329,7 @@ int rp_frame_probe_compute(rp_context *ctx, const rp_volume *vol,
   rp__raygen rg;
   probe_job job;
   uint32_t gw, gh, y;
-  double t0 = now_ms(), span_no_ert = 0.0;
+  double t0 = rp__now_ms(), span_no_ert = 0.0;
   int err, a;
   if (ctx == NULL)
     return RP_EINVAL;
@@ -414,7 +407,7 @@ int rp_frame_probe_compute(rp_context *ctx, const rp_volume *vol,
     out->diagonal += e * e;
   }
   out->diagonal = sqrt(out->diagonal);
-  out->probe_ms = now_ms() - t0;
+  out->probe_ms = rp__now_ms() - t0;
   return 0;
 }
 

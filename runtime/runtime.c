@@ -158,12 +158,6 @@ struct rp_runtime {
   scene s; /* worker only */
 };
 
-static double now_ms(void) {
-  struct timespec ts;
-  clock_gettime(CLOCK_MONOTONIC, &ts);
-  return (double)ts.tv_sec * 1e3 + (double)ts.tv_nsec * 1e-6;
-}
-
 /* ---- Names --------------------------------------------------------------- */
 
 const char *rp_pacing_name(rp_pacing pacing) {
@@ -329,42 +323,42 @@ static int recompute(rp_runtime *rt) {
   double t0;
   int err;
   if (s->stale & STALE_HISTOGRAMS) {
-    t0 = now_ms();
+    t0 = rp__now_ms();
     if ((err = rp_histograms_build(rt->ctx, s->vol, &s->h)) != 0)
       return err;
-    st->histograms_ms = now_ms() - t0;
+    st->histograms_ms = rp__now_ms() - t0;
     s->stale &= ~(uint32_t)STALE_HISTOGRAMS;
     count(rt, &rt->counters.histograms);
   }
   if (s->stale & STALE_VOLUME_UPLOAD) {
-    t0 = now_ms();
+    t0 = rp__now_ms();
     if ((err = rp_device_group_set_volume(rt->group, s->vol)) != 0)
       return err;
-    st->volume_upload_ms = now_ms() - t0;
+    st->volume_upload_ms = rp__now_ms() - t0;
     s->warm_sets = 0;
     s->stale &= ~(uint32_t)STALE_VOLUME_UPLOAD;
     count(rt, &rt->counters.volume_uploads);
   }
   if (s->stale & STALE_OCCUPANCY) {
-    t0 = now_ms();
+    t0 = rp__now_ms();
     err = s->occ == NULL ? rp_occupancy_build(rt->ctx, s->h, s->tf, &s->occ)
                          : rp_occupancy_update(s->occ, s->tf);
     if (err != 0)
       return err;
-    st->occupancy_ms = now_ms() - t0;
+    st->occupancy_ms = rp__now_ms() - t0;
     s->stale &= ~(uint32_t)STALE_OCCUPANCY;
     count(rt, &rt->counters.occupancies);
   }
   if (s->stale & STALE_TF_UPLOAD) {
-    t0 = now_ms();
+    t0 = rp__now_ms();
     if ((err = rp_device_group_set_tf(rt->group, s->tf, s->occ)) != 0)
       return err;
-    st->tf_upload_ms = now_ms() - t0;
+    st->tf_upload_ms = rp__now_ms() - t0;
     s->stale &= ~(uint32_t)STALE_TF_UPLOAD;
     count(rt, &rt->counters.tf_uploads);
   }
   if (s->stale & STALE_AO || s->ao_run != NULL) {
-    t0 = now_ms();
+    t0 = rp__now_ms();
     if (s->stale & STALE_AO) {
       s->stale &= ~(uint32_t)STALE_AO;
       if ((err = update_ao(rt)) != 0)
@@ -372,7 +366,7 @@ static int recompute(rp_runtime *rt) {
     }
     if (s->ao_run != NULL && (err = advance_ao(rt)) != 0)
       return err;
-    st->ao_ms = now_ms() - t0;
+    st->ao_ms = rp__now_ms() - t0;
   }
   if (s->stale & STALE_PROBE) {
     rp_render_desc d = {0};
@@ -438,7 +432,7 @@ static int render_pass(rp_runtime *rt, double rho, double *pass_ms) {
   rp_render_desc d = {0};
   rp_group_report rep;
   uint32_t sw, sh, tx, ty, i;
-  double t0 = now_ms(), t2, pass_upload = 0.0;
+  double t0 = rp__now_ms(), t2, pass_upload = 0.0;
   int err, depth = 0;
   rp_space_map(&rt->space, rho, &st->step, &st->scale);
   d.width = s->width;
@@ -457,7 +451,7 @@ static int render_pass(rp_runtime *rt, double rho, double *pass_ms) {
     return err;
   err = rp_device_group_render(rt->group, &s->cam, &d, &s->probe,
                                rt->scaled, rt->tiles, &rep);
-  t2 = now_ms();
+  t2 = rp__now_ms();
   /* Per device, whatever happened: a lost device is part of the story. */
   st->device_count = rep.count;
   st->devices_alive = rep.alive;
@@ -498,7 +492,7 @@ static int render_pass(rp_runtime *rt, double rho, double *pass_ms) {
   if (sw != s->width || sh != s->height) {
     rp_image_upscale(rt->scaled, sw, sh, rt->image, s->width, s->height);
     rt->out_rgba = rt->image;
-    st->upscale_ms += now_ms() - t2;
+    st->upscale_ms += rp__now_ms() - t2;
   } else {
     rt->out_rgba = rt->scaled;
   }
@@ -509,7 +503,7 @@ static int render_pass(rp_runtime *rt, double rho, double *pass_ms) {
   rt->job_train.probe = s->probe;
   rt->job_train.step = st->step;
   rt->job_train.scale = st->scale;
-  *pass_ms = now_ms() - t0;
+  *pass_ms = rp__now_ms() - t0;
   rt->job_train.pass_ms = *pass_ms;
   /* The controller holds the passes to a budget the predicted upload
    * was already taken off. */
@@ -547,27 +541,27 @@ static int render_frame(rp_runtime *rt) {
   rp_frame_stats *st = &rt->stats;
   rp_cost_estimate est;
   double rho, t0, pass_ms = 0.0, budget, upload_before = 0.0;
-  double spent = now_ms() - rt->worker_begin;
+  double spent = rp__now_ms() - rt->worker_begin;
   int err, again = 1;
   st->upload_predicted_ms = predicted_upload_ms(rt);
   spent += st->upload_predicted_ms;
   budget = s->target_ms - spent;
   if (budget < MIN_RENDER_SHARE * s->target_ms)
     budget = MIN_RENDER_SHARE * s->target_ms;
-  t0 = now_ms();
+  t0 = rp__now_ms();
   if ((err = rp_controller_begin_frame(s->controller, budget, predict_at,
                                        rt, &rho)) != 0)
     return err;
-  st->predict_ms = now_ms() - t0;
+  st->predict_ms = rp__now_ms() - t0;
   while (again) {
     float step, scale;
     rp_space_map(&rt->space, rho, &step, &scale);
-    t0 = now_ms();
+    t0 = rp__now_ms();
     st->predicted_ms = rp_device_group_predict(rt->group, &s->probe, step,
                                                scale, &est) == 0
                            ? est.ms
                            : NAN;
-    st->predict_ms += now_ms() - t0;
+    st->predict_ms += rp__now_ms() - t0;
     upload_before = st->upload_ms;
     if ((err = render_pass(rt, rho, &pass_ms)) != 0) {
       /* The controller's frame stays open otherwise; its history goes
@@ -583,7 +577,7 @@ static int render_frame(rp_runtime *rt) {
       return err;
     }
   }
-  st->measured_ms = now_ms() - rt->worker_begin;
+  st->measured_ms = rp__now_ms() - rt->worker_begin;
   /* What was known: the time spent before the last pass, and its
    * predicted upload (the last pass's measured one is not known). */
   st->predicted_ms += st->measured_ms - pass_ms -
@@ -598,7 +592,7 @@ static int render_frame(rp_runtime *rt) {
 static void run_frame(rp_runtime *rt) {
   rp_frame_stats *st = &rt->stats;
   int err;
-  rt->worker_begin = now_ms();
+  rt->worker_begin = rp__now_ms();
   memset(st, 0, sizeof *st);
   st->frame = rt->frame_no;
   st->events = rt->job_events;
@@ -618,7 +612,7 @@ static void run_frame(rp_runtime *rt) {
     rt->out_rgba = NULL;
     rt->job_train.valid = 0;
   }
-  rt->worker_end = now_ms();
+  rt->worker_end = rp__now_ms();
 }
 
 static void worker_main(void *arg) {
@@ -667,7 +661,7 @@ static void try_start(rp_runtime *rt) {
   rt->due = 0;
   if (rt->job_in.marks & POSTED_TARGET)
     rt->period_ms = rt->job_in.target_ms;
-  rt->frame_start = now_ms();
+  rt->frame_start = rp__now_ms();
   if (rt->desc.pacing == RP_PACE_TIMER) {
     /* Deadlines advance by whole periods from the first frame, so the
      * millisecond rounding of uv timers does not accumulate; a frame that
@@ -682,7 +676,7 @@ static void try_start(rp_runtime *rt) {
     uv_timer_start(&rt->pace, on_pace, (uint64_t)wait, 0);
   }
   rt->in_flight = 1;
-  rt->handoff = now_ms();
+  rt->handoff = rp__now_ms();
   uv_mutex_lock(&rt->work_lock);
   rt->job_ready = 1;
   uv_cond_signal(&rt->work_cv);
@@ -710,7 +704,7 @@ static void on_wake(uv_async_t *a) {
 
 static void train(rp_runtime *rt) {
   training *t = &rt->train;
-  double t0 = now_ms();
+  double t0 = rp__now_ms();
   rt->last_train_ms = 0.0;
   if (!t->valid)
     return;
@@ -719,7 +713,7 @@ static void train(rp_runtime *rt) {
   (void)rp_device_group_train(rt->group, &t->probe, t->step, t->scale,
                               t->pass_ms);
   t->valid = 0;
-  rt->last_train_ms = now_ms() - t0;
+  rt->last_train_ms = rp__now_ms() - t0;
 }
 
 static void finish_close(rp_runtime *rt);
@@ -741,7 +735,7 @@ static void on_done(uv_async_t *a) {
     finish_close(rt);
     return;
   }
-  now = now_ms();
+  now = rp__now_ms();
   rt->stats.dispatch_ms = (rt->worker_begin - rt->handoff) +
                           (now - rt->worker_end);
   rt->stats.train_ms = rt->last_train_ms;

@@ -21,7 +21,6 @@
  * after rounding; a prediction inside the band ends the search. */
 #include <math.h>
 #include <string.h>
-#include <time.h>
 
 #include "internal.h"
 #include "raypace_pace.h"
@@ -78,12 +77,6 @@ static int check_desc(const rp_tune_desc *d) {
       !(d->max_time_us > 0))
     return rp__fail(NULL, RP_EINVAL, "tune: a field is out of range");
   return 0;
-}
-
-static double now_us(void) {
-  struct timespec ts;
-  clock_gettime(CLOCK_MONOTONIC, &ts);
-  return (double)ts.tv_sec * 1e6 + (double)ts.tv_nsec * 1e-3;
 }
 
 typedef struct point {
@@ -289,12 +282,12 @@ int rp_tune(const rp_tune_desc *desc, rp_predict_fn predict, void *user,
    * a scene that did not change it is the answer already. */
   r0 = d.rho_prev > 0 ? fmin(fmax(d.rho_prev, s.lb), s.ub) : s.ub;
 
-  start = now_us();
+  start = rp__now_ms() * 1e3; /* microseconds */
   while (iters < d.max_iters) {
     double t;
     /* Checked before each prediction but the first: the call overruns
      * max_time_us by at most one prediction. */
-    if (iters > 0 && now_us() - start >= d.max_time_us)
+    if (iters > 0 && rp__now_ms() * 1e3 - start >= d.max_time_us)
       break;
     r = next_candidate(&s, r0);
     if (r < 0)

@@ -22,7 +22,6 @@
 #include <math.h>
 #include <stdio.h>
 #include <string.h>
-#include <time.h>
 
 #include "cl_internal.h"
 #include "passes.h"
@@ -734,12 +733,6 @@ static int grow_scratch(rp_cl_impl *impl, void **buf, size_t *cap,
   return 0;
 }
 
-static uint64_t wall_ns(void) {
-  struct timespec ts;
-  clock_gettime(CLOCK_MONOTONIC, &ts);
-  return (uint64_t)ts.tv_sec * 1000000000u + (uint64_t)ts.tv_nsec;
-}
-
 static int cl_upload_bricks(void *p, uint32_t count, const uint32_t *slots,
                             const void *const *voxels,
                             const uint32_t *table) {
@@ -748,7 +741,7 @@ static int cl_upload_bricks(void *p, uint32_t count, const uint32_t *slots,
   cl_ulong t0 = 0, t1 = 0;
   cl_int err = CL_SUCCESS, done;
   uint32_t i, run, k;
-  uint64_t begin = wall_ns();
+  uint64_t begin = rp__now_ns();
   int rc;
   impl->last_ns = 0;
   if (!impl->bricked)
@@ -814,8 +807,8 @@ static int cl_upload_bricks(void *p, uint32_t count, const uint32_t *slots,
   }
   /* The staging copies are the upload's cost too (the render waits for
    * them), though no event times them. */
-  if (err == CL_SUCCESS && wall_ns() - begin > impl->last_ns)
-    impl->last_ns = wall_ns() - begin;
+  if (err == CL_SUCCESS && rp__now_ns() - begin > impl->last_ns)
+    impl->last_ns = rp__now_ns() - begin;
   if (first != NULL)
     clReleaseEvent(first);
   if (last != NULL)

@@ -41,7 +41,6 @@
 #include <math.h>
 #include <stdio.h>
 #include <string.h>
-#include <time.h>
 
 #include "passes.h"
 #include "vk_internal.h"
@@ -76,12 +75,6 @@ static const VkFormat plain_fmt[4] = {VK_FORMAT_UNDEFINED, VK_FORMAT_R8_UINT,
 static const VkFormat quad_fmt[4] = {
     VK_FORMAT_UNDEFINED, VK_FORMAT_R8G8B8A8_UINT, VK_FORMAT_R16G16B16A16_UINT,
     VK_FORMAT_R32G32B32A32_UINT};
-
-static uint64_t now_ns(void) {
-  struct timespec ts;
-  clock_gettime(CLOCK_MONOTONIC, &ts);
-  return (uint64_t)ts.tv_sec * 1000000000u + (uint64_t)ts.tv_nsec;
-}
 
 static uint32_t div_up(uint32_t a, uint32_t b) {
   return a / b + (a % b != 0);
@@ -452,10 +445,10 @@ static int get_pipeline(rp_vk_impl *impl, uint32_t key, VkPipeline *out) {
     fbinfo.pPipelineCreationFeedback = &fb;
     info.pNext = &fbinfo;
   }
-  t0 = now_ns();
+  t0 = rp__now_ns();
   r = vkCreateComputePipelines(impl->dev, impl->cache, 1, &info, NULL,
                                &pipe);
-  impl->stats.pipeline_create_ns += now_ns() - t0;
+  impl->stats.pipeline_create_ns += rp__now_ns() - t0;
   if (r != VK_SUCCESS) {
     if (r == VK_ERROR_OUT_OF_HOST_MEMORY ||
         r == VK_ERROR_OUT_OF_DEVICE_MEMORY)
@@ -568,7 +561,7 @@ static int finish(rp_vk_impl *impl, const char *op) {
   submit.commandBufferCount = 1;
   submit.pCommandBuffers = &impl->cmd;
   vkResetFences(impl->dev, 1, &impl->fence);
-  t0 = now_ns();
+  t0 = rp__now_ns();
   r = vkQueueSubmit(impl->queue, 1, &submit, impl->fence);
   if (r == VK_SUCCESS) {
     snprintf(what, sizeof what, "%s (vkWaitForFences)", op);
@@ -581,7 +574,7 @@ static int finish(rp_vk_impl *impl, const char *op) {
       impl->lost = op;
     return rp_vk__fail(impl->ctx, r, what);
   }
-  impl->last_ns = now_ns() - t0;
+  impl->last_ns = rp__now_ns() - t0;
   if (impl->queries != VK_NULL_HANDLE &&
       vkGetQueryPoolResults(impl->dev, impl->queries, 0, 2, sizeof ts, ts,
                             sizeof ts[0],
@@ -1567,14 +1560,14 @@ static int vk_upload_bricks(void *p, uint32_t count, const uint32_t *slots,
     return upload_bricks_staged(impl, count, slots, voxels, table);
   /* Mapped (coherent) memory, and no kernel runs between operations:
    * written in place, and the time is the host's. */
-  t0 = now_ns();
+  t0 = rp__now_ns();
   for (i = 0; i < count; i++)
     memcpy((uint8_t *)impl->volume.map + (size_t)slots[i] * impl->brick_bytes,
            voxels[i], (size_t)impl->brick_bytes);
   if (table != NULL)
     memcpy(impl->brick_table.map, table,
            (size_t)impl->brick_count * sizeof *table);
-  impl->last_ns = now_ns() - t0;
+  impl->last_ns = rp__now_ns() - t0;
   return 0;
 }
 
