@@ -322,6 +322,7 @@ static void cl_destroy(void *p) {
   release_buffer(&impl->brick_table);
   release_buffer(&impl->lut);
   release_buffer(&impl->grid);
+  release_buffer(&impl->bordered_grid);
   release_buffer(&impl->alpha_hist);
   release_buffer(&impl->ao);
   release_buffer(&impl->front_back);
@@ -365,16 +366,31 @@ static int cl_upload_occupancy(void *p, const uint8_t *grid,
                                const uint32_t blocks[3]) {
   rp_cl_impl *impl = p;
   size_t n = (size_t)blocks[0] * blocks[1] * blocks[2];
-  uint64_t grid_ns;
+  size_t bx = blocks[0] + 2, by = blocks[1] + 2, bz = blocks[2] + 2;
+  size_t y, z;
+  uint64_t ns = 0;
+  uint8_t *bordered = rp__calloc(impl->ctx, bx * by * bz, 1);
+  int rc;
+  if (bordered == NULL)
+    return rp__fail(impl->ctx, RP_ENOMEM, "opencl: out of memory for the "
+                    "bordered occupancy grid (%zu blocks)", bx * by * bz);
+  for (z = 0; z < blocks[2]; z++)
+    for (y = 0; y < blocks[1]; y++)
+      memcpy(bordered + ((z + 1) * by + y + 1) * bx + 1,
+             grid + (z * blocks[1] + y) * blocks[0], blocks[0]);
   /* Kernels read grid bytes as the low byte of 32-bit words. */
-  int rc = upload(impl, &impl->grid, grid, n, RP_CL_VOLUME_PAD,
-                  "the occupancy grid");
-  if (rc != 0)
-    return rc;
-  grid_ns = impl->last_ns;
-  rc = upload(impl, &impl->alpha_hist, alpha_hist, n * RP_OPACITY_BINS, 0,
-              "the opacity histograms");
-  impl->last_ns += grid_ns;
+  rc = upload(impl, &impl->grid, grid, n, RP_CL_VOLUME_PAD,
+              "the occupancy grid");
+  ns += rc == 0 ? impl->last_ns : 0;
+  if (rc == 0)
+    rc = upload(impl, &impl->bordered_grid, bordered, bx * by * bz,
+                RP_CL_VOLUME_PAD, "the bordered occupancy grid");
+  ns += rc == 0 ? impl->last_ns : 0;
+  rp__free(impl->ctx, bordered);
+  if (rc == 0)
+    rc = upload(impl, &impl->alpha_hist, alpha_hist, n * RP_OPACITY_BINS, 0,
+                "the opacity histograms");
+  impl->last_ns += ns;
   return rc;
 }
 
@@ -390,7 +406,8 @@ static int cl_depth_pass(void *p, const rp_frame_params *fp,
                           CL_MEM_READ_WRITE, "the depth pass")) != 0)
     return rc;
   if ((rc = set_arg(impl, k, 0, sizeof *fp, fp, "rp_cl_depth")) != 0 ||
-      (rc = set_mem(impl, k, 1, &impl->grid, "rp_cl_depth")) != 0 ||
+      (rc = set_mem(impl, k, 1, &impl->bordered_grid, "rp_cl_depth")) !=
+          0 ||
       (rc = set_mem(impl, k, 2, &impl->front_back, "rp_cl_depth")) != 0 ||
       (rc = launch_tiles(impl, k, fp->width, fp->height, "rp_cl_depth")))
     return rc;

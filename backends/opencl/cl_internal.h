@@ -86,6 +86,9 @@ typedef struct rp_cl_impl {
   uint32_t *brick_order;
   size_t brick_order_cap;
   rp_cl_buffer volume, lut, grid, alpha_hist;
+  /* The grid inside a border of empty blocks one deep: what the depth
+   * pass walks, moving an index by a fixed stride per step. */
+  rp_cl_buffer bordered_grid;
   rp_cl_buffer ao; /* the AO volume (RP_EFFECT_AO); none when AO is off */
   rp_cl_buffer front_back, d_ert, rgba, tiles, fetches;
   rp_cl_buffer slab_state; /* out-of-core depth slabs: 8 floats a pixel */

@@ -167,6 +167,35 @@ rp_cl_packet rp_cl_make_packet(const rp_cl_frame *fp, vfloat px, vfloat py,
   return k;
 }
 
+/* Each lane's span [*lo, *hi] inside the box of the occupied blocks
+ * (fp->occupied_lo/end, whose faces are block faces), within [s, t1];
+ * the result is false where the ray misses the box. No occupied block
+ * lies outside it, so walks and marches that look for one run over this
+ * span only. */
+vint rp_cl_occupied_box_span(const rp_cl_frame *fp, const rp_cl_packet *k,
+                             vfloat *lo_out, vfloat *hi_out) {
+  vfloat lo = k->s, hi = k->t1;
+  vint in = k->hit;
+#define RP_CL_BOX(p, d, a)                                                    \
+  {                                                                           \
+    float b0 = RP_CL_BLOCK * (float)fp->occupied_lo[a] - 0.5f;                \
+    float b1 = RP_CL_BLOCK * (float)fp->occupied_end[a] - 0.5f;               \
+    vfloat inv = 1.0f / (d);                                                  \
+    vfloat ta = (b0 - (p)) * inv, tb = (b1 - (p)) * inv;                      \
+    vint still = (d) == 0.0f;                                                 \
+    in &= ~still | (((p) >= b0) & ((p) <= b1));                               \
+    lo = select(fmax(lo, fmin(ta, tb)), lo, still);                           \
+    hi = select(fmin(hi, fmax(ta, tb)), hi, still);                           \
+  }
+  RP_CL_BOX(k->p0x, k->dpx, 0)
+  RP_CL_BOX(k->p0y, k->dpy, 1)
+  RP_CL_BOX(k->p0z, k->dpz, 2)
+#undef RP_CL_BOX
+  *lo_out = lo;
+  *hi_out = hi;
+  return in & (lo <= hi);
+}
+
 /* Block coordinates of points: floor((p + 0.5) / 16), clamped to the
  * grid (so any finite point reads a real block). */
 vint rp_cl_block_axis(vfloat p, uint blocks) {

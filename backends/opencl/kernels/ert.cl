@@ -58,7 +58,7 @@ void rp_cl_ert(rp_cl_frame fp, __global const uchar *grid,
   uint gw = (fp.width + RP_CL_ERT_STRIDE - 1) / RP_CL_ERT_STRIDE;
   uint gh = (fp.height + RP_CL_ERT_STRIDE - 1) / RP_CL_ERT_STRIDE;
   float corr[16];
-  vfloat cx, cy, acc = 0.0f, result = INFINITY, j = 0.0f;
+  vfloat cx, cy, acc = 0.0f, result = INFINITY, j, end;
   vint inside, live;
   vuint base, id;
   rp_cl_packet k;
@@ -77,11 +77,21 @@ void rp_cl_ert(rp_cl_frame fp, __global const uchar *grid,
   g.z2 = rp_cl_mix(g.z1 + 0x632be5abu) | 128u;
   g.z3 = rp_cl_mix(g.z2 + 0x85157af5u) | 128u;
   g.z4 = rp_cl_mix(g.z3 + 0x2545f491u);
-  live = k.hit;
+  /* Draws happen only in occupied blocks, and those lie in the box of
+   * the occupied blocks: the march skips the lattice points before and
+   * after the ray's span inside it, keeping a point of margin at each
+   * end for rounding at the faces. The points marched, the draws and
+   * the result are those of a march over the whole of [s, t1]. */
+  {
+    vfloat lo, hi;
+    live = rp_cl_occupied_box_span(&fp, &k, &lo, &hi);
+    j = fmax(floor((lo - k.s) * (1.0f / RP_CL_ERT_STEP)) - 1.0f, 0.0f);
+    end = fmin(k.t1, hi + RP_CL_ERT_STEP);
+  }
   while (any(live)) {
     vfloat t = k.s + j * RP_CL_ERT_STEP;
     vint b, draw;
-    live &= t <= k.t1;
+    live &= t <= end;
     b = rp_cl_block_index(
         &fp, rp_cl_block_axis(k.p0x + t * k.dpx, fp.blocks[0]),
         rp_cl_block_axis(k.p0y + t * k.dpy, fp.blocks[1]),
