@@ -7,6 +7,8 @@
  * model settings and target. Before recording, each plays `--settle`
  * frames of the sequence's first state (every controller's first frame
  * is blind; what is compared is how they hold the target afterwards).
+ * On one device they play frame by frame in turn, so that the machine's
+ * noise falls on all of them alike (play()).
  * The cost model is trained for every controller, so prediction error is
  * reported for all; only "predicted" acts on it.
  *
@@ -628,138 +630,199 @@ static void group_row(const replay *r, frame_row *row) {
 
 /* ---- One controller over the sequence ------------------------------------ */
 
-static int play(replay *r, rp_controller_kind kind, frame_row *rows) {
+/* One controller's part of a replay: its state and its rows. */
+typedef struct player {
+  rp_controller_kind kind;
+  rp_controller *ctl;
+  rp_cost_model *model;
+  frame_row *rows;
+  uint32_t devices_alive; /* --devices: in its group, after its frames */
+} player;
+
+static int player_open(replay *r, player *p) {
   rp_controller_desc cd = {0};
-  rp_controller *ctl = NULL;
-  rp_cost_model *model = NULL;
-  uint32_t total = r->o.settle + r->frames, i;
-  int err, rc = 1;
-  cd.kind = kind;
+  int err;
+  cd.kind = p->kind;
   cd.rho_min = rp_space_min_density(&r->space);
   cd.rho_max = 1.0;
-  if (fresh_group(r) != 0)
-    goto out;
-  if (r->group != NULL)
-    r->group_used = 1;
-  if ((err = rp_controller_create(r->ctx, &cd, &ctl)) != 0 ||
-      (err = rp_cost_model_create(r->ctx, NULL, &model)) != 0) {
-    cli_error(r->ctx, "controller", err);
-    goto out;
-  }
-  for (i = 0; i < total; i++) {
-    uint32_t f = i < r->o.settle ? 0 : i - r->o.settle;
-    rp_sequence_state st;
-    rp_camera cam;
-    rp_frame_probe probe;
-    rp_cost_estimate est;
-    predict_ctx pc;
-    pass_result pr;
-    double rho, target, pass_target, frame_ms = 0.0, t0, ao_ms, upload;
-    uint32_t effects;
-    int again = 1, passes = 0;
-    if ((err = rp_sequence_frame(r->seq, f, &st)) != 0) {
-      cli_error(r->ctx, "sequence", err);
-      goto out;
-    }
-    if (use_tf(r, st.tf) != 0)
-      goto out;
-    rp_sequence_camera(&st, r->vol, &cam);
-    target = frame_target(r, &st);
-    /* AO as the runtime does it: a share of the target on its run, the
-     * passes get the rest (at least a quarter of it). */
-    ao_ms = 0.0;
-    if (!(st.effects & RP_EFFECT_AO))
-      ao_drop_run(r);
-    else if (ao_start(r) != 0)
-      goto out;
-    if (r->ao_run != NULL) {
-      t0 = cli_now();
-      if (ao_step(r, AO_FRAME_SHARE * target) != 0)
-        goto out;
-      ao_ms = (cli_now() - t0) * 1e3;
-    }
-    effects = ao_effects(r, st.effects);
+  if ((err = rp_controller_create(r->ctx, &cd, &p->ctl)) != 0 ||
+      (err = rp_cost_model_create(r->ctx, NULL, &p->model)) != 0)
+    return cli_error(r->ctx, "controller", err);
+  return 0;
+}
+
+static void player_close(player *p) {
+  rp_cost_model_destroy(p->model);
+  rp_controller_destroy(p->ctl);
+  p->model = NULL;
+  p->ctl = NULL;
+}
+
+/* Frame i of the settle frames and the sequence after them, for one
+ * controller. */
+static int play_frame(replay *r, player *p, uint32_t i) {
+  rp_controller *ctl = p->ctl;
+  rp_cost_model *model = p->model;
+  frame_row *rows = p->rows;
+  uint32_t f = i < r->o.settle ? 0 : i - r->o.settle;
+  rp_sequence_state st;
+  rp_camera cam;
+  rp_frame_probe probe;
+  rp_cost_estimate est;
+  predict_ctx pc;
+  pass_result pr;
+  double rho, target, pass_target, frame_ms = 0.0, t0, ao_ms, upload;
+  uint32_t effects;
+  int err, again = 1, passes = 0;
+  if ((err = rp_sequence_frame(r->seq, f, &st)) != 0)
+    return cli_error(r->ctx, "sequence", err);
+  if (use_tf(r, st.tf) != 0)
+    return 1;
+  rp_sequence_camera(&st, r->vol, &cam);
+  target = frame_target(r, &st);
+  /* AO as the runtime does it: a share of the target on its run, the
+   * passes get the rest (at least a quarter of it). */
+  ao_ms = 0.0;
+  if (!(st.effects & RP_EFFECT_AO))
+    ao_drop_run(r);
+  else if (ao_start(r) != 0)
+    return 1;
+  if (r->ao_run != NULL) {
     t0 = cli_now();
-    if (probe_frame(r, &cam, effects, f, &probe) != 0)
-      goto out;
-    /* Predicted brick uploads come off the passes' budget, as the AO
-     * step does. */
-    upload = predicted_upload_ms(r, &cam, effects);
-    pass_target = target - ao_ms - upload > 0.25 * target
-                      ? target - ao_ms - upload
-                      : 0.25 * target;
-    pc.r = r;
-    pc.model = model;
-    pc.probe = &probe;
-    if ((err = rp_controller_begin_frame(ctl, pass_target, predict_ms, &pc,
-                                         &rho)) != 0) {
-      cli_error(r->ctx, "controller", err);
-      goto out;
-    }
-    if (i >= r->o.settle)
-      rows[f].probe_ms = (cli_now() - t0) * 1e3;
-    while (again) {
-      if (render_pass(r, &cam, effects, rho, &probe, &pr) != 0)
-        goto out;
-      passes++;
-      frame_ms += pr.ms;
-      /* A group predicts before its training on this pass, as the
-       * single model does. */
-      if (r->group != NULL
-              ? (err = rp_device_group_predict(r->group, &probe, pr.step,
-                                               pr.scale, &est)) != 0
-              : rp_cost_predict(model, &probe, pr.step, pr.scale, &est) !=
-                    0) {
-        cli_error(r->ctx, "predict", r->group != NULL ? err : RP_EINVAL);
-        goto out;
-      }
-      if (i >= r->o.settle) {
-        frame_row *row = &rows[f];
-        row->frame = f;
-        row->tf_changed = st.tf_changed && f > 0;
-        row->target_ms = target;
-        row->predicted_ms = est.ms + upload;
-        row->upload_ms = pr.upload_ms;
-        row->upload_pred_ms = upload;
-        row->last_pass_ms = pr.ms;
-        row->ao_ms = ao_ms;
-        row->ao = (effects & RP_EFFECT_AO) != 0;
-        row->rho = rho;
-        row->step = pr.step;
-        row->scale = pr.scale;
-        row->samples_est = est.samples * est.sample_ratio;
-        row->samples = pr.samples;
-        row->sigma_pred_ns = est.sigma_ns;
-        row->sigma_ns = pr.samples > 0 && pr.raycast_ms > 0
-                            ? pr.raycast_ms * 1e6 /
-                                  (est.fetches * (double)pr.samples)
-                            : NAN;
-        if (r->group != NULL)
-          group_row(r, row);
-      }
-      if ((err = r->group != NULL
-                     ? rp_device_group_train(r->group, &probe, pr.step,
-                                             pr.scale, pr.ms)
-                     : rp_cost_train(model, &probe, pr.step, pr.scale,
-                                     pr.samples, pr.raycast_ms,
-                                     fmax(pr.ms - pr.upload_ms,
-                                          pr.raycast_ms))) != 0 ||
-          (err = rp_controller_end_pass(ctl, pr.ms - pr.upload_ms, &again,
-                                        &rho)) != 0) {
-        cli_error(r->ctx, "train", err);
-        goto out;
-      }
-    }
+    if (ao_step(r, AO_FRAME_SHARE * target) != 0)
+      return 1;
+    ao_ms = (cli_now() - t0) * 1e3;
+  }
+  effects = ao_effects(r, st.effects);
+  t0 = cli_now();
+  if (probe_frame(r, &cam, effects, f, &probe) != 0)
+    return 1;
+  /* Predicted brick uploads come off the passes' budget, as the AO
+   * step does. */
+  upload = predicted_upload_ms(r, &cam, effects);
+  pass_target = target - ao_ms - upload > 0.25 * target
+                    ? target - ao_ms - upload
+                    : 0.25 * target;
+  pc.r = r;
+  pc.model = model;
+  pc.probe = &probe;
+  if ((err = rp_controller_begin_frame(ctl, pass_target, predict_ms, &pc,
+                                       &rho)) != 0)
+    return cli_error(r->ctx, "controller", err);
+  if (i >= r->o.settle)
+    rows[f].probe_ms = (cli_now() - t0) * 1e3;
+  while (again) {
+    if (render_pass(r, &cam, effects, rho, &probe, &pr) != 0)
+      return 1;
+    passes++;
+    frame_ms += pr.ms;
+    /* A group predicts before its training on this pass, as the
+     * single model does. */
+    if (r->group != NULL
+            ? (err = rp_device_group_predict(r->group, &probe, pr.step,
+                                             pr.scale, &est)) != 0
+            : rp_cost_predict(model, &probe, pr.step, pr.scale, &est) != 0)
+      return cli_error(r->ctx, "predict",
+                       r->group != NULL ? err : RP_EINVAL);
     if (i >= r->o.settle) {
-      /* What the user waited for: the AO step and the passes. */
-      rows[f].measured_ms = frame_ms + ao_ms;
-      rows[f].passes = passes;
+      frame_row *row = &rows[f];
+      row->frame = f;
+      row->tf_changed = st.tf_changed && f > 0;
+      row->target_ms = target;
+      row->predicted_ms = est.ms + upload;
+      row->upload_ms = pr.upload_ms;
+      row->upload_pred_ms = upload;
+      row->last_pass_ms = pr.ms;
+      row->ao_ms = ao_ms;
+      row->ao = (effects & RP_EFFECT_AO) != 0;
+      row->rho = rho;
+      row->step = pr.step;
+      row->scale = pr.scale;
+      row->samples_est = est.samples * est.sample_ratio;
+      row->samples = pr.samples;
+      row->sigma_pred_ns = est.sigma_ns;
+      row->sigma_ns = pr.samples > 0 && pr.raycast_ms > 0
+                          ? pr.raycast_ms * 1e6 /
+                                (est.fetches * (double)pr.samples)
+                          : NAN;
+      if (r->group != NULL)
+        group_row(r, row);
+    }
+    if ((err = r->group != NULL
+                   ? rp_device_group_train(r->group, &probe, pr.step,
+                                           pr.scale, pr.ms)
+                   : rp_cost_train(model, &probe, pr.step, pr.scale,
+                                   pr.samples, pr.raycast_ms,
+                                   fmax(pr.ms - pr.upload_ms,
+                                        pr.raycast_ms))) != 0 ||
+        (err = rp_controller_end_pass(ctl, pr.ms - pr.upload_ms, &again,
+                                      &rho)) != 0)
+      return cli_error(r->ctx, "train", err);
+  }
+  if (i >= r->o.settle) {
+    /* What the user waited for: the AO step and the passes. */
+    rows[f].measured_ms = frame_ms + ao_ms;
+    rows[f].passes = passes;
+  }
+  return 0;
+}
+
+/* Whether any frame of the sequence asks for AO. */
+static int sequence_uses_ao(const replay *r) {
+  rp_sequence_state st;
+  uint32_t f;
+  for (f = 0; f < r->frames; f++)
+    if (rp_sequence_frame(r->seq, f, &st) == 0 &&
+        (st.effects & RP_EFFECT_AO))
+      return 1;
+  return 0;
+}
+
+/* Plays the sequence under every controller of `ps`. On one device
+ * without AO they play frame by frame in turn, the order rotating each
+ * frame, so that a burst of the machine's noise (ten frames at +30 % are
+ * common on a shared machine) falls on all of them alike: every frame's
+ * scene is the same for all, and each keeps its own controller and cost
+ * model. A device group and an AO run hold what one controller's frames
+ * did (the devices' models, AO progress), so there each controller plays
+ * the whole sequence in turn, on a fresh group. */
+static int play(replay *r, player *ps, int n) {
+  uint32_t total = r->o.settle + r->frames, i;
+  int k, rc = 1;
+  if (r->group == NULL && !sequence_uses_ao(r)) {
+    if (!r->o.quiet && n > 1)
+      fprintf(stderr, "replay: %d controllers, frame by frame in turn\n",
+              n);
+    for (k = 0; k < n; k++)
+      if (player_open(r, &ps[k]) != 0)
+        goto out;
+    for (i = 0; i < total; i++)
+      for (k = 0; k < n; k++)
+        if (play_frame(r, &ps[(i + (uint32_t)k) % (uint32_t)n], i) != 0)
+          goto out;
+    for (k = 0; k < n; k++)
+      ps[k].devices_alive = rp_device_group_alive(r->group);
+  } else {
+    for (k = 0; k < n; k++) {
+      if (!r->o.quiet)
+        fprintf(stderr, "replay: %s ...\n", rp_controller_name(ps[k].kind));
+      if (fresh_group(r) != 0)
+        goto out;
+      if (r->group != NULL)
+        r->group_used = 1;
+      if (player_open(r, &ps[k]) != 0)
+        goto out;
+      for (i = 0; i < total; i++)
+        if (play_frame(r, &ps[k], i) != 0)
+          goto out;
+      ps[k].devices_alive = rp_device_group_alive(r->group);
+      player_close(&ps[k]);
     }
   }
   rc = 0;
 out:
-  rp_cost_model_destroy(model);
-  rp_controller_destroy(ctl);
+  for (k = 0; k < n; k++)
+    player_close(&ps[k]);
   return rc;
 }
 
@@ -1169,11 +1232,13 @@ int cli_cmd_replay(int argc, char **argv) {
   replay r;
   rp_controller_kind kinds[RP_CONTROL_COUNT];
   frame_row *rows[RP_CONTROL_COUNT] = {0};
+  player players[RP_CONTROL_COUNT];
   summary sums[RP_CONTROL_COUNT];
   char csv_tmp[4096] = "";
   const char *csv;
   int nctl = 0, k, rc;
   memset(&r, 0, sizeof(r));
+  memset(players, 0, sizeof(players));
   if ((rc = parse_opts(argc, argv, &r.o)) != 0)
     return rc == 1 ? 0 : rc;
   if (r.o.list)
@@ -1210,12 +1275,14 @@ int cli_cmd_replay(int argc, char **argv) {
       cli_error(r.ctx, "rows", RP_ENOMEM);
       goto out;
     }
-    if (!r.o.quiet)
-      fprintf(stderr, "replay: %s ...\n", rp_controller_name(kinds[k]));
-    if (play(&r, kinds[k], rows[k]) != 0)
-      goto out;
+    players[k].kind = kinds[k];
+    players[k].rows = rows[k];
+  }
+  if (play(&r, players, nctl) != 0)
+    goto out;
+  for (k = 0; k < nctl; k++) {
     summarise(kinds[k], rows[k], r.frames, &sums[k]);
-    sums[k].devices_alive = rp_device_group_alive(r.group);
+    sums[k].devices_alive = players[k].devices_alive;
   }
   if (r.o.json) {
     for (k = 0; k < nctl; k++)
