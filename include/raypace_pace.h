@@ -270,8 +270,11 @@ typedef struct rp_cost_estimate {
   double sigma_ns;       /* predicted cost per fetch */
   double launch_ms;      /* the raycast's own fixed cost, a */
   double c0_ms;          /* per-frame fixed cost outside the raycast */
-  double ms;             /* t' = a + sigma * k * kappa * S' + c0 */
+  double ms;             /* t' = (a + sigma * k * kappa * S' + c0) * Q */
   double features[RP_COST_FEATURES]; /* in [0, 1] */
+  /* Q: the recent frames' agreed bias on frames whose time the fetches
+   * hardly set (runtime/predict.c), in [1/4, 4]; mostly 1. \since 0.2 */
+  double frame_factor;
 } rp_cost_estimate;
 
 /** A cost model for one device. \returns 0, RP_EINVAL / RP_ENOTFINITE

@@ -80,6 +80,18 @@
  * One stalled frame does not move q, and a view that the model prices
  * low next to one it prices high (alternating) leaves it at 1.
  *
+ * Frame correction Q: t' is multiplied by Q, formed like q but from the
+ * frames that do not teach sigma (below), as ln(frame time / t' without
+ * Q), bounded to [1/4, 4]; a frame that teaches sigma sets Q back to 1.
+ * Those frames are the ones whose time is mostly a and c0, and neither
+ * q nor KRLS ever sees them: a launch cost fitted too high then kept
+ * t' above the frame for good. Measured: zooming into bonsai at 512^2,
+ * the tuner went to steps of 7-10 voxels at scale 0.33, where a
+ * raycast's fetches are under half its time; predicted 14 ms against a
+ * measured 5.3-6.7 for the last 30 frames. Only frames sigma never sees
+ * feed Q, so a slow spell on frames that teach sigma is not corrected
+ * twice (by q and again by Q).
+ *
  * c0, the per-frame fixed cost (depth pass, readback, upscale),
  * is measured per frame as frame time - raycast time and averaged the
  * same way, apart for frames at scale 1 and frames upscaled from a
@@ -140,10 +152,19 @@ typedef struct launch_fit {
   double noise; /* median |raycast - (a + b k S)| over the window, ms */
 } launch_fit;
 
-/* The short-term correction (above): frames it takes the median of, and
- * its bound, ln 2. */
+/* The short-term corrections (above): frames that must agree, and the
+ * bounds of ln q, ln 2, and of ln Q, ln 4. */
 #define RECENT_FRAMES 3
 #define RECENT_BOUND 0.6931471805599453
+#define FRAME_BOUND 1.3862943611198906
+
+/* The last RECENT_FRAMES log ratios (measured over predicted) and the
+ * correction they give (recent_add). */
+typedef struct recent_bias {
+  double v[RECENT_FRAMES];
+  uint32_t n, next;
+  double log_corr;
+} recent_bias;
 
 /* The robust running mean (above): window, clamp start and factor. */
 #define MEAN_WINDOW 16
@@ -166,11 +187,10 @@ struct rp_cost_model {
   robust_mean c0[2];     /* of frame - raycast time, ms: [0] frames at
                             scale 1, [1] upscaled ones */
   launch_fit launch;
-  /* The short-term correction (header): the last frames' ln(sigma
-   * measured / sigma'), and ln q (recent_add). */
-  double recent[RECENT_FRAMES];
-  uint32_t n_recent, next_recent;
-  double log_q;
+  /* The short-term corrections (header): q from the last frames' ln(sigma
+   * measured / sigma'), Q from the last frames' ln(frame time / t') of
+   * the frames that do not teach sigma. */
+  recent_bias sigma_bias, frame_bias;
 };
 
 static double clamp01(double v) {
@@ -592,8 +612,8 @@ void rp_cost_model_reset(rp_cost_model *m) {
   mean_reset(&m->c0[0], 0.0, 0.01);
   mean_reset(&m->c0[1], 0.0, 0.01);
   launch_reset(&m->launch);
-  m->n_recent = m->next_recent = 0;
-  m->log_q = 0.0;
+  memset(&m->sigma_bias, 0, sizeof m->sigma_bias);
+  memset(&m->frame_bias, 0, sizeof m->frame_bias);
 }
 
 static double log2_unit(double v, double lo_log2, double hi_log2) {
@@ -688,30 +708,30 @@ static double log_sigma_at(const rp_cost_model *m, const double *x) {
   return log_at(m->krls, &m->log_sigma, x);
 }
 
-/* Files one frame's ln(sigma measured / sigma') and sets ln q: when the
- * last RECENT_FRAMES all err the same way, the smallest of them (the
- * bias they agree on), bounded; else 0. One stalled frame then moves
+/* Files one frame's log ratio and sets the correction: when the last
+ * RECENT_FRAMES all err the same way, the smallest of them (the bias
+ * they agree on), within +-bound; else 0. One stalled frame then moves
  * nothing, a machine slowed for a while is followed from its third
  * frame, and a model that errs one way for one view and the other way
  * for another (alternating views) is left to KRLS. */
-static void recent_add(rp_cost_model *m, double log_ratio) {
+static void recent_add(recent_bias *r, double log_ratio, double bound) {
   double lo = INFINITY, hi = -INFINITY;
   uint32_t i;
-  m->recent[m->next_recent] = log_ratio;
-  m->next_recent = (m->next_recent + 1) % RECENT_FRAMES;
-  if (m->n_recent < RECENT_FRAMES)
-    m->n_recent++;
-  m->log_q = 0.0;
-  if (m->n_recent < RECENT_FRAMES)
+  r->v[r->next] = log_ratio;
+  r->next = (r->next + 1) % RECENT_FRAMES;
+  if (r->n < RECENT_FRAMES)
+    r->n++;
+  r->log_corr = 0.0;
+  if (r->n < RECENT_FRAMES)
     return;
   for (i = 0; i < RECENT_FRAMES; i++) {
-    lo = fmin(lo, m->recent[i]);
-    hi = fmax(hi, m->recent[i]);
+    lo = fmin(lo, r->v[i]);
+    hi = fmax(hi, r->v[i]);
   }
   if (lo > 0.0)
-    m->log_q = fmin(lo, RECENT_BOUND);
+    r->log_corr = fmin(lo, bound);
   else if (hi < 0.0)
-    m->log_q = fmax(hi, -RECENT_BOUND);
+    r->log_corr = fmax(hi, -bound);
 }
 
 int rp_cost_predict(const rp_cost_model *m, const rp_frame_probe *p,
@@ -726,7 +746,8 @@ int rp_cost_predict(const rp_cost_model *m, const rp_frame_probe *p,
   features(p, step, scale, out->features);
   out->samples = estimate_samples(p, step, scale);
   out->fetches = fetches_per_sample(p, step);
-  out->sigma_ns = exp(log_sigma_at(m, out->features) + m->log_q);
+  out->sigma_ns =
+      exp(log_sigma_at(m, out->features) + m->sigma_bias.log_corr);
   out->sample_ratio =
       exp(log_at(m->kappa_krls, &m->log_kappa, out->features));
   /* Until frames of its own kind arrive, the other kind's is the best
@@ -734,10 +755,12 @@ int rp_cost_predict(const rp_cost_model *m, const rp_frame_probe *p,
   up = scale < 1.0f;
   out->c0_ms = m->c0[up].n > 0 ? m->c0[up].mean : m->c0[!up].mean;
   out->launch_ms = m->launch.a;
-  out->ms = out->launch_ms +
-            out->sigma_ns * 1e-6 * out->fetches * out->sample_ratio *
-                out->samples +
-            out->c0_ms;
+  out->frame_factor = exp(m->frame_bias.log_corr);
+  out->ms = (out->launch_ms +
+             out->sigma_ns * 1e-6 * out->fetches * out->sample_ratio *
+                 out->samples +
+             out->c0_ms) *
+            out->frame_factor;
   return 0;
 }
 
@@ -750,15 +773,20 @@ int rp_cost_predict(const rp_cost_model *m, const rp_frame_probe *p,
  * not depend on sigma much, which is why it need not teach it. KRLS
  * learns the clamped value too: a stalled frame must not reach the model
  * through the back door of a huge residual. */
+static int sigma_teaches(const rp_cost_model *m, double raycast_ms) {
+  double per_fetch_ms = raycast_ms - m->launch.a;
+  return per_fetch_ms >= SIGMA_SHARE * raycast_ms &&
+         per_fetch_ms >= SIGMA_CLEAR * m->launch.noise;
+}
+
 static int sigma_learn(rp_cost_model *m, const double *x, double fetches,
                        double raycast_ms, int relearning) {
-  double per_fetch_ms = raycast_ms - m->launch.a, ls;
-  if (per_fetch_ms < SIGMA_SHARE * raycast_ms ||
-      per_fetch_ms < SIGMA_CLEAR * m->launch.noise)
+  double ls;
+  if (!sigma_teaches(m, raycast_ms))
     return 0;
-  ls = log(per_fetch_ms * 1e6 / fetches);
+  ls = log((raycast_ms - m->launch.a) * 1e6 / fetches);
   if (!relearning)
-    recent_add(m, ls - log_sigma_at(m, x));
+    recent_add(&m->sigma_bias, ls - log_sigma_at(m, x), RECENT_BOUND);
   ls = mean_add(&m->log_sigma, ls);
   return rp__krls_update(m->krls, x, ls - m->log_sigma.mean);
 }
@@ -814,6 +842,18 @@ int rp_cost_train(rp_cost_model *m, const rp_frame_probe *p, float step,
     return rp__fail(m->ctx, RP_ERANGE, "%s: raycast_ms %g for %llu "
                     "samples is out of range", fn, raycast_ms,
                     (unsigned long long)samples);
+  /* Q, against t' as the controller saw it (before this frame is
+   * learned, without Q). The launch fit's a is the one sigma_learn is
+   * about to judge this frame by. */
+  if (samples > 0 && raycast_ms > 0.0 && !sigma_teaches(m, raycast_ms)) {
+    rp_cost_estimate e;
+    if (rp_cost_predict(m, p, step, scale, &e) == 0 && e.ms > 0.0 &&
+        frame_ms > 0.0)
+      recent_add(&m->frame_bias, log(frame_ms * e.frame_factor / e.ms),
+                 FRAME_BOUND);
+  } else {
+    memset(&m->frame_bias, 0, sizeof m->frame_bias);
+  }
   (void)mean_add(&m->c0[scale < 1.0f], frame_ms - raycast_ms);
   /* A frame with no sample (all empty) or no measurable time says
    * nothing about the cost of a fetch. */

@@ -611,6 +611,49 @@ static void test_model_short_term(void **state) {
   rp_context_destroy(ctx);
 }
 
+/* Frames the fetch model hardly sees: at step 64 a raycast is mostly its
+ * launch cost (0.2 ms of fetches in 1.4 ms), so it does not teach sigma
+ * and q never hears of it. When such frames all come in dearer than t'
+ * (here the time outside the raycast jumps from 0.5 to 3 ms, which c0's
+ * robust mean follows only over tens of frames), Q follows from the third
+ * frame, within 10 %; before that t' is left alone; the next frame that
+ * teaches sigma sets Q back to 1. */
+static void test_model_frame_correction(void **state) {
+  static const float steps[] = {1.0f, 1.5f, 2.0f, 3.0f, 4.0f, 6.0f};
+  rp_context *ctx = rp_test_context();
+  rp_cost_model *m;
+  rp_frame_probe p = synthetic_probe(0, 0, -1);
+  rp_cost_estimate e;
+  double ray_ms, frame_ms = 0.0, first = 0.0;
+  int i;
+  (void)state;
+  assert_int_equal(rp_cost_model_create(ctx, NULL, &m), 0);
+  for (i = 0; i < 48; i++)
+    train_affine(m, &p, steps[i % 6], 1.2, 4.0, 1.0);
+  for (i = 0; i < 6; i++) {
+    assert_int_equal(rp_cost_predict(m, &p, 64.0f, 1.0f, &e), 0);
+    if (i == 0)
+      first = e.ms;
+    else if (i < 3) /* two frames agree: not yet a bias */
+      assert_float_equal(e.frame_factor, 1.0, 0.0);
+    else
+      assert_float_equal(e.ms, frame_ms, 0.1 * frame_ms);
+    ray_ms = 1.2 + 4e-6 * e.fetches * floor(e.samples);
+    frame_ms = ray_ms + 3.0;
+    assert_true(ray_ms - 1.2 < 0.5 * ray_ms); /* does not teach sigma */
+    assert_int_equal(rp_cost_train(m, &p, 64.0f, 1.0f, (uint64_t)e.samples,
+                                   ray_ms, frame_ms), 0);
+  }
+  printf("step 64: t' %.3f ms at first, %.3f ms (Q %.3f) after 6 frames "
+         "of %.3f ms\n", first, e.ms, e.frame_factor, frame_ms);
+  assert_true(first < 0.6 * frame_ms); /* what Q had to correct */
+  train_affine(m, &p, 1.0f, 1.2, 4.0, 1.0);
+  assert_int_equal(rp_cost_predict(m, &p, 64.0f, 1.0f, &e), 0);
+  assert_float_equal(e.frame_factor, 1.0, 0.0);
+  rp_cost_model_destroy(m);
+  rp_context_destroy(ctx);
+}
+
 /* Two views of different cost learned apart; a view far from both falls
  * back between them, never towards a free frame. */
 static void test_model_views_and_unseen(void **state) {
@@ -800,6 +843,7 @@ int main(void) {
       cmocka_unit_test(test_model_learns_plant),
       cmocka_unit_test(test_model_launch_cost),
       cmocka_unit_test(test_model_short_term),
+      cmocka_unit_test(test_model_frame_correction),
       cmocka_unit_test(test_model_views_and_unseen),
       cmocka_unit_test(test_model_outlier_and_duplicates),
       cmocka_unit_test(test_model_follows_step),
