@@ -105,6 +105,27 @@ struct Ray {
 
 /* The ray through continuous image position (px, py) of the scaled
  * image: pixel (x, y) is (x + 0.5, y + 0.5). */
+/* The ray's span [s, t1] narrowed to the box of the occupied blocks
+ * (P.box_lo/box_hi, whose faces are block faces); false where it misses
+ * the box. No occupied block lies outside it, so walks and marches that
+ * look for one run over this span only. */
+bool occupied_box_span(Ray ray, out float lo, out float hi) {
+  lo = ray.s;
+  hi = ray.t1;
+  for (int a = 0; a < 3; a++) {
+    if (ray.dp[a] == 0.0) {
+      if (ray.p0[a] < P.box_lo[a] || ray.p0[a] > P.box_hi[a])
+        return false;
+    } else {
+      float ta = (P.box_lo[a] - ray.p0[a]) / ray.dp[a];
+      float tb = (P.box_hi[a] - ray.p0[a]) / ray.dp[a];
+      lo = max(lo, min(ta, tb));
+      hi = min(hi, max(ta, tb));
+    }
+  }
+  return lo <= hi;
+}
+
 Ray make_ray(float px, float py) {
   Ray ray;
   float nu = 2.0 * px / float(P.blocks.w) - 1.0;

@@ -25,19 +25,11 @@ vec2 walk(Ray ray) {
    * hold D_front and D_back: the walk runs over the ray's span inside
    * it, and a ray that misses it meets no occupied block. Those rays were
    * the ones that crossed the whole grid. */
-  for (int a = 0; a < 3; a++) {
-    if (ray.dp[a] == 0.0) {
-      if (ray.p0[a] < P.box_lo[a] || ray.p0[a] > P.box_hi[a])
-        return vec2(RP_INF, -RP_INF);
-    } else {
-      float ta = (P.box_lo[a] - ray.p0[a]) / ray.dp[a];
-      float tb = (P.box_hi[a] - ray.p0[a]) / ray.dp[a];
-      ray.s = max(ray.s, min(ta, tb));
-      ray.t1 = min(ray.t1, max(ta, tb));
-    }
-  }
-  if (!(ray.s <= ray.t1))
+  float lo, hi;
+  if (!occupied_box_span(ray, lo, hi))
     return vec2(RP_INF, -RP_INF);
+  ray.s = lo;
+  ray.t1 = hi;
   ivec3 dir = ivec3(sign(ray.dp));
   /* A ray crosses at most one boundary per block along each axis; the
    * bound only guards against a pathological float loop. */

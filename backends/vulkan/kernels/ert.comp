@@ -75,10 +75,18 @@ void main() {
     rng.y = mix32(rng.x + 0x632be5abu) | 128u;
     rng.z = mix32(rng.y + 0x85157af5u) | 128u;
     rng.w = mix32(rng.z + 0x2545f491u);
-    float A = 0.0;
-    for (uint j = 0u;; j++) {
+    float A = 0.0, lo, hi;
+    /* Draws happen only in occupied blocks, and those lie in the box of
+     * the occupied blocks: the march skips the lattice points before and
+     * after the ray's span inside it, keeping a point of margin at each
+     * end for rounding at the faces. The points marched, the draws and
+     * the result are those of a march over the whole of [s, t1]. */
+    bool in_box = occupied_box_span(ray, lo, hi);
+    uint j0 = uint(max(floor((lo - ray.s) * (1.0 / 8.0)) - 1.0, 0.0));
+    float end = min(ray.t1, hi + 8.0);
+    for (uint j = j0; in_box; j++) {
       float t = ray.s + float(j) * 8.0;
-      if (t > ray.t1)
+      if (t > end)
         break;
       uint b = block_index(block_cell(ray.p0 + t * ray.dp));
       if (!block_occupied(b))
