@@ -134,6 +134,16 @@ struct Result {
   float last;
 };
 
+/* The most transparent samples a lane marches before the samples that
+ * show in other lanes are shaded. The march ends when every lane has met
+ * a sample that shows, so without a cap a lane in a dense region waits
+ * on the lane with the longest transparent run, and only the shading
+ * after the march moves it on. Measured on lavapipe, bonsai 512^2 with
+ * shading, ERT and skipping, three alternating runs each: no cap 216-252
+ * ms, cap 3 241-260, 6 206-209, 8 197-198, 12 184-193, 16 186-188, 20
+ * 196-204. */
+const int MARCH_CAP = 12;
+
 /* rpix: the pixel within the region, where its slab state is. */
 Result cast_ray(uvec2 pix, uvec2 rpix) {
   Result res = Result(vec4(0.0), 0u, 0.0);
@@ -202,6 +212,7 @@ Result cast_ray(uvec2 pix, uvec2 rpix) {
      * shading and the AO fetch below then run once per sample that shows
      * in some lane, not once per sample. Without either the loop body
      * runs once. */
+    int marched = 0;
     for (;;) {
       float t_next = ray.s + float(i + 1) * step;
       float v_next = sample_volume(ray.p0 + t_next * ray.dp);
@@ -210,13 +221,15 @@ Result cast_ray(uvec2 pix, uvec2 rpix) {
       c = classify(v);
       v = v_next;
       a = RP_CORRECT ? correct(c.a) : c.a;
-      /* A transparent sample at a slab's `end` (before `last`) leaves
-       * here and is composited with weight 0 where the single pass skips
-       * it: adding 0 changes no bit, and the ERT test after it sees the
-       * opacity it saw at the last sample that showed (below the
-       * threshold, or the ray would have ended; a ray starts at 0, and
-       * the front end keeps the threshold in (0, 1]). */
-      if (!(RP_SHADING || RP_AO) || a > 0.0 || i >= end)
+      /* A transparent sample at a slab's `end` (before `last`), or the
+       * MARCH_CAP-th transparent sample in a row, leaves here and is
+       * composited with weight 0 where the single pass skips it: adding
+       * 0 changes no bit, and the ERT test after it sees the opacity it
+       * saw at the last sample that showed (below the threshold, or the
+       * ray would have ended; a ray starts at 0, and the front end keeps
+       * the threshold in (0, 1]). */
+      if (!(RP_SHADING || RP_AO) || a > 0.0 || i >= end ||
+          ++marched >= MARCH_CAP)
         break;
       i++;
     }
