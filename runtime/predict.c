@@ -84,11 +84,13 @@
  * frames that do not teach sigma (below), as ln(frame time / t' without
  * Q), bounded to [1/4, 4]; a frame that teaches sigma sets Q back to 1.
  * Those frames are the ones whose time is mostly a and c0, and neither
- * q nor KRLS ever sees them: a launch cost fitted too high then kept
- * t' above the frame for good. Measured: zooming into bonsai at 512^2,
- * the tuner went to steps of 7-10 voxels at scale 0.33, where a
- * raycast's fetches are under half its time; predicted 14 ms against a
- * measured 5.3-6.7 for the last 30 frames. Only frames sigma never sees
+ * q nor KRLS ever sees them: a t' priced too high there stayed too high.
+ * Measured: zooming into bonsai at 512^2, the tuner went to steps of
+ * 7-10 voxels at scale 0.33, where a raycast's fetches are under half
+ * its time; over the last 30 frames t' was 13.9-14.0 ms (the target)
+ * and the frames took 5.0-9.0 ms (median 6.3). With Q: 10.8-13.5 ms
+ * (median 12.6) against a 12.8 ms target, at 3.2 times the samples.
+ * Only frames sigma never sees
  * feed Q, so a slow spell on frames that teach sigma is not corrected
  * twice (by q and again by Q).
  *
