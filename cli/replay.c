@@ -778,18 +778,43 @@ static int sequence_uses_ao(const replay *r) {
   return 0;
 }
 
-/* Plays the sequence under every controller of `ps`. On one device
- * without AO they play frame by frame in turn, the order rotating each
- * frame, so that a burst of the machine's noise (ten frames at +30 % are
- * common on a shared machine) falls on all of them alike: every frame's
- * scene is the same for all, and each keeps its own controller and cost
- * model. A device group and an AO run hold what one controller's frames
- * did (the devices' models, AO progress), so there each controller plays
- * the whole sequence in turn, on a fresh group. */
+/* Every controller starts as the first does after calibrate(): frame 0's
+ * TF current, its AO (when frame 0 asks for AO) held by the devices, and
+ * no AO run under way from the controller before. */
+static int start_state(replay *r) {
+  rp_sequence_state st;
+  int err;
+  ao_drop_run(r);
+  if ((err = rp_sequence_frame(r->seq, 0, &st)) != 0)
+    return cli_error(r->ctx, "sequence", err);
+  if (use_tf(r, st.tf) != 0 || ao_now(r, st.effects) != 0)
+    return 1;
+  return 0;
+}
+
+/* Whether the single device renders from bricks. */
+static int out_of_core(const replay *r) {
+  rp_brick_stats bs;
+  return r->dev != NULL && rp_device_get_brick_stats(r->dev, &bs) == 0 &&
+         bs.out_of_core;
+}
+
+/* Plays the sequence under every controller of `ps`. On one device, in
+ * core and without AO, they play frame by frame in turn, the order
+ * rotating each frame, so that a burst of the machine's noise (ten
+ * frames at +30 % are common on a shared machine) falls on all of them
+ * alike: every frame's scene is the same for all, and each keeps its own
+ * controller and cost model. The device's depth pass is forgotten before
+ * each, so that none reuses another's (rp_device_render skips it for the
+ * same camera and scale). A device group, a brick pool and an AO run hold
+ * what one controller's frames did (the devices' models, the bricks
+ * loaded, AO progress), so there each controller plays the whole
+ * sequence in turn, each from the same start (start_state; a group a
+ * fresh one). */
 static int play(replay *r, player *ps, int n) {
   uint32_t total = r->o.settle + r->frames, i;
   int k, rc = 1;
-  if (r->group == NULL && !sequence_uses_ao(r)) {
+  if (r->group == NULL && !out_of_core(r) && !sequence_uses_ao(r)) {
     if (!r->o.quiet && n > 1)
       fprintf(stderr, "replay: %d controllers, frame by frame in turn\n",
               n);
@@ -797,9 +822,11 @@ static int play(replay *r, player *ps, int n) {
       if (player_open(r, &ps[k]) != 0)
         goto out;
     for (i = 0; i < total; i++)
-      for (k = 0; k < n; k++)
+      for (k = 0; k < n; k++) {
+        rp_device_forget_depth(r->dev);
         if (play_frame(r, &ps[(i + (uint32_t)k) % (uint32_t)n], i) != 0)
           goto out;
+      }
     for (k = 0; k < n; k++)
       ps[k].devices_alive = rp_device_group_alive(r->group);
   } else {
@@ -810,7 +837,7 @@ static int play(replay *r, player *ps, int n) {
         goto out;
       if (r->group != NULL)
         r->group_used = 1;
-      if (player_open(r, &ps[k]) != 0)
+      if (start_state(r) != 0 || player_open(r, &ps[k]) != 0)
         goto out;
       for (i = 0; i < total; i++)
         if (play_frame(r, &ps[k], i) != 0)

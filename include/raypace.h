@@ -473,6 +473,11 @@ RP_API int rp_device_render(rp_device *dev, const rp_camera *cam,
                             const rp_render_desc *desc,
                             const rp_region *region, uint8_t *rgba,
                             rp_tile_stats *tiles);
+/** Forgets the depth pass the device keeps between renders, so that the
+ *  next rp_device_render runs its own. For a benchmark that renders for
+ *  several clients in turn and times each render whole. NULL is a no-op.
+ *  \since 0.2 */
+RP_API void rp_device_forget_depth(rp_device *dev);
 /** Device time of the last operation in nanoseconds (0 if unknown). */
 RP_API uint64_t rp_device_last_time_ns(const rp_device *dev);
 /** What rendering a region would upload to an out-of-core device first:

@@ -1170,6 +1170,11 @@ int rp__device_render(rp_device *dev, const rp_camera *cam,
   return 0;
 }
 
+void rp_device_forget_depth(rp_device *dev) {
+  if (dev != NULL)
+    dev->depth_valid = 0;
+}
+
 int rp_device_render(rp_device *dev, const rp_camera *cam,
                      const rp_render_desc *desc, const rp_region *region,
                      uint8_t *rgba, rp_tile_stats *tiles) {

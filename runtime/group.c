@@ -760,7 +760,8 @@ static void device_costs(rp_device_group *g, const rp_frame_probe *p,
       continue;
     if (rp_cost_predict(w->model, p, step, scale, &c[i].e) != 0)
       continue;
-    c[i].fixed = c[i].e.launch_ms + c[i].e.c0_ms;
+    /* t' = (a + c0 + variable) * Q: Q scales the fixed part too. */
+    c[i].fixed = (c[i].e.launch_ms + c[i].e.c0_ms) * c[i].e.frame_factor;
     c[i].var = c[i].e.ms - c[i].fixed;
     c[i].ok = isfinite(c[i].var) && c[i].var > 0.0 && isfinite(c[i].fixed);
   }

@@ -812,11 +812,19 @@ static int sigma_relearn(rp_cost_model *m) {
   return 0;
 }
 
+/* Files a frame that does not teach sigma into Q: its time against t'
+ * without Q (both positive, or nothing is filed). */
+static void frame_feed(rp_cost_model *m, double frame_ms, double base_ms) {
+  if (frame_ms > 0.0 && base_ms > 0.0 && isfinite(base_ms))
+    recent_add(&m->frame_bias, log(frame_ms / base_ms), FRAME_BOUND);
+}
+
 int rp_cost_train(rp_cost_model *m, const rp_frame_probe *p, float step,
                   float scale, uint64_t samples, double raycast_ms,
                   double frame_ms) {
   static const char fn[] = "rp_cost_train";
-  double x[RP_COST_FEATURES], ls, lk, est, fetches;
+  double x[RP_COST_FEATURES], ls, lk, est, fetches, base_ms;
+  rp_cost_estimate e;
   int err;
   if (m == NULL)
     return RP_EINVAL;
@@ -844,29 +852,29 @@ int rp_cost_train(rp_cost_model *m, const rp_frame_probe *p, float step,
     return rp__fail(m->ctx, RP_ERANGE, "%s: raycast_ms %g for %llu "
                     "samples is out of range", fn, raycast_ms,
                     (unsigned long long)samples);
-  /* Q, against t' as the controller saw it (before this frame is
-   * learned, without Q). The launch fit's a is the one sigma_learn is
-   * about to judge this frame by. */
-  if (samples > 0 && raycast_ms > 0.0 && !sigma_teaches(m, raycast_ms)) {
-    rp_cost_estimate e;
-    if (rp_cost_predict(m, p, step, scale, &e) == 0 && e.ms > 0.0 &&
-        frame_ms > 0.0)
-      recent_add(&m->frame_bias, log(frame_ms * e.frame_factor / e.ms),
-                 FRAME_BOUND);
-  } else {
-    memset(&m->frame_bias, 0, sizeof m->frame_bias);
-  }
+  /* t' without Q as the controller saw it, before this frame is learned:
+   * what Q's ratio is taken against. */
+  if (rp_cost_predict(m, p, step, scale, &e) != 0)
+    return RP_EINVAL; /* checked above; said for readers */
+  base_ms = e.ms / e.frame_factor;
   (void)mean_add(&m->c0[scale < 1.0f], frame_ms - raycast_ms);
   /* A frame with no sample (all empty) or no measurable time says
    * nothing about the cost of a fetch. */
-  if (samples == 0 || raycast_ms <= 0.0)
+  if (samples == 0 || raycast_ms <= 0.0) {
+    frame_feed(m, frame_ms, base_ms);
     return 0;
+  }
   features(p, step, scale, x);
   err = launch_add(&m->launch, x, fetches, raycast_ms)
             ? sigma_relearn(m)
             : sigma_learn(m, x, fetches, raycast_ms, 0);
   if (err != 0)
     return err;
+  /* Judged by the launch fit sigma_learn just used. */
+  if (sigma_teaches(m, raycast_ms))
+    memset(&m->frame_bias, 0, sizeof m->frame_bias);
+  else
+    frame_feed(m, frame_ms, base_ms);
   if (est <= 0.0)
     return 0;
   lk = mean_add(&m->log_kappa, lk);

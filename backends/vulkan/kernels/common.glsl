@@ -103,8 +103,6 @@ struct Ray {
   bool hit;
 };
 
-/* The ray through continuous image position (px, py) of the scaled
- * image: pixel (x, y) is (x + 0.5, y + 0.5). */
 /* The ray's span [s, t1] narrowed to the box of the occupied blocks
  * (P.box_lo/box_hi, whose faces are block faces); false where it misses
  * the box. No occupied block lies outside it, so walks and marches that
@@ -126,6 +124,8 @@ bool occupied_box_span(Ray ray, out float lo, out float hi) {
   return lo <= hi;
 }
 
+/* The ray through continuous image position (px, py) of the scaled
+ * image: pixel (x, y) is (x + 0.5, y + 0.5). */
 Ray make_ray(float px, float py) {
   Ray ray;
   float nu = 2.0 * px / float(P.blocks.w) - 1.0;
