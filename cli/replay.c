@@ -636,7 +636,8 @@ typedef struct player {
   rp_controller *ctl;
   rp_cost_model *model;
   frame_row *rows;
-  uint32_t devices_alive; /* --devices: in its group, after its frames */
+  uint32_t devices_alive; /* --devices: in its group, after its frames;
+                             0 without a group */
 } player;
 
 static int player_open(replay *r, player *p) {
@@ -804,13 +805,14 @@ static int out_of_core(const replay *r) {
  * rotating each frame, so that a burst of the machine's noise (ten
  * frames at +30 % are common on a shared machine) falls on all of them
  * alike: every frame's scene is the same for all, and each keeps its own
- * controller and cost model. The device's depth pass is forgotten before
- * each, so that none reuses another's (rp_device_render skips it for the
- * same camera and scale). A device group, a brick pool and an AO run hold
- * what one controller's frames did (the devices' models, the bricks
- * loaded, AO progress), so there each controller plays the whole
- * sequence in turn, each from the same start (start_state; a group a
- * fresh one). */
+ * controller and cost model. With two or more, the device's depth pass
+ * is forgotten before each frame, so that none reuses another's
+ * (rp_device_render skips it for the same camera and scale); a single
+ * controller still reuses its own, as it always has. A device group, a
+ * brick pool and an AO run hold what one controller's frames did (the
+ * devices' models, the bricks loaded, AO progress), so there each
+ * controller plays the whole sequence in turn, each from the same start
+ * (start_state; a group a fresh one). */
 static int play(replay *r, player *ps, int n) {
   uint32_t total = r->o.settle + r->frames, i;
   int k, rc = 1;
@@ -823,12 +825,11 @@ static int play(replay *r, player *ps, int n) {
         goto out;
     for (i = 0; i < total; i++)
       for (k = 0; k < n; k++) {
-        rp_device_forget_depth(r->dev);
+        if (n > 1)
+          rp_device_forget_depth(r->dev);
         if (play_frame(r, &ps[(i + (uint32_t)k) % (uint32_t)n], i) != 0)
           goto out;
       }
-    for (k = 0; k < n; k++)
-      ps[k].devices_alive = rp_device_group_alive(r->group);
   } else {
     for (k = 0; k < n; k++) {
       if (!r->o.quiet)

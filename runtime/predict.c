@@ -90,9 +90,8 @@
  * its time; over the last 30 frames t' was 13.9-14.0 ms (the target)
  * and the frames took 5.0-9.0 ms (median 6.3). With Q: 10.8-13.5 ms
  * (median 12.6) against a 12.8 ms target, at 3.2 times the samples.
- * Only frames sigma never sees
- * feed Q, so a slow spell on frames that teach sigma is not corrected
- * twice (by q and again by Q).
+ * Only frames sigma never sees feed Q, so a slow spell on frames that
+ * teach sigma is not corrected twice (by q and again by Q).
  *
  * c0, the per-frame fixed cost (depth pass, readback, upscale),
  * is measured per frame as frame time - raycast time and averaged the
