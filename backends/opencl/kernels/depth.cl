@@ -84,8 +84,8 @@ void rp_cl_occupied_span(const rp_cl_frame *fp, const rp_cl_packet *k,
    * the lookups found (lanes that are done step on, unused), so the next
    * lookup never waits for the last: the walk is bound by throughput,
    * not by the latency of a gather. */
-  while (any(want)) {
-    vfloat leave = fmin(fmin(nx, ny), nz);
+  while (rp_cl_any(want)) {
+    vfloat leave = rp_cl_min(rp_cl_min(nx, ny), nz);
     vint occ = rp_cl_gather_byte(grid, at);
     vint ax = leave == nx, ay = ~ax & (leave == ny), az = ~ax & ~ay;
     front = select(front, edge, want & (occ != 0));
@@ -100,7 +100,7 @@ void rp_cl_occupied_span(const rp_cl_frame *fp, const rp_cl_packet *k,
     nz = select(nz, nz + gz, az);
     /* Rounding can put a plane a hair before the last one crossed; the
      * block in between is then entered and left at the same depth. */
-    edge = fmax(edge, leave);
+    edge = rp_cl_max(edge, leave);
   }
   /* Backward, from the block at hi, across entry planes (the side of a
    * block facing the eye), in the lanes that found a block. */
@@ -113,8 +113,8 @@ void rp_cl_occupied_span(const rp_cl_frame *fp, const rp_cl_packet *k,
   nz = rp_cl_entry_neg(k->p0z, k->dpz, iz, bz, uz);
   at = rp_cl_bordered_index(fp, bx, by, bz);
   edge = hi;
-  while (any(want)) {
-    vfloat enter = -fmin(fmin(nx, ny), nz);
+  while (rp_cl_any(want)) {
+    vfloat enter = -rp_cl_min(rp_cl_min(nx, ny), nz);
     vint occ = rp_cl_gather_byte(grid, at);
     vint ax = enter == -nx, ay = ~ax & (enter == -ny), az = ~ax & ~ay;
     back = select(back, edge, want & (occ != 0));
@@ -126,7 +126,7 @@ void rp_cl_occupied_span(const rp_cl_frame *fp, const rp_cl_packet *k,
     nx = select(nx, nx + gx, ax);
     ny = select(ny, ny + gy, ay);
     nz = select(nz, nz + gz, az);
-    edge = fmin(edge, enter);
+    edge = rp_cl_min(edge, enter);
   }
   /* Rounding can leave the backward walk a hair short of the block the
    * forward walk found, or D_back a hair before D_front. */

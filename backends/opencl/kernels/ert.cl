@@ -88,7 +88,7 @@ void rp_cl_ert(rp_cl_frame fp, __global const uchar *grid,
     j = fmax(floor((lo - k.s) * (1.0f / RP_CL_ERT_STEP)) - 1.0f, 0.0f);
     end = fmin(k.t1, hi + RP_CL_ERT_STEP);
   }
-  while (any(live)) {
+  while (rp_cl_any(live)) {
     vfloat t = k.s + j * RP_CL_ERT_STEP;
     vint b, draw;
     live &= t <= end;
@@ -97,45 +97,55 @@ void rp_cl_ert(rp_cl_frame fp, __global const uchar *grid,
         rp_cl_block_axis(k.p0y + t * k.dpy, fp.blocks[1]),
         rp_cl_block_axis(k.p0z + t * k.dpz, fp.blocks[2]));
     draw = live & (rp_cl_gather_byte(grid, b) != 0);
-    if (any(draw)) {
-      vuint tau = rp_cl_draw(&g, draw), w[4], total = 0, target, sum = 0;
-      vint bin = 15, found = 0;
+    if (rp_cl_any(draw)) {
+      vuint tau = rp_cl_draw(&g, draw), cum[15], sum = 0, target;
+      vint bin = 0;
       int q;
-      vfloat a;
-      int idx[RP_CL_W], bins[RP_CL_W];
-      uint h[4][RP_CL_W];
-      float av[RP_CL_W];
+      /* Lanes through unions, as in rp_cl_gather_byte. */
+      union {
+        vint v;
+        int a[RP_CL_W];
+      } at, choice;
+      union {
+        vuint v;
+        uint a[RP_CL_W];
+      } w[4];
+      union {
+        vfloat v;
+        float a[RP_CL_W];
+      } a;
       /* The lanes' 16-byte histograms, as four words each. */
-      vstore_w(b * 4, 0, idx);
+      at.v = b * 4;
 #pragma clang loop vectorize(enable) vectorize_width(RP_CL_W)
       for (q = 0; q < RP_CL_W; q++) {
-        __global const uint *v = alpha_hist + idx[q];
-        h[0][q] = v[0];
-        h[1][q] = v[1];
-        h[2][q] = v[2];
-        h[3][q] = v[3];
+        w[0].a[q] = alpha_hist[at.a[q]];
+        w[1].a[q] = alpha_hist[at.a[q] + 1];
+        w[2].a[q] = alpha_hist[at.a[q] + 2];
+        w[3].a[q] = alpha_hist[at.a[q] + 3];
       }
-      for (q = 0; q < 4; q++) {
-        w[q] = vload_w(0, h[q]);
-        total += (w[q] & 0xffu) + ((w[q] >> 8) & 0xffu) +
-                 ((w[q] >> 16) & 0xffu) + (w[q] >> 24);
-      }
-      /* ((uint64)tau * total) >> 32, then the first bin whose running
-       * sum passes it. */
-      target = mul_hi(tau, total);
+      /* Running sums of the bins. The bin drawn is the first whose sum
+       * passes target = ((uint64)tau * total) >> 32; the sums never
+       * decrease, so it is also the number of the first 15 that do not
+       * pass it (15 when all do not): a compare and an add per bin,
+       * where a search for the first kept two more masks. */
+#pragma unroll
       for (q = 0; q < 15; q++) {
-        vint now;
-        sum += (w[q / 4] >> (8 * (q % 4))) & 0xffu;
-        now = ~found & (sum > target);
-        bin = select(bin, (vint)(q), now);
-        found |= now;
+        sum += (w[q / 4].v >> (8 * (q % 4))) & 0xffu;
+        cum[q] = sum;
       }
-      vstore_w(bin, 0, bins);
+      /* mul_hi(tau, total) from two 32-bit products, exact because a
+       * histogram's total is under 2^16 (16 bytes): PoCL builds mul_hi
+       * on 32-bit lanes from four. */
+      sum += w[3].v >> 24;
+      target = ((tau >> 16) * sum + (((tau & 0xffffu) * sum) >> 16)) >> 16;
+#pragma unroll
+      for (q = 0; q < 15; q++)
+        bin -= cum[q] <= target;
+      choice.v = bin;
 #pragma clang loop vectorize(enable) vectorize_width(RP_CL_W)
       for (q = 0; q < RP_CL_W; q++)
-        av[q] = corr[bins[q]];
-      a = vload_w(0, av);
-      acc = select(acc, acc + (1.0f - acc) * a, draw);
+        a.a[q] = corr[choice.a[q]];
+      acc = select(acc, acc + (1.0f - acc) * a.v, draw);
       draw &= acc >= fp.ert_threshold;
       result = select(result, t, draw);
       live &= ~draw;
