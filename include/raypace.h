@@ -96,8 +96,11 @@ typedef struct rp_context_desc {
   rp_allocator allocator; /* zero: malloc/free */
   rp_logger logger;       /* NULL: silent */
   void *logger_user;
-  int threads;             /* worker threads for CPU passes; 0: all cores;
-                              at most 256 are used */
+  int threads;             /* worker threads for the CPU passes on volume
+                              load and TF change (histograms, AO,
+                              bricks); 0: all cores; at most 256 are
+                              used. The per-frame probe runs on the
+                              calling thread. */
   uint64_t max_volume_bytes; /* largest volume a loader accepts;
                                 0: 16 GiB */
 } rp_context_desc;

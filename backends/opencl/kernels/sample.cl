@@ -92,7 +92,8 @@ typedef struct __attribute__((packed)) rp_cl_pair {
  * vector cost twice as much on PoCL). Lanes go through unions, as in
  * rp_cl_gather_byte: private arrays with vstore/vload added lane shuffles
  * about every gather here, and dropping them made the raycast about 1.3x
- * as fast (bonsai 512^2, 245 -> 320 M samples/s unshaded). */
+ * as fast (bonsai 512^2 unshaded, one quiet run: 245 -> 320 M
+ * samples/s). */
 vpair rp_cl_gather(__global const RP_VOXEL_T *vol, vindex at) {
   union {
     vpair v;
