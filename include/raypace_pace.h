@@ -91,7 +91,11 @@ typedef struct rp_tune_result {
  *  meets the target. Clamps: rho stays in [rho_min, ub] with
  *  ub = min(rho_max, max(rho_min, rho_prev * raise_limit)) (rho_prev
  *  > 0): a rise is damped, a fall is not, and rho_min wins over the
- *  damping. Predictions that are NaN, infinite or <= 0 count as unknown.
+ *  damping. When the damping alone held rho back, one more prediction
+ *  prices rho_max, and if it is at most a quarter of the target rho_max
+ *  is taken (a 4x error of the model would be needed to overshoot; a
+ *  switch to a cheap TF then gets the finest image at once); this
+ *  prediction counts against max_iters and max_time_us. Predictions that are NaN, infinite or <= 0 count as unknown.
  *  The result is the largest rho seen with t' <= target; if none was
  *  seen, rho_min when t'(rho_min) > target, else (the budget ran out
  *  first) Eq. 2's unverified step down from the smallest rho tried. A

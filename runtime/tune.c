@@ -36,6 +36,13 @@
 #define TUNE_MAX_BAD 16
 /* Bracket ends further apart than this factor are split geometrically. */
 #define TUNE_WIDE 4.0
+/* The damping guards against a rise the model priced too low. A rise to
+ * rho_max predicted at this share of the target or less would overshoot
+ * only if the model were off by 4x; its log residual has a standard
+ * deviation of about 0.17 here (docs/pacing.md), so 4x (ln 4 = 1.39) is
+ * eight of them. Such a rise is taken at once: after a switch to a cheap
+ * TF the finest image comes in one frame, not after five damped ones. */
+#define TUNE_LIFT 0.25
 
 /* The desc with its defaults filled in: the one place that knows them
  * (STYLE rule 3). */
@@ -303,6 +310,19 @@ int rp_tune(const rp_tune_desc *desc, rp_predict_fn predict, void *user,
   }
 
   memset(out, 0, sizeof *out);
+  if (s.have_best && s.best.r >= s.ub && s.best.t < s.band_lo &&
+      s.ub < d.rho_max && iters < d.max_iters &&
+      rp__now_ms() * 1e3 - start < d.max_time_us) {
+    /* Held back by the damping alone: lifted when rho_max itself is
+     * predicted far under the target (TUNE_LIFT). */
+    double t = predict(user, d.rho_max);
+    iters++;
+    if (isfinite(t) && t > 0 && t <= TUNE_LIFT * s.target) {
+      s.best.r = d.rho_max;
+      s.best.t = t;
+      s.ub = d.rho_max;
+    }
+  }
   out->iters = iters;
   if (s.have_best) {
     out->rho = s.best.r;

@@ -236,11 +236,13 @@ static void tune_constant_models(void **state) {
   assert_true(r.predicted_ms == 10);
   assert_int_equal(r.limited, 0);
   /* Half the target everywhere: up to the damped clamp 0.5 / 0.8 after
-   * one extrapolation (0.5 * 9.95 / 5 = 0.995, cut to 0.625). */
+   * one extrapolation (0.5 * 9.95 / 5 = 0.995, cut to 0.625); rho_max's
+   * 5 ms is over a quarter of the target, so the damping stays (a third
+   * prediction). */
   memset(&m, 0, sizeof m);
   m.value = 5;
   r = tune(10, 0.5, m_const, &m);
-  assert_int_equal(r.iters, 2);
+  assert_int_equal(r.iters, 3);
   assert_true(r.rho == 0.5 * (1.0 / 0.8));
   assert_true(r.predicted_ms == 5);
   assert_int_equal(r.limited, 1);
@@ -367,12 +369,59 @@ static void tune_clamps(void **state) {
   assert_true(r.rho == 0.2);
   assert_true(r.predicted_ms == 20);
   assert_int_equal(r.limited, 1);
-  /* rho_prev * raise_limit under rho_min: rho_min wins. */
+  /* rho_prev * raise_limit under rho_min: rho_min wins (rho_max's 5 ms
+   * is over a quarter of the target: no lift). */
   d.rho_min = 0;
   d.rho_prev = 1e-4;
-  m.a = 1;
+  m.a = 5;
   assert_int_equal(rp_tune(&d, m_linear, &m, &r), 0);
   assert_true(r.rho == 1e-3);
+}
+
+/* The damping is lifted when rho_max is predicted at a quarter of the
+ * target or less, and only then: the boundary itself, just over it, a
+ * model that cannot price rho_max, and a lift that the budget of
+ * predictions leaves no room for. */
+static void tune_damping_lift(void **state) {
+  model m = {0};
+  rp_tune_desc d = {0};
+  rp_tune_result r;
+  (void)state;
+  /* t' = 2.5 rho, target 10: rho_max at exactly a quarter. */
+  m.a = 2.5;
+  r = tune(10, 0.3, m_linear, &m);
+  assert_true(r.rho == 1.0);
+  assert_true(r.predicted_ms == 2.5);
+  assert_int_equal(r.limited, 1);
+  assert_int_equal(r.iters, m.calls);
+  /* Just over a quarter: damped to 0.3 / 0.8. */
+  memset(&m, 0, sizeof m);
+  m.a = 2.5000001;
+  r = tune(10, 0.3, m_linear, &m);
+  assert_true(r.rho == 0.3 * (1.0 / 0.8));
+  assert_int_equal(r.limited, 1);
+  /* rho_max not priced (NaN above 0.9): damped. */
+  memset(&m, 0, sizeof m);
+  m.a = 1;
+  m.nan_lo = 0.9;
+  m.nan_hi = 2;
+  r = tune(10, 0.3, m_nan_band, &m);
+  assert_true(r.rho == 0.3 * (1.0 / 0.8));
+  /* The search used every prediction: no lift is tried. */
+  memset(&m, 0, sizeof m);
+  m.a = 1;
+  d.target_ms = 10;
+  d.rho_prev = 0.3;
+  d.max_iters = 1;
+  d.max_time_us = NO_TIME_LIMIT_US;
+  assert_int_equal(rp_tune(&d, m_linear, &m, &r), 0);
+  assert_true(r.rho == 0.3);
+  assert_int_equal(m.calls, 1);
+  /* A fall is never affected: t' = 100 rho from 0.9 goes to 0.1. */
+  memset(&m, 0, sizeof m);
+  m.a = 100;
+  r = tune(10, 0.9, m_linear, &m);
+  assert_true(r.rho <= 0.1 && r.rho >= 0.099);
 }
 
 static void tune_extreme_targets(void **state) {
@@ -1062,6 +1111,7 @@ int main(void) {
       cmocka_unit_test(tune_wide_bracket),
       cmocka_unit_test(tune_nan_in_places),
       cmocka_unit_test(tune_damping),
+      cmocka_unit_test(tune_damping_lift),
       cmocka_unit_test(tune_clamps),
       cmocka_unit_test(tune_extreme_targets),
       cmocka_unit_test(tune_time_limit),
