@@ -95,7 +95,8 @@ typedef struct rp_tune_result {
  *  prices rho_max, and if it is at most a quarter of the target rho_max
  *  is taken (a 4x error of the model would be needed to overshoot; a
  *  switch to a cheap TF then gets the finest image at once); this
- *  prediction counts against max_iters and max_time_us. Predictions that are NaN, infinite or <= 0 count as unknown.
+ *  prediction counts against max_iters and max_time_us. Predictions
+ *  that are NaN, infinite or <= 0 count as unknown.
  *  The result is the largest rho seen with t' <= target; if none was
  *  seen, rho_min when t'(rho_min) > target, else (the budget ran out
  *  first) Eq. 2's unverified step down from the smallest rho tried. A

@@ -248,6 +248,21 @@ static int record(search *s, double r, double t) {
   return t >= s->band_lo && t <= s->target;
 }
 
+/* Whether the time budget that began at start_us (microseconds) is
+ * spent. */
+static int spent(double start_us, double max_us) {
+  return rp__now_ms() * 1e3 - start_us >= max_us;
+}
+
+/* Whether t is a prediction at all: NaN, infinite or <= 0 is unknown. */
+static int priced(double t) { return isfinite(t) && t > 0; }
+
+/* Whether the best density found was cut by the upper clamp: at ub while
+ * still under the band (it would have gone higher). */
+static int held_at_ub(const search *s) {
+  return s->have_best && s->best.r >= s->ub && s->best.t < s->band_lo;
+}
+
 /* Files a prediction that was NaN, infinite or <= 0 at r. */
 static void record_bad(search *s, double r) {
   s->tried_lb |= r == s->lb;
@@ -294,14 +309,14 @@ int rp_tune(const rp_tune_desc *desc, rp_predict_fn predict, void *user,
     double t;
     /* Checked before each prediction but the first: the call overruns
      * max_time_us by at most one prediction. */
-    if (iters > 0 && rp__now_ms() * 1e3 - start >= d.max_time_us)
+    if (iters > 0 && spent(start, d.max_time_us))
       break;
     r = next_candidate(&s, r0);
     if (r < 0)
       break;
     t = predict(user, r);
     iters++;
-    if (isfinite(t) && t > 0) {
+    if (priced(t)) {
       if (record(&s, r, t))
         break;
     } else {
@@ -310,14 +325,13 @@ int rp_tune(const rp_tune_desc *desc, rp_predict_fn predict, void *user,
   }
 
   memset(out, 0, sizeof *out);
-  if (s.have_best && s.best.r >= s.ub && s.best.t < s.band_lo &&
-      s.ub < d.rho_max && iters < d.max_iters &&
-      rp__now_ms() * 1e3 - start < d.max_time_us) {
+  if (held_at_ub(&s) && s.ub < d.rho_max && iters < d.max_iters &&
+      !spent(start, d.max_time_us)) {
     /* Held back by the damping alone: lifted when rho_max itself is
      * predicted far under the target (TUNE_LIFT). */
     double t = predict(user, d.rho_max);
     iters++;
-    if (isfinite(t) && t > 0 && t <= TUNE_LIFT * s.target) {
+    if (priced(t) && t <= TUNE_LIFT * s.target) {
       s.best.r = d.rho_max;
       s.best.t = t;
       s.ub = d.rho_max;
@@ -327,9 +341,7 @@ int rp_tune(const rp_tune_desc *desc, rp_predict_fn predict, void *user,
   if (s.have_best) {
     out->rho = s.best.r;
     out->predicted_ms = s.best.t;
-    /* Cut by a clamp: at ub while still under the band (it would have
-     * gone higher). */
-    out->limited = s.best.r >= s.ub && s.best.t < s.band_lo;
+    out->limited = held_at_ub(&s);
   } else if (s.have_lb) {
     /* Even rho_min is over the target. */
     out->rho = s.lb;

@@ -40,6 +40,23 @@ typedef RP_CL_VEC(uchar) vbyte;
 #define vload_w RP_CL_CAT(vload, RP_CL_W)
 #define vstore_w RP_CL_CAT(vstore, RP_CL_W)
 
+/* A vector and its lanes. A loop over `a` that reads memory at each
+ * lane's index is the form LLVM turns into one hardware gather, with the
+ * result read back as `v`; with vstore/vload through private arrays it
+ * also shuffled the lanes about at both ends of the gather. */
+typedef union rp_cl_int_lanes {
+  vint v;
+  int a[RP_CL_W];
+} rp_cl_int_lanes;
+typedef union rp_cl_uint_lanes {
+  vuint v;
+  uint a[RP_CL_W];
+} rp_cl_uint_lanes;
+typedef union rp_cl_float_lanes {
+  vfloat v;
+  float a[RP_CL_W];
+} rp_cl_float_lanes;
+
 /* Whether any lane of a comparison result is true. OpenCL's any() tests
  * the lanes one pair at a time with a branch after each (PoCL 3.1 on
  * x86); an OR-reduction of the lanes' "true" is one mask test, which the
@@ -234,18 +251,13 @@ vint rp_cl_block_index(const rp_cl_frame *fp, vint bx, vint by, vint bz) {
 
 /* One byte per lane from a byte table, read as the low byte of an
  * unaligned 32-bit word (tables are padded past their end for this): a
- * CPU gathers words, not bytes. A loop over the lanes of unions is the
- * form LLVM turns into one hardware gather; with vstore/vload through
- * private arrays it also shuffled the lanes about at both ends. */
+ * CPU gathers words, not bytes. */
 typedef struct __attribute__((packed)) rp_cl_word {
   uint v;
 } rp_cl_word;
 
 vint rp_cl_gather_byte(__global const uchar *table, vint at) {
-  union {
-    vint v;
-    int a[RP_CL_W];
-  } idx, out;
+  rp_cl_int_lanes idx, out;
   int j;
   idx.v = at;
 #pragma clang loop vectorize(enable) vectorize_width(RP_CL_W)

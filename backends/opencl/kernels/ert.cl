@@ -99,15 +99,8 @@ void rp_cl_ert(rp_cl_frame fp, __global const uchar *grid,
       vuint tau = rp_cl_draw(&g, draw), cum[15], sum = 0, target;
       vint bin = 0;
       int q;
-      /* Lanes through unions, as in rp_cl_gather_byte. */
-      union {
-        vint v;
-        int a[RP_CL_W];
-      } at;
-      union {
-        vuint v;
-        uint a[RP_CL_W];
-      } w[4];
+      rp_cl_int_lanes at;
+      rp_cl_uint_lanes w[4];
       vfloat a;
       /* The lanes' 16-byte histograms, as four words each. */
       at.v = b * 4;

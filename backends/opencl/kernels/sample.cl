@@ -84,25 +84,28 @@ rp_cl_grid rp_cl_grid_bricked(const float dims[3], const uint idims[3],
 #define RP_CL_PAIR_T uint
 #endif
 typedef RP_CL_VEC(RP_CL_PAIR_T) vpair;
+/* A vector and its lanes, as rp_cl_int_lanes (common.cl). */
+typedef union rp_cl_pair_lanes {
+  vpair v;
+  RP_CL_PAIR_T a[RP_CL_W];
+} rp_cl_pair_lanes;
+typedef union rp_cl_index_lanes {
+  vindex v;
+  RP_INDEX_T a[RP_CL_W];
+} rp_cl_index_lanes;
 typedef struct __attribute__((packed)) rp_cl_pair {
   RP_CL_PAIR_T v;
 } rp_cl_pair;
 
 /* The voxel pair at each lane's index (a gather: per-lane inserts into a
- * vector cost twice as much on PoCL). Lanes go through unions, as in
- * rp_cl_gather_byte: private arrays with vstore/vload added lane shuffles
+ * vector cost twice as much on PoCL). Lanes go through unions
+ * (rp_cl_int_lanes): private arrays with vstore/vload added lane shuffles
  * about every gather here, and dropping them made the raycast about 1.3x
  * as fast (bonsai 512^2 unshaded, one quiet run: 245 -> 320 M
  * samples/s). */
 vpair rp_cl_gather(__global const RP_VOXEL_T *vol, vindex at) {
-  union {
-    vpair v;
-    RP_CL_PAIR_T a[RP_CL_W];
-  } out;
-  union {
-    vindex v;
-    RP_INDEX_T a[RP_CL_W];
-  } idx;
+  rp_cl_pair_lanes out;
+  rp_cl_index_lanes idx;
   int j;
   idx.v = at;
 #pragma clang loop vectorize(enable) vectorize_width(RP_CL_W)
@@ -160,14 +163,8 @@ vint rp_cl_brick_of(const rp_cl_grid *g, vint ix, vint iy, vint iz) {
  * gather. No vectorize pragma: clang cannot honour one on it and would
  * warn at every kernel build. */
 vindex rp_cl_brick_origin(const rp_cl_grid *g, vint brick) {
-  union {
-    vint v;
-    int a[RP_CL_W];
-  } at;
-  union {
-    vuint v;
-    uint a[RP_CL_W];
-  } slot;
+  rp_cl_int_lanes at;
+  rp_cl_uint_lanes slot;
   int j;
   at.v = brick;
   for (j = 0; j < RP_CL_W; j++)
@@ -240,14 +237,8 @@ vfloat rp_cl_sample(__global const RP_VOXEL_T *vol, const rp_cl_grid *g,
 /* The same for a byte volume of the same grid (the AO volume, padded like
  * the volume): two x-adjacent bytes per lane from one 32-bit word. */
 vfloat rp_cl_lerp_bytes(__global const uchar *bytes, vindex at, vfloat w) {
-  union {
-    vuint v;
-    uint a[RP_CL_W];
-  } out;
-  union {
-    vindex v;
-    RP_INDEX_T a[RP_CL_W];
-  } idx;
+  rp_cl_uint_lanes out;
+  rp_cl_index_lanes idx;
   int j;
   vuint q;
   idx.v = at;
@@ -315,14 +306,8 @@ vfloat rp_cl_correct(vfloat a, float ratio) {
 void rp_cl_classify(__global const float4 *lut, vint e, vfloat w,
                     vfloat *r, vfloat *g, vfloat *b, vfloat *a) {
   __global const float *lf = (__global const float *)lut;
-  union {
-    vfloat v;
-    float a[RP_CL_W];
-  } c[8];
-  union {
-    vint v;
-    int a[RP_CL_W];
-  } idx;
+  rp_cl_float_lanes c[8];
+  rp_cl_int_lanes idx;
   int j;
   idx.v = e * 4;
 #pragma clang loop vectorize(enable) vectorize_width(RP_CL_W)
@@ -349,14 +334,8 @@ void rp_cl_classify(__global const float4 *lut, vint e, vfloat w,
 /* Opacity alone from the LUT, as rp_cl_classify computes it. */
 vfloat rp_cl_classify_alpha(__global const float4 *lut, vint e, vfloat w) {
   __global const float *lf = (__global const float *)lut;
-  union {
-    vfloat v;
-    float a[RP_CL_W];
-  } c[2];
-  union {
-    vint v;
-    int a[RP_CL_W];
-  } idx;
+  rp_cl_float_lanes c[2];
+  rp_cl_int_lanes idx;
   int j;
   idx.v = e * 4 + 3;
 #pragma clang loop vectorize(enable) vectorize_width(RP_CL_W)
