@@ -7,8 +7,12 @@
  *     and 95th percentile, against each device alone.
  *
  * Ways of splitting, every one on the same frames:
- *   smooth  ours: shares from each device's measured cost per unit of
- *           predicted tile cost, damped toward last frame's (lambda 0.5);
+ *   tail    ours, the default: shares from each device's measured cost
+ *           per unit of predicted tile cost, damped toward last frame's
+ *           (lambda 0.5), and 0.15 of the predicted cost held back in
+ *           strips that whichever device is done first takes
+ *           (rp_group_desc.tail_fraction);
+ *   smooth  the same shares, every pixel split in advance (no tail);
  *   even    the same shares damped the paper's way, mixed with the even
  *           split (zeta 0.5);
  *   static  fixed shares from each device's average frame time alone over
@@ -40,13 +44,16 @@
 #define MAX_FRAMES 2048
 #define SETTLE 5 /* frames left out of the averages: first-frame builds */
 
-enum { WAY_SMOOTH, WAY_EVEN, WAY_STATIC, WAY_AREA, WAYS };
-static const char *const way_names[WAYS] = {"smooth", "even", "static",
-                                            "static-area"};
+enum { WAY_TAIL, WAY_SMOOTH, WAY_EVEN, WAY_STATIC, WAY_AREA, WAYS };
+static const char *const way_names[WAYS] = {"tail", "smooth", "even",
+                                            "static", "static-area"};
+#define NO_TAIL -1.0
 
 typedef struct opts {
   const char *volume, *pair, *sequence, *csv;
   uint32_t size, frames;
+  double tail;          /* the tail way's rp_group_desc fields: 0, the */
+  uint32_t tail_strips; /* defaults */
 } opts;
 
 typedef struct scene {
@@ -63,7 +70,7 @@ static int usage(void) {
   fprintf(stderr,
           "usage: bench_balance [--volume PATH|phantom] [--pair cl-vk|cl-slow]"
           "\n                     [--size N] [--frames N] [--sequence S] "
-          "[--csv FILE]\n");
+          "[--csv FILE]\n                     [--tail F] [--tail-strips N]\n");
   return 2;
 }
 
@@ -75,6 +82,8 @@ static int parse(int argc, char **argv, opts *o) {
   o->csv = NULL;
   o->size = 512;
   o->frames = 0;
+  o->tail = 0.0;
+  o->tail_strips = 0;
   for (i = 1; i < argc; i++) {
     const char *a = argv[i], *v = i + 1 < argc ? argv[i + 1] : NULL;
     if (v == NULL)
@@ -91,6 +100,10 @@ static int parse(int argc, char **argv, opts *o) {
       o->size = (uint32_t)strtoul(v, NULL, 10);
     else if (strcmp(a, "--frames") == 0)
       o->frames = (uint32_t)strtoul(v, NULL, 10);
+    else if (strcmp(a, "--tail") == 0)
+      o->tail = strtod(v, NULL);
+    else if (strcmp(a, "--tail-strips") == 0)
+      o->tail_strips = (uint32_t)strtoul(v, NULL, 10);
     else
       return usage();
     i++;
@@ -176,8 +189,8 @@ static int pair_devices(const char *pair, rp_device_desc *dd) {
 
 static int make_group(scene *s, const rp_device_desc *dd, uint32_t n,
                       rp_share_mode mode, rp_damping damping,
-                      const double *fixed, int by_count,
-                      rp_device_group **g) {
+                      const double *fixed, int by_count, double tail,
+                      uint32_t tail_strips, rp_device_group **g) {
   rp_group_desc gd = {0};
   int err;
   gd.devices = dd;
@@ -186,6 +199,8 @@ static int make_group(scene *s, const rp_device_desc *dd, uint32_t n,
   gd.damping = damping;
   gd.fixed_shares = fixed;
   gd.split_by_count = by_count;
+  gd.tail_fraction = tail;
+  gd.tail_strips = tail_strips;
   gd.deadline_factor = -1.0; /* a slow frame is not a lost device here */
   if ((err = rp_device_group_create(s->ctx, &gd, g)) != 0)
     return fail(s->ctx, "device group", err);
@@ -291,7 +306,7 @@ int main(int argc, char **argv) {
   /* Pass 1: each device alone. */
   for (i = 0; i < 2; i++)
     if (make_group(&s, &dd[i], 1, RP_SHARES_DYNAMIC, RP_DAMP_SMOOTH, NULL, 0,
-                   &single[i]) != 0)
+                   NO_TAIL, 0, &single[i]) != 0)
       goto out;
   {
     rp_caps c0, c1;
@@ -324,13 +339,15 @@ int main(int argc, char **argv) {
   /* Pass 2: every way, interleaved. */
   s.tf_active = -1;
   if (make_group(&s, dd, 2, RP_SHARES_DYNAMIC, RP_DAMP_SMOOTH, NULL, 0,
-                 &ways[WAY_SMOOTH]) != 0 ||
+                 NO_TAIL, 0, &ways[WAY_SMOOTH]) != 0 ||
+      make_group(&s, dd, 2, RP_SHARES_DYNAMIC, RP_DAMP_SMOOTH, NULL, 0,
+                 o.tail, o.tail_strips, &ways[WAY_TAIL]) != 0 ||
       make_group(&s, dd, 2, RP_SHARES_DYNAMIC, RP_DAMP_EVEN, NULL, 0,
-                 &ways[WAY_EVEN]) != 0 ||
+                 NO_TAIL, 0, &ways[WAY_EVEN]) != 0 ||
       make_group(&s, dd, 2, RP_SHARES_FIXED, RP_DAMP_SMOOTH, fixed, 0,
-                 &ways[WAY_STATIC]) != 0 ||
+                 NO_TAIL, 0, &ways[WAY_STATIC]) != 0 ||
       make_group(&s, dd, 2, RP_SHARES_FIXED, RP_DAMP_SMOOTH, fixed, 1,
-                 &ways[WAY_AREA]) != 0)
+                 NO_TAIL, 0, &ways[WAY_AREA]) != 0)
     goto out;
   if (o.csv != NULL && (csv = fopen(o.csv, "w")) == NULL) {
     fprintf(stderr, "bench_balance: cannot write %s\n", o.csv);
@@ -393,7 +410,10 @@ int main(int argc, char **argv) {
       printf("%-12s %10.3f %10.3f %10.2f %10.2f %12.3f %10.3f\n",
              way_names[k], mi, md, fm, f95, fm / med_best, s0);
     }
-    printf("\nsmooth vs static: balance deviation %.0f %% lower; vs "
+    printf("\ntail vs static: balance deviation %.0f %% lower\n",
+           100.0 * (1.0 - mean_of(imb[WAY_TAIL] + SETTLE, n - SETTLE) /
+                              mean_of(imb[WAY_STATIC] + SETTLE, n - SETTLE)));
+    printf("smooth vs static: balance deviation %.0f %% lower; vs "
            "static-area %.0f %% lower\n",
            100.0 * (1.0 - mean_of(imb[WAY_SMOOTH] + SETTLE, n - SETTLE) /
                               mean_of(imb[WAY_STATIC] + SETTLE, n - SETTLE)),

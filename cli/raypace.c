@@ -472,6 +472,8 @@ static cJSON *json_group(const render_opts *o, const rp_group_report *rep,
     cJSON_AddNumberToObject(e, "raycast_ms", d->raycast_ms);
     cJSON_AddNumberToObject(e, "busy_ms", d->busy_ms);
     cJSON_AddNumberToObject(e, "samples", (double)d->samples);
+    cJSON_AddNumberToObject(e, "strips", d->strips);
+    cJSON_AddNumberToObject(e, "strip_cost_share", d->strip_cost_share);
     cJSON_AddStringToObject(e, "status",
                             fate[i].status ? rp_err_name(fate[i].status)
                                            : "ok");
@@ -479,6 +481,26 @@ static cJSON *json_group(const render_opts *o, const rp_group_report *rep,
     cJSON_AddBoolToObject(e, "late", fate[i].late);
     if (fate[i].status != 0)
       cJSON_AddStringToObject(e, "error", fate[i].why);
+    cJSON_AddItemToArray(a, e);
+  }
+  return a;
+}
+
+/* The tail's strips: the device that took each (-1: none finished it,
+ * re-rendered with the lost regions), in scaled and output pixels. */
+static cJSON *json_strips(const render_opts *o, const rp_group_report *rep,
+                          uint32_t sw, uint32_t sh) {
+  cJSON *a = cJSON_CreateArray();
+  uint32_t i;
+  for (i = 0; i < rep->strip_count; i++) {
+    cJSON *e = cJSON_CreateObject();
+    rp_region out = region_to_output(&rep->strips[i], sw, sh, o->width,
+                                     o->height);
+    cJSON_AddNumberToObject(e, "device", rep->strip_device[i] < rep->count
+                                             ? (double)rep->strip_device[i]
+                                             : -1.0);
+    cJSON_AddItemToObject(e, "region", json_region(&rep->strips[i]));
+    cJSON_AddItemToObject(e, "output_region", json_region(&out));
     cJSON_AddItemToArray(a, e);
   }
   return a;
@@ -495,6 +517,9 @@ static void print_group(const render_opts *o, const rp_group_report *rep,
              d->region.x1, d->region.y1);
     else
       printf(", no region");
+    if (d->strips > 0)
+      printf(", %u tail strips (%.3f of the cost)", d->strips,
+             d->strip_cost_share);
     printf(", raycast %.2f ms, busy %.2f ms, %llu samples, ", d->raycast_ms,
            d->busy_ms, (unsigned long long)d->samples);
     if (fate[i].status == 0)
@@ -598,13 +623,22 @@ static int render_group(rp_context *ctx, const render_opts *o,
       goto out;
     }
   }
-  if (o->overlay)
+  if (o->overlay) {
     for (i = 0; i < rep.count; i++) {
       rp_region r = region_to_output(&rep.devices[i].region, sw, sh,
                                      o->width, o->height);
       overlay_region(out, o->width, &r, device_colours[i],
                      rep.devices[i].status != 0);
     }
+    /* The tail's strips in the colour of the device that took each. */
+    for (i = 0; i < rep.strip_count; i++)
+      if (rep.strip_device[i] < rep.count) {
+        rp_region r = region_to_output(&rep.strips[i], sw, sh, o->width,
+                                       o->height);
+        overlay_region(out, o->width, &r,
+                       device_colours[rep.strip_device[i]], 0);
+      }
+  }
   if ((err = rp_write_png(ctx, o->out, out, o->width, o->height,
                           o->background)) != 0) {
     cli_error(ctx, o->out, err);
@@ -645,6 +679,7 @@ static int render_group(rp_context *ctx, const render_opts *o,
     cJSON_AddBoolToObject(root, "overlay_split", o->overlay);
     cJSON_AddItemToObject(root, "devices",
                           json_group(o, &rep, fate, sw, sh));
+    cJSON_AddItemToObject(root, "strips", json_strips(o, &rep, sw, sh));
     rc = print_json(root);
   } else {
     printf("wrote %s (%ux%u on %u devices, %llu samples, %.1f ms, %.2f M "

@@ -5,8 +5,10 @@
  * model per device (its sigma) and, per frame:
  *   shares from the models (rp_balance_shares, damped) -> each 8x8 tile's
  *   predicted cost from the probe's ray spans -> the kd-tree split
- *   (rp_balancer_split) -> every device renders its region concurrently
- *   into a buffer of its own -> the regions are copied into one image.
+ *   (rp_balancer_split) of all but a tail of the image -> every device
+ *   renders its region concurrently into a buffer of its own, then takes
+ *   strips of the tail until none is left -> regions and strips are
+ *   copied into one image.
  * A device that fails, or is still rendering past its deadline, is
  * dropped: the devices left re-render its region in the same frame (the
  * frame is late, never missing or corrupt) and the shares re-converge
@@ -32,6 +34,7 @@ extern "C" {
 #endif
 
 #define RP_GROUP_MAX_DEVICES 8
+#define RP_GROUP_MAX_STRIPS 64
 
 typedef struct rp_device_group rp_device_group;
 
@@ -64,6 +67,19 @@ typedef struct rp_group_desc {
    * deadline_min_ms 0: 200. */
   double deadline_factor;
   double deadline_min_ms;
+  /* The tail: this fraction of the frame's predicted cost, a band of
+   * tile rows at the bottom of the image cut into `tail_strips` strips
+   * of equal predicted cost, is not split in advance: a device that
+   * finishes its region takes the next strip, until none is left. A
+   * device slowed for part of a frame (a descheduled thread, a clock
+   * that drops) then costs the frame at most about one strip of its
+   * time, where a split made before the frame would wait for all of it.
+   * At most 0.5; 0: 0.15; negative: no tail (every pixel split in
+   * advance). tail_strips 0: four per device; at most
+   * RP_GROUP_MAX_STRIPS. A strip a device fails or runs late on goes to
+   * the devices left. */
+  double tail_fraction;
+  uint32_t tail_strips;
 } rp_group_desc;
 
 /** One device's part of a frame. */
@@ -86,6 +102,8 @@ typedef struct rp_group_device {
                            pass, raycast, readback */
   uint64_t samples;     /* samples its region took */
   double predicted_ms;  /* its model's time for its region, NaN unknown */
+  uint32_t strips;      /* tail strips it rendered (rp_group_desc) */
+  double strip_cost_share; /* their fraction of the predicted tile cost */
   char error[256];      /* why it failed this frame (status != 0): its
                            own message, the device's context's; "" else */
 } rp_group_device;
@@ -102,6 +120,12 @@ typedef struct rp_group_report {
                              devices that rendered a region (first
                              round), rp_balance_metric */
   rp_group_device devices[RP_GROUP_MAX_DEVICES];
+  /* The tail's strips (scaled-image pixels) and the device that rendered
+   * each, in the first round; a strip no device finished there was
+   * re-rendered with the lost regions (strip_device RP_GROUP_MAX_DEVICES). */
+  uint32_t strip_count;
+  rp_region strips[RP_GROUP_MAX_STRIPS];
+  uint8_t strip_device[RP_GROUP_MAX_STRIPS];
 } rp_group_report;
 
 /** Opens every device (each with a context of its own, made from `ctx`'s

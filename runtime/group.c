@@ -1,7 +1,10 @@
 /* Several devices rendering one frame (DESIGN section 7).
  *
  * The group's thread (the caller's) is the coordinator: it computes the
- * shares and the split, hands each device a job and waits. Each device
+ * shares and the split, hands each device a job and waits. The tail's
+ * strips (rp_group_desc.tail_fraction) are claimed under `lock` by the
+ * worker that finished a job, or handed by the coordinator to a device
+ * that is idle. Each device
  * has a worker thread (two devices or more) that owns the device and its
  * buffers while a job runs; the hand-over is `lock`, so a job's inputs
  * and outputs are ordered by it. A worker renders into buffers of its
@@ -25,6 +28,11 @@
 enum { JOB_NONE, JOB_VOLUME, JOB_TF, JOB_AO, JOB_RENDER, JOB_QUIT };
 
 #define DEFAULT_DEADLINE_FACTOR 4.0
+/* bench_balance, cl-slow and cl-vk pairs, 512^2, 40 frames, two runs
+ * each: the balance deviation 0.036-0.071 with a 0.15 tail against
+ * 0.095-0.133 without, the frame time within the runs' noise
+ * (docs/runtime.md). */
+#define DEFAULT_TAIL_FRACTION 0.15
 /* A stall a shared machine can produce (a descheduled thread) must not
  * cost a device for good. */
 #define DEFAULT_DEADLINE_MIN_MS 200.0
@@ -52,6 +60,15 @@ typedef struct depth_key {
   uint32_t sw, sh, skip;
   uint64_t vol_gen, tf_gen;
 } depth_key;
+
+/* A member's figures summed over its render jobs. */
+typedef struct job_sums {
+  double depth_ms, raycast_ms, upload_ms, busy_ms;
+  uint32_t depth_passes, jobs;
+  uint64_t samples;
+} job_sums;
+
+enum { STRIP_FREE, STRIP_CLAIMED, STRIP_DONE };
 
 typedef struct member {
   rp_device_group *g;
@@ -97,17 +114,28 @@ typedef struct member {
   uint64_t samples;
   depth_key key;
   int key_valid;
+  /* Its render jobs that succeeded this round, banked by the worker as
+   * each ends: the fields above hold the last job only, and with a tail
+   * a device renders its region and then strips. */
+  job_sums round;
 
   /* The coordinator's, per frame. `outcome` and `why` are the job's
    * status and message, taken under the lock when it ended (a late
    * worker's own fields stay its own). */
   double deadline;  /* absolute ms; INFINITY: none */
+  /* When its job should end by its rate (absolute ms), and how long it
+   * should take: INFINITY and 0 while it has no rate. */
+  double job_end, job_len;
   int by_peers;     /* no model yet: deadline from the peers' times */
   int pending, outcome;
   char why[256];
   double frame_raycast_ms, frame_busy_ms, frame_upload_ms;
   uint64_t frame_samples;
   int rendered;     /* rendered a region this frame */
+  int started;      /* given a job this round */
+  int strip;        /* the tail strip its current job renders; -1 none */
+  uint32_t strips_done; /* tail strips it finished this frame */
+  double strip_cost;    /* and their predicted cost */
   /* The split's model of the device (see frame_shares): wall ms per unit
    * of predicted tile cost outside its depth pass (0: unknown), its depth
    * pass's ms, and how often a frame needs one (running mean). */
@@ -136,6 +164,15 @@ struct rp_device_group {
   float *cost;
   double *sub_cost;
   size_t cost_cap;
+  /* The first round's tail (rp_group_desc.tail_fraction), the
+   * coordinator's, under `lock` while the round runs: each strip's
+   * pixels, predicted cost, state and the device that finished it. */
+  int tail_active;
+  uint32_t strip_n;
+  rp_region strip_px[RP_GROUP_MAX_STRIPS];
+  double strip_cost[RP_GROUP_MAX_STRIPS];
+  uint8_t strip_state[RP_GROUP_MAX_STRIPS];
+  uint8_t strip_owner[RP_GROUP_MAX_STRIPS];
   /* The last frame's, for rp_device_group_train. */
   int can_train;
   double last_render_ms;
@@ -240,7 +277,18 @@ static void run_job(member *w, int job) {
   if (err != 0)
     snprintf(w->error, sizeof w->error, "%s", rp_last_error(w->ctx));
   w->busy_ms = now_ms() - t0;
+  if (job == JOB_RENDER && err == 0) {
+    w->round.depth_ms += w->depth_ms;
+    w->round.raycast_ms += w->raycast_ms;
+    w->round.upload_ms += w->upload_ms;
+    w->round.busy_ms += w->busy_ms;
+    w->round.depth_passes += w->depth_passes;
+    w->round.samples += w->samples;
+    w->round.jobs++;
+  }
 }
+
+static int next_strip(rp_device_group *g, member *w, double now);
 
 static void worker_main(void *arg) {
   member *w = arg;
@@ -258,6 +306,13 @@ static void worker_main(void *arg) {
     run_job(w, job);
     uv_mutex_lock(&g->lock);
     w->busy = 0;
+    /* In the tail, a device goes from one strip to the next itself: a
+     * hand-back through the coordinator costs two thread wake-ups, a
+     * millisecond or more each on a machine whose cores the devices
+     * hold. Not once it was given up on (no longer pending). */
+    if (job == JOB_RENDER && w->pending && g->tail_active &&
+        next_strip(g, w, now_ms()))
+      continue;
     w->job = JOB_NONE;
     uv_cond_broadcast(&g->done);
   }
@@ -266,8 +321,8 @@ static void worker_main(void *arg) {
 
 /* Starts `job` on w (its inputs are set): inline with one device. */
 static void start_job(rp_device_group *g, member *w, int job) {
-  w->pending = 1;
   if (!g->threads) {
+    w->pending = 1;
     run_job(w, job);
     w->pending = 0;
     w->outcome = w->status;
@@ -275,9 +330,115 @@ static void start_job(rp_device_group *g, member *w, int job) {
     return;
   }
   uv_mutex_lock(&g->lock);
+  w->pending = 1;
   w->job = job;
   uv_cond_signal(&w->wake);
   uv_mutex_unlock(&g->lock);
+}
+
+/* How late, as a fraction of its expected job time, a busy peer may be
+ * and still be counted on to take strips (worth_taking). */
+#define LATE_SLACK 0.5
+
+/* Whether w taking strip s ends the frame sooner than leaving it: not
+ * when a peer still busy would finish its job and every free strip (s
+ * included) before w finished s alone, by their rates. A slow device
+ * then takes strips early in the tail, when the fast one has many left,
+ * and leaves the last ones, which it would finish after the fast one had
+ * done them all. A peer is counted on until it is late by half its
+ * expected job time or by w's time for s, whichever is more: a model's
+ * error or a thread's wake-up is not a stall, and a peer that is late
+ * by more than w's strip would take has likely stalled (descheduled),
+ * so w takes it. When it declines, *retry is when to ask again: the
+ * earliest time a peer it counted on stops counting. */
+static int worth_taking(const rp_device_group *g, const member *w,
+                        uint32_t s, double now, double *retry) {
+  double mine = w->rate * g->strip_cost[s], free_cost = 0.0;
+  uint32_t k;
+  int take = 1;
+  if (!(w->rate > 0.0))
+    return 1;
+  for (k = 0; k < g->strip_n; k++)
+    if (g->strip_state[k] == STRIP_FREE)
+      free_cost += g->strip_cost[k];
+  for (k = 0; k < g->count; k++) {
+    const member *o = &g->m[k];
+    double patience;
+    /* A member's job fields are written before it is made pending, under
+     * g->lock: read them only once it is. */
+    if (o == w || !o->pending || !(o->rate > 0.0))
+      continue;
+    patience = o->job_end + fmax(LATE_SLACK * o->job_len, mine);
+    if (!(now <= patience))
+      continue;
+    if (fmax(o->job_end - now, 0.0) + o->rate * free_cost < mine) {
+      take = 0;
+      *retry = fmin(*retry, patience);
+    }
+  }
+  return take;
+}
+
+/* Starts w (idle, under g->lock) on the first free tail strip, with a
+ * deadline from its rate when it has one, if worth_taking. 1: started;
+ * 0: none free, or left to a faster peer (*retry: see worth_taking). */
+static int claim_strip(rp_device_group *g, member *w, double now,
+                       double *retry) {
+  uint32_t s;
+  for (s = 0; s < g->strip_n && g->strip_state[s] != STRIP_FREE; s++)
+    ;
+  if (s == g->strip_n || !worth_taking(g, w, s, now, retry))
+    return 0;
+  g->strip_state[s] = STRIP_CLAIMED;
+  w->strip = (int)s;
+  w->region = g->strip_px[s];
+  w->by_peers = 0;
+  w->deadline = INFINITY;
+  if (g->desc.deadline_factor > 0.0 && w->rate > 0.0 &&
+      ((w->warm_sets >> (w->desc.effects & 15u)) & 1u))
+    w->deadline = now + fmax(g->desc.deadline_min_ms,
+                             g->desc.deadline_factor * w->rate *
+                                 g->strip_cost[s]);
+  w->job_len = w->rate * g->strip_cost[s];
+  w->job_end = w->rate > 0.0 ? now + w->job_len : INFINITY;
+  w->started = 1;
+  w->pending = 1;
+  w->job = JOB_RENDER;
+  uv_cond_signal(&w->wake);
+  return 1;
+}
+
+/* w's job ended (under g->lock): settles the strip it rendered -- done,
+ * or free again for the others if it failed -- and, if it succeeded,
+ * starts it on the next free strip. 1: started. */
+static int next_strip(rp_device_group *g, member *w, double now) {
+  double retry = INFINITY; /* left to a peer: feed_idle offers it again */
+  int s = w->strip;
+  w->strip = -1;
+  if (s >= 0 && w->status == 0) {
+    g->strip_state[s] = STRIP_DONE;
+    g->strip_owner[s] = (uint8_t)w->index;
+    w->strips_done++;
+    w->strip_cost += g->strip_cost[s];
+  } else if (s >= 0) {
+    g->strip_state[s] = STRIP_FREE;
+  }
+  return w->status == 0 && claim_strip(g, w, now, &retry);
+}
+
+/* Free strips -- freed by a device that failed or ran late, or left by
+ * an idle one to a faster peer -- go to devices that finished (under
+ * g->lock). Returns when to offer them again (INFINITY: no need). */
+static double feed_idle(rp_device_group *g, double now) {
+  double retry = INFINITY;
+  uint32_t i;
+  for (i = 0; i < g->count; i++) {
+    member *w = &g->m[i];
+    if (w->started && !w->pending && w->outcome == 0 && !w->dropped &&
+        w->job == JOB_NONE)
+      (void)claim_strip(g, w, now, &retry);
+  }
+  return retry;
 }
 
 /* Waits until every pending member is done or past its deadline; a late
@@ -301,6 +462,8 @@ static void wait_jobs(rp_device_group *g, rp_group_report *rep,
       if (!w->pending)
         continue;
       if (w->job == JOB_NONE) {
+        if (g->tail_active && next_strip(g, w, now))
+          continue;
         w->pending = 0;
         w->outcome = w->status;
         memcpy(w->why, w->error, sizeof w->why);
@@ -326,6 +489,9 @@ static void wait_jobs(rp_device_group *g, rp_group_report *rep,
         snprintf(why, sizeof why, "device '%s' still rendering %.1f ms "
                  "after its deadline", w->name, now - w->deadline);
         memcpy(w->why, why, sizeof why);
+        if (w->strip >= 0)
+          g->strip_state[w->strip] = STRIP_FREE;
+        w->strip = -1;
         if (rep != NULL)
           rep->devices[i].late = 1;
         continue;
@@ -333,6 +499,8 @@ static void wait_jobs(rp_device_group *g, rp_group_report *rep,
       if (w->deadline < next)
         next = w->deadline;
     }
+    if (g->tail_active)
+      next = fmin(next, feed_idle(g, now));
     for (waiting = 0, i = 0; i < g->count; i++)
       waiting |= g->m[i].pending;
     if (!waiting)
@@ -420,6 +588,15 @@ static int check_desc(rp_context *ctx, const rp_group_desc *d) {
   if (d->deadline_min_ms < 0.0)
     return rp__fail(ctx, RP_ERANGE, "%s: deadline_min_ms %g < 0", fn,
                     d->deadline_min_ms);
+  if (!isfinite(d->tail_fraction))
+    return rp__fail(ctx, RP_ENOTFINITE, "%s: tail_fraction is not finite",
+                    fn);
+  if (d->tail_fraction > 0.5)
+    return rp__fail(ctx, RP_ERANGE, "%s: tail_fraction %g is over 0.5",
+                    fn, d->tail_fraction);
+  if (d->tail_strips > RP_GROUP_MAX_STRIPS)
+    return rp__fail(ctx, RP_ERANGE, "%s: tail_strips %u is over %d", fn,
+                    d->tail_strips, RP_GROUP_MAX_STRIPS);
   if (d->share_mode == RP_SHARES_FIXED) {
     if (d->fixed_shares == NULL)
       return rp__fail(ctx, RP_EINVAL, "%s: fixed shares without "
@@ -469,6 +646,8 @@ int rp_device_group_create(rp_context *ctx, const rp_group_desc *desc,
     g->desc.deadline_factor = DEFAULT_DEADLINE_FACTOR;
   if (g->desc.deadline_min_ms == 0.0)
     g->desc.deadline_min_ms = DEFAULT_DEADLINE_MIN_MS;
+  if (g->desc.tail_fraction == 0.0)
+    g->desc.tail_fraction = DEFAULT_TAIL_FRACTION;
   g->threads = g->count >= 2;
   if (uv_mutex_init(&g->lock) != 0) {
     rp__free(ctx, g);
@@ -1109,11 +1288,13 @@ static void take_region(const member *w, const rp_region *r, uint32_t sw,
       tiles[(size_t)y * tx + x] = w->tiles[(size_t)y * tx + x];
 }
 
-/* One round: every device with a non-empty region renders it; finished
- * regions are copied across; the regions of devices that failed or ran
- * late are appended to `lost` (pixels). Returns the last failure; an
- * error that does not lose the device (an effect it lacks) is returned
- * in *refused and fails the frame. */
+/* One round: every device with a non-empty region renders it, and with
+ * a tail (g->tail_active) goes on to take strips, as does a device
+ * without a region; finished regions and strips are copied across; the
+ * regions of devices that failed or ran late, and strips nobody
+ * finished, are appended to `lost` (pixels). Returns the last failure;
+ * an error that does not lose the device (an effect it lacks) is
+ * returned in *refused and fails the frame. */
 static int render_round(rp_device_group *g, const rp_camera *cam,
                         const rp_render_desc *d, const rp_region *px,
                         const double *predicted, double start,
@@ -1124,16 +1305,43 @@ static int render_round(rp_device_group *g, const rp_camera *cam,
   int last = 0;
   rp_scaled_size(d, &sw, &sh);
   rp_tile_grid(sw, sh, &tx, NULL);
+  /* Workers started below read their peers' state (worth_taking): all
+   * of it is reset first, under the lock. */
+  uv_mutex_lock(&g->lock);
+  for (i = 0; i < g->count; i++) {
+    g->m[i].pending = g->m[i].started = 0;
+    g->m[i].strip = -1;
+  }
+  uv_mutex_unlock(&g->lock);
   for (i = 0; i < g->count; i++) {
     member *w = &g->m[i];
-    w->pending = 0;
-    if (w->dropped || region_empty(&px[i]))
+    if (w->dropped)
       continue;
+    memset(&w->round, 0, sizeof w->round);
     w->cam = *cam;
     w->desc = *d;
+    if (first_round)
+      rep->devices[i].region = px[i];
+    if (region_empty(&px[i])) {
+      /* Without a region it is idle from the start: wait_jobs offers it
+       * strips (feed_idle). */
+      w->started = g->tail_active;
+      w->outcome = 0;
+      continue;
+    }
     w->region = px[i];
     w->deadline = INFINITY;
     w->by_peers = 0;
+    w->job_end = INFINITY;
+    w->job_len = 0.0;
+    if (g->tail_active && w->rate > 0.0) {
+      rp_region tr = {px[i].x0 / RP_TILE_SIZE, px[i].y0 / RP_TILE_SIZE,
+                      (px[i].x1 + RP_TILE_SIZE - 1) / RP_TILE_SIZE,
+                      (px[i].y1 + RP_TILE_SIZE - 1) / RP_TILE_SIZE};
+      w->job_len = w->depth_freq * w->depth_est +
+                   w->rate * region_cost(g, &tr, tx);
+      w->job_end = start + w->job_len;
+    }
     if (g->desc.deadline_factor > 0.0 && !isinf(predicted[i]) &&
         ((w->warm_sets >> (d->effects & 15u)) & 1u)) {
       if (w->trained && isfinite(predicted[i]))
@@ -1142,15 +1350,14 @@ static int render_round(rp_device_group *g, const rp_camera *cam,
       else
         w->by_peers = 1;
     }
-    if (first_round)
-      rep->devices[i].region = px[i];
+    w->started = 1;
     start_job(g, w, JOB_RENDER);
   }
   wait_jobs(g, rep, start);
   for (i = 0; i < g->count; i++) {
     member *w = &g->m[i];
     rp_group_device *rd = &rep->devices[i];
-    if (w->dropped || region_empty(&px[i]))
+    if (!w->started)
       continue;
     if (w->outcome != 0 && !loses_device(w->outcome, 0)) {
       rd->status = w->outcome;
@@ -1167,24 +1374,100 @@ static int render_round(rp_device_group *g, const rp_camera *cam,
       rep->lost++;
       last = w->outcome;
       rp__fail(g->ctx, w->outcome, "device group: %s", w->why);
-      lost[(*n_lost)++] = px[i];
+      if (!region_empty(&px[i]))
+        lost[(*n_lost)++] = px[i];
       continue;
     }
-    take_region(w, &px[i], sw, tx, rgba, tiles);
+    if (w->round.jobs == 0)
+      continue; /* no region, and no strip came its way */
+    if (!region_empty(&px[i]))
+      take_region(w, &px[i], sw, tx, rgba, tiles);
     w->warm_sets |= 1u << (d->effects & 15u);
-    rd->depth_ms += w->depth_ms;
-    rd->depth_passes += w->depth_passes;
-    rd->raycast_ms += w->raycast_ms;
-    rd->upload_ms += w->upload_ms;
-    rd->busy_ms += w->busy_ms;
-    rd->samples += w->samples;
+    rd->depth_ms += w->round.depth_ms;
+    rd->depth_passes += w->round.depth_passes;
+    rd->raycast_ms += w->round.raycast_ms;
+    rd->upload_ms += w->round.upload_ms;
+    rd->busy_ms += w->round.busy_ms;
+    rd->samples += w->round.samples;
     w->rendered = 1;
-    w->frame_raycast_ms += w->raycast_ms;
-    w->frame_upload_ms += w->upload_ms;
-    w->frame_busy_ms += w->busy_ms;
-    w->frame_samples += w->samples;
+    w->frame_raycast_ms += w->round.raycast_ms;
+    w->frame_upload_ms += w->round.upload_ms;
+    w->frame_busy_ms += w->round.busy_ms;
+    w->frame_samples += w->round.samples;
+  }
+  if (g->tail_active) {
+    /* A strip's pixels are in the buffer of the device that finished it,
+     * which no job of that device writes again this frame: a worker
+     * writes only its job's pixels, and a strip a device is late on is
+     * not one of them. */
+    uint32_t s;
+    for (s = 0; s < g->strip_n; s++) {
+      if (g->strip_state[s] == STRIP_DONE) {
+        take_region(&g->m[g->strip_owner[s]], &g->strip_px[s], sw, tx, rgba,
+                    tiles);
+        rep->strip_device[s] = g->strip_owner[s];
+      } else {
+        lost[(*n_lost)++] = g->strip_px[s];
+        rep->strip_device[s] = RP_GROUP_MAX_DEVICES;
+      }
+    }
+    uv_mutex_lock(&g->lock); /* a late worker reads it */
+    g->tail_active = 0;
+    uv_mutex_unlock(&g->lock);
   }
   return last;
+}
+
+/* Cuts the tail off the bottom of the tx x ty tile grid: the fewest
+ * rows (never all) whose predicted cost reaches tail_fraction of the
+ * frame's `total`, in strips of equal cost along x, each at least one
+ * tile wide. `main_area` keeps the rows above. No tail when the band
+ * would cost nothing (an empty bottom: nothing there worth balancing). */
+static void cut_tail(rp_device_group *g, uint32_t tx, uint32_t ty,
+                     uint32_t sw, uint32_t sh, double total,
+                     rp_region *main_area) {
+  rp_region t[RP_GROUP_MAX_STRIPS];
+  uint32_t rows = 0, n, k = 0, x, x0 = 0, y;
+  double band = 0.0, acc = 0.0;
+  g->strip_n = 0;
+  if (ty < 2 || !(total > 0.0))
+    return;
+  while (rows < ty - 1 && band < g->desc.tail_fraction * total) {
+    rows++;
+    for (x = 0; x < tx; x++)
+      band += g->cost[(size_t)(ty - rows) * tx + x];
+  }
+  if (!(band > 0.0))
+    return;
+  n = g->desc.tail_strips != 0 ? g->desc.tail_strips : 4 * g->count;
+  if (n > tx)
+    n = tx;
+  if (n > RP_GROUP_MAX_STRIPS)
+    n = RP_GROUP_MAX_STRIPS;
+  for (x = 0; x < tx && k + 1 < n; x++) {
+    for (y = ty - rows; y < ty; y++)
+      acc += g->cost[(size_t)y * tx + x];
+    /* Close strip k at its share of the band, if the strips after it
+     * still get a column each. */
+    if (acc >= band * (double)(k + 1) / (double)n &&
+        tx - (x + 1) >= n - 1 - k) {
+      rp_region r = {x0, ty - rows, x + 1, ty};
+      t[k++] = r;
+      x0 = x + 1;
+    }
+  }
+  {
+    rp_region r = {x0, ty - rows, tx, ty};
+    t[k++] = r;
+  }
+  if (rp_balance_to_pixels(t, k, sw, sh, g->strip_px) != 0)
+    return;
+  for (x = 0; x < k; x++) {
+    g->strip_cost[x] = region_cost(g, &t[x], tx);
+    g->strip_state[x] = STRIP_FREE;
+  }
+  g->strip_n = k;
+  main_area->y1 = ty - rows;
 }
 
 int rp_device_group_render(rp_device_group *g, const rp_camera *cam,
@@ -1199,7 +1482,7 @@ int rp_device_group_render(rp_device_group *g, const rp_camera *cam,
   double total_cost, times[RP_GROUP_MAX_DEVICES];
   double cost_abs[RP_GROUP_MAX_DEVICES];
   rp_region t[RP_GROUP_MAX_DEVICES], px[RP_GROUP_MAX_DEVICES];
-  rp_region lost[RP_GROUP_MAX_DEVICES], all;
+  rp_region lost[RP_GROUP_MAX_DEVICES + RP_GROUP_MAX_STRIPS], all, main_area;
   rp_render_desc d;
   uint32_t sw, sh, tx, ty, i, n_lost = 0, rounds;
   double start, t_rr, share_cost;
@@ -1231,6 +1514,8 @@ int rp_device_group_render(rp_device_group *g, const rp_camera *cam,
     w->rendered = 0;
     w->frame_raycast_ms = w->frame_busy_ms = w->frame_upload_ms = 0.0;
     w->frame_samples = 0;
+    w->strips_done = 0;
+    w->strip_cost = 0.0;
   }
   rp_scaled_size(&d, &sw, &sh);
   rp_tile_grid(sw, sh, &tx, &ty);
@@ -1255,7 +1540,14 @@ int rp_device_group_render(rp_device_group *g, const rp_camera *cam,
   device_costs(g, probe, d.step, d.image_scale, c);
   if ((err = frame_shares(g, share_cost, shares)) != 0)
     return rp__fail(g->ctx, err, "%s: no device left", fn);
-  if ((err = split_area(g, &all, tx, shares, t)) != 0 ||
+  main_area = all;
+  g->strip_n = 0;
+  if (g->desc.tail_fraction > 0.0 && g->threads &&
+      rp_device_group_alive(g) >= 2)
+    cut_tail(g, tx, ty, sw, sh, total_cost, &main_area);
+  rep->strip_count = g->strip_n;
+  memcpy(rep->strips, g->strip_px, g->strip_n * sizeof *rep->strips);
+  if ((err = split_area(g, &main_area, tx, shares, t)) != 0 ||
       (err = rp_balance_to_pixels(t, g->count, sw, sh, px)) != 0)
     return err; /* the balancer's message is in g->ctx */
   for (i = 0; i < g->count; i++) {
@@ -1269,11 +1561,20 @@ int rp_device_group_render(rp_device_group *g, const rp_camera *cam,
   memcpy(g->prev_shares, shares, sizeof shares);
   g->have_prev = 1;
   start = now_ms();
+  uv_mutex_lock(&g->lock);
+  g->tail_active = g->strip_n > 0;
+  uv_mutex_unlock(&g->lock);
   last = render_round(g, cam, &d, px, predicted, start, rgba, tiles, rep,
                       lost, &n_lost, 1, &refused);
   if (refused != 0) {
     rep->alive = rp_device_group_alive(g);
     return refused;
+  }
+  for (i = 0; i < g->count; i++) {
+    rep->devices[i].strips = g->m[i].strips_done;
+    rep->devices[i].strip_cost_share =
+        total_cost > 0.0 ? g->m[i].strip_cost / total_cost : 0.0;
+    cost_abs[i] += g->m[i].strip_cost;
   }
   /* Whether this frame needed a depth pass: a property of the frame (a
    * new camera or TF), seen on any device that rendered. */
@@ -1314,8 +1615,10 @@ int rp_device_group_render(rp_device_group *g, const rp_camera *cam,
   /* The balance of the first round: a device lost in it counts as one
    * that rendered nothing. */
   for (i = 0; i < g->count; i++) {
+    static const rp_region some = {0, 0, 1, 1};
     times[i] = rep->devices[i].busy_ms;
-    px[i] = rep->devices[i].region;
+    /* Only whether it rendered anything counts here. */
+    px[i] = rep->devices[i].strips > 0 ? some : rep->devices[i].region;
     if (rep->devices[i].status != 0)
       px[i].x1 = px[i].x0;
   }
@@ -1325,7 +1628,7 @@ int rp_device_group_render(rp_device_group *g, const rp_camera *cam,
    * least one device, so there are at most count rounds. */
   t_rr = now_ms();
   for (rounds = 0; n_lost > 0 && rounds < g->count; rounds++) {
-    rp_region redo[RP_GROUP_MAX_DEVICES];
+    rp_region redo[RP_GROUP_MAX_DEVICES + RP_GROUP_MAX_STRIPS];
     uint32_t n_redo = n_lost, k;
     memcpy(redo, lost, n_lost * sizeof *lost);
     n_lost = 0;

@@ -83,13 +83,18 @@ static int cmp_double(const void *a, const void *b) {
  * (only test_late_device does): under a sanitizer on a loaded 2-core
  * machine a device stalls past any deadline now and then (TSan: one was
  * dropped in the third frame of test_device_loss), and a test about
- * shares or failures must not lose a device to that. */
+ * shares or failures must not lose a device to that. Without a tail
+ * unless the test sets one (the test_tail_* do): a tail makes which
+ * device renders a strip, and so which render a device fails at, depend
+ * on the timing. */
 static rp_device_group *make_group(scene *s, const rp_group_desc *gd) {
   rp_device_group *g = NULL;
   rp_group_desc d = *gd;
   int err;
   if (d.deadline_factor == 0.0)
     d.deadline_factor = -1.0;
+  if (d.tail_fraction == 0.0)
+    d.tail_fraction = -1.0;
   err = rp_device_group_create(s->ctx, &d, &g);
   if (err != 0)
     fail_msg("rp_device_group_create: %s", rp_last_error(s->ctx));
@@ -98,19 +103,23 @@ static rp_device_group *make_group(scene *s, const rp_group_desc *gd) {
   return g;
 }
 
+static int inside(const rp_region *g, uint32_t x, uint32_t y) {
+  return x >= g->x0 && x < g->x1 && y >= g->y0 && y < g->y1;
+}
+
 /* Every pixel of the scaled image lies in exactly one live device's
- * first-round region, unless a device was lost (its region went to the
- * others). */
+ * first-round region or tail strip, unless a device was lost (its region
+ * went to the others). */
 static void assert_regions_partition(const rp_group_report *r, uint32_t w,
                                      uint32_t h) {
   uint32_t x, y, i;
   for (y = 0; y < h; y++)
     for (x = 0; x < w; x++) {
       int owners = 0;
-      for (i = 0; i < r->count; i++) {
-        const rp_region *g = &r->devices[i].region;
-        owners += x >= g->x0 && x < g->x1 && y >= g->y0 && y < g->y1;
-      }
+      for (i = 0; i < r->count; i++)
+        owners += inside(&r->devices[i].region, x, y);
+      for (i = 0; i < r->strip_count; i++)
+        owners += inside(&r->strips[i], x, y);
       assert_int_equal(owners, 1);
     }
 }
@@ -127,9 +136,13 @@ static int frame(rp_device_group *g, scene *s, uint8_t *rgba,
   return err;
 }
 
-/* Three devices of different speed and an odd image size: the same bytes
- * as one device alone, tile stats included, and regions that tile it. */
-static void test_matches_one_device(void **state) {
+/* Three devices of different speed and an odd image size, with the
+ * group's tail (rp_group_desc) set to `tail` and `strips`: the same bytes
+ * as one device alone, tile stats included, and regions and strips that
+ * tile it. With a tail, every strip is some device's; the band is the
+ * fewest bottom rows holding `tail` of the predicted cost, so the strips
+ * hold at least that, and regions and strips hold all of it. */
+static void check_matches_one_device(double tail, uint32_t strips) {
   static const double slow[3] = {0.0, 3.0, 1.5};
   uint8_t *one = malloc(W * H * 4), *many = malloc(W * H * 4);
   rp_tile_stats t_one[8 * 6], t_many[8 * 6];
@@ -139,7 +152,6 @@ static void test_matches_one_device(void **state) {
   rp_device_group *g;
   scene s;
   uint32_t i, f;
-  (void)state;
   scene_make(&s, W - 3, H - 5);
   render_alone(&s, "reference", one, t_one);
   memset(dd, 0, sizeof dd);
@@ -149,9 +161,12 @@ static void test_matches_one_device(void **state) {
   }
   gd.devices = dd;
   gd.count = 3;
+  gd.tail_fraction = tail;
+  gd.tail_strips = strips;
   g = make_group(&s, &gd);
   for (f = 0; f < 4; f++) {
-    double sum = 0.0;
+    double sum = 0.0, in_strips = 0.0, in_all = 0.0;
+    uint32_t taken = 0;
     memset(many, 0xAB, W * H * 4);
     memset(t_many, 0xCD, sizeof t_many);
     assert_int_equal(frame(g, &s, many, t_many, &rep), 0);
@@ -161,14 +176,38 @@ static void test_matches_one_device(void **state) {
     assert_int_equal(rep.alive, 3);
     assert_int_equal(rep.lost, 0);
     assert_regions_partition(&rep, W - 3, H - 5);
-    for (i = 0; i < 3; i++)
+    for (i = 0; i < rep.strip_count; i++)
+      assert_true(rep.strip_device[i] < 3);
+    for (i = 0; i < 3; i++) {
       sum += rep.devices[i].share;
+      taken += rep.devices[i].strips;
+      in_strips += rep.devices[i].strip_cost_share;
+      in_all += rep.devices[i].strip_cost_share + rep.devices[i].cost_share;
+    }
     assert_true(sum == 1.0); /* exact: see raypace_balance.h */
+    assert_int_equal(taken, rep.strip_count);
+    assert_true(fabs(in_all - 1.0) < 1e-9);
+    if (tail > 0.0) {
+      assert_true(rep.strip_count >= 1 && rep.strip_count <= strips);
+      assert_true(in_strips >= tail - 1e-9);
+    } else {
+      assert_int_equal(rep.strip_count, 0);
+    }
   }
   rp_device_group_destroy(g);
   scene_free(&s);
   free(one);
   free(many);
+}
+
+static void test_matches_one_device(void **state) {
+  (void)state;
+  check_matches_one_device(-1.0, 0);
+}
+
+static void test_tail_matches_one_device(void **state) {
+  (void)state;
+  check_matches_one_device(0.3, 5);
 }
 
 /* Two reference devices as `dd` describes device 1 (device 0 plain), in
@@ -595,6 +634,133 @@ static void test_tile_costs(void **state) {
   assert_int_equal(rp_probe_tile_costs(NULL, &d, cost), RP_EINVAL);
 }
 
+/* A device stalled for 1.5 s after its region: its peer, done long
+ * before (a 64 x 48 image on the reference renderer, tens of ms even
+ * under a sanitizer), takes every strip, and the image is still right.
+ * Without the tail the peer would sit idle for the stall. */
+static void test_tail_takes_a_stall(void **state) {
+  uint8_t *one = malloc(W * H * 4), *img = malloc(W * H * 4);
+  rp_device_desc dd[2];
+  rp_group_desc gd = {0};
+  rp_group_report rep;
+  rp_device_group *g;
+  scene s;
+  (void)state;
+  scene_make(&s, W, H);
+  render_alone(&s, "reference", one, NULL);
+  memset(dd, 0, sizeof dd);
+  dd[0].backend = dd[1].backend = "reference";
+  dd[1].stall_at_render = 1;
+  dd[1].stall_ms = 1500.0;
+  gd.devices = dd;
+  gd.count = 2;
+  gd.tail_fraction = 0.3;
+  gd.tail_strips = 6;
+  g = make_group(&s, &gd);
+  memset(img, 0, W * H * 4);
+  assert_int_equal(frame(g, &s, img, NULL, &rep), 0);
+  assert_memory_equal(one, img, W * H * 4);
+  assert_true(rep.devices[1].busy_ms >= 1500.0);
+  assert_true(rep.strip_count >= 2);
+  assert_int_equal(rep.devices[0].strips, rep.strip_count);
+  assert_int_equal(rep.devices[1].strips, 0);
+  rp_device_group_destroy(g);
+  scene_free(&s);
+  free(one);
+  free(img);
+}
+
+/* A device 16x slower, given 0.02 of the region by fixed shares, is done
+ * with it long before its peer, with four strips of 0.125 of the frame's
+ * cost free. In units of the fast device's whole-frame time T, one strip
+ * would take it 16 x 0.125 = 2 T, while the fast one, busy until
+ * 0.98 x 0.5 = 0.49 T, would do all four by 0.99 T: once the group has
+ * learned both rates (frame 3 on) the slow device leaves every strip to
+ * its peer. Without worth_taking it would take one in every frame and
+ * the frame would last 2 T. A 128 x 96 image: a job of well over a
+ * millisecond, so that a thread's wake-up does not make the fast device
+ * look stalled. */
+static void test_tail_slow_device_leaves_strips(void **state) {
+  static const double fixed[2] = {0.98, 0.02};
+  uint8_t *one = malloc(4 * W * H * 4), *img = malloc(4 * W * H * 4);
+  rp_device_desc dd[2];
+  rp_group_desc gd = {0};
+  rp_group_report rep;
+  rp_device_group *g;
+  scene s;
+  int f, took = 0;
+  (void)state;
+  scene_make(&s, 2 * W, 2 * H);
+  render_alone(&s, "reference", one, NULL);
+  memset(dd, 0, sizeof dd);
+  dd[0].backend = dd[1].backend = "reference";
+  dd[1].slowdown = 16.0;
+  gd.devices = dd;
+  gd.count = 2;
+  gd.share_mode = RP_SHARES_FIXED;
+  gd.fixed_shares = fixed;
+  gd.tail_fraction = 0.5;
+  gd.tail_strips = 4;
+  g = make_group(&s, &gd);
+  for (f = 0; f < 13; f++) {
+    memset(img, 0, 4 * W * H * 4);
+    assert_int_equal(frame(g, &s, img, NULL, &rep), 0);
+    assert_memory_equal(one, img, 4 * W * H * 4);
+    assert_int_equal(rep.devices[0].strips + rep.devices[1].strips,
+                     rep.strip_count);
+    if (f >= 3)
+      took += rep.devices[1].strips > 0;
+  }
+  print_message("the slow device took strips in %d of 10 frames\n", took);
+  assert_true(took <= 3);
+  rp_device_group_destroy(g);
+  scene_free(&s);
+  free(one);
+  free(img);
+}
+
+/* A device that fails at its second render, which with a tail may be a
+ * strip of the first frame or its region in the second: whichever, every
+ * frame is whole and right, it is lost once, and the other goes on
+ * alone. */
+static void test_tail_device_loss(void **state) {
+  uint8_t *one = malloc(W * H * 4), *img = malloc(W * H * 4);
+  rp_device_desc dd[2];
+  rp_group_desc gd = {0};
+  rp_group_report rep;
+  rp_device_group *g;
+  scene s;
+  uint32_t lost = 0;
+  int f;
+  (void)state;
+  scene_make(&s, W, H);
+  render_alone(&s, "reference", one, NULL);
+  memset(dd, 0, sizeof dd);
+  dd[0].backend = dd[1].backend = "reference";
+  dd[1].fail_at_render = 2;
+  gd.devices = dd;
+  gd.count = 2;
+  gd.tail_fraction = 0.4;
+  gd.tail_strips = 8;
+  g = make_group(&s, &gd);
+  for (f = 0; f < 4; f++) {
+    memset(img, 0, W * H * 4);
+    assert_int_equal(frame(g, &s, img, NULL, &rep), 0);
+    assert_memory_equal(one, img, W * H * 4);
+    lost += rep.lost;
+    if (rep.lost > 0) {
+      assert_int_equal(rep.devices[1].status, RP_EDEVICE);
+      assert_non_null(strstr(rep.devices[1].error, "injected"));
+    }
+  }
+  assert_int_equal(lost, 1);
+  assert_int_equal(rp_device_group_alive(g), 1);
+  rp_device_group_destroy(g);
+  scene_free(&s);
+  free(one);
+  free(img);
+}
+
 static void test_bad_input(void **state) {
   rp_context *ctx = rp_test_context();
   rp_device_desc dd[9];
@@ -618,6 +784,14 @@ static void test_bad_input(void **state) {
   gd.damp_rate = 1.5;
   assert_int_equal(rp_device_group_create(ctx, &gd, &g), RP_ERANGE);
   gd.damp_rate = 0.0;
+  gd.tail_fraction = NAN;
+  assert_int_equal(rp_device_group_create(ctx, &gd, &g), RP_ENOTFINITE);
+  gd.tail_fraction = 0.6;
+  assert_int_equal(rp_device_group_create(ctx, &gd, &g), RP_ERANGE);
+  gd.tail_fraction = 0.0;
+  gd.tail_strips = RP_GROUP_MAX_STRIPS + 1;
+  assert_int_equal(rp_device_group_create(ctx, &gd, &g), RP_ERANGE);
+  gd.tail_strips = 0;
   dd[1].backend = "no-such-backend";
   assert_int_not_equal(rp_device_group_create(ctx, &gd, &g), 0);
   assert_non_null(strstr(rp_last_error(ctx), "device 1"));
@@ -671,6 +845,10 @@ int main(void) {
       cmocka_unit_test(test_late_device),
       cmocka_unit_test(test_all_lost),
       cmocka_unit_test(test_tiny_images),
+      cmocka_unit_test(test_tail_matches_one_device),
+      cmocka_unit_test(test_tail_takes_a_stall),
+      cmocka_unit_test(test_tail_slow_device_leaves_strips),
+      cmocka_unit_test(test_tail_device_loss),
       cmocka_unit_test(test_fixed_shares),
       cmocka_unit_test(test_tile_costs),
       cmocka_unit_test(test_bad_input),

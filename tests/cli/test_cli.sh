@@ -196,7 +196,8 @@ refuse "bench overhead loads" "loads" "$rp" bench overhead gen:ml:8 \
 # Device groups (--devices): the list's parser, then renders and a replay.
 # The reference needs no driver; OpenCL parts skip without a device.
 regions_ok() { # regions_ok W H NAME [KEY]: the JSON's KEYs (default
-  # region) are disjoint, lie in the WxH image and cover it; two or more
+  # region: the devices' and the tail strips') are disjoint, lie in the
+  # WxH image and cover it; two or more
   if grep -F "\"${4:-region}\":" "$dir/out" | tr -d '[],' |
      awk -v W="$1" -v H="$2" '
     { n = NR; x0[n] = $2; y0[n] = $3; x1[n] = $4; y1[n] = $5 }
