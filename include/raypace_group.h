@@ -77,7 +77,7 @@ typedef struct rp_group_desc {
    * At most 0.5; 0: 0.15; negative: no tail (every pixel split in
    * advance). tail_strips 0: four per device; at most
    * RP_GROUP_MAX_STRIPS. A strip a device fails or runs late on goes to
-   * the devices left. */
+   * the devices left; the region it finished is kept. */
   double tail_fraction;
   uint32_t tail_strips;
 } rp_group_desc;
@@ -115,7 +115,8 @@ typedef struct rp_group_report {
   uint32_t lost;          /* devices dropped during this frame */
   double render_ms;       /* wall: dispatch to the last region in, the
                              re-render included */
-  double rerender_ms;     /* wall spent re-rendering lost regions */
+  double rerender_ms;     /* wall spent re-rendering lost regions (0
+                             when a lost strip was taken in the round) */
   double imbalance;       /* (max - min) / mean of the busy_ms of the
                              devices that rendered a region (first
                              round), rp_balance_metric */

@@ -28,9 +28,9 @@
 enum { JOB_NONE, JOB_VOLUME, JOB_TF, JOB_AO, JOB_RENDER, JOB_QUIT };
 
 #define DEFAULT_DEADLINE_FACTOR 4.0
-/* bench_balance, cl-slow and cl-vk pairs, 512^2, 40 frames, two runs
+/* bench_balance, cl-slow and cl-vk pairs, 512^2, 40 frames, three runs
  * each: the balance deviation 0.036-0.071 with a 0.15 tail against
- * 0.095-0.133 without, the frame time within the runs' noise
+ * 0.095-0.204 without, the frame time within the runs' noise
  * (docs/runtime.md). */
 #define DEFAULT_TAIL_FRACTION 0.15
 /* A stall a shared machine can produce (a descheduled thread) must not
@@ -133,6 +133,7 @@ typedef struct member {
   uint64_t frame_samples;
   int rendered;     /* rendered a region this frame */
   int started;      /* given a job this round */
+  int region_done;  /* its region's job succeeded (known with a tail) */
   int strip;        /* the tail strip its current job renders; -1 none */
   uint32_t strips_done; /* tail strips it finished this frame */
   double strip_cost;    /* and their predicted cost */
@@ -168,6 +169,7 @@ struct rp_device_group {
    * coordinator's, under `lock` while the round runs: each strip's
    * pixels, predicted cost, state and the device that finished it. */
   int tail_active;
+  double wake_at; /* when wait_jobs next wakes by itself (absolute ms) */
   uint32_t strip_n;
   rp_region strip_px[RP_GROUP_MAX_STRIPS];
   double strip_cost[RP_GROUP_MAX_STRIPS];
@@ -311,8 +313,11 @@ static void worker_main(void *arg) {
      * millisecond or more each on a machine whose cores the devices
      * hold. Not once it was given up on (no longer pending). */
     if (job == JOB_RENDER && w->pending && g->tail_active &&
-        next_strip(g, w, now_ms()))
+        next_strip(g, w, now_ms())) {
+      if (w->deadline < g->wake_at)
+        uv_cond_broadcast(&g->done);
       continue;
+    }
     w->job = JOB_NONE;
     uv_cond_broadcast(&g->done);
   }
@@ -394,13 +399,14 @@ static int claim_strip(rp_device_group *g, member *w, double now,
   w->region = g->strip_px[s];
   w->by_peers = 0;
   w->deadline = INFINITY;
+  w->job_len = w->rate * g->strip_cost[s];
+  if (w->round.jobs == 0) /* its first job this round: the depth pass */
+    w->job_len += w->depth_freq * w->depth_est;
+  w->job_end = w->rate > 0.0 ? now + w->job_len : INFINITY;
   if (g->desc.deadline_factor > 0.0 && w->rate > 0.0 &&
       ((w->warm_sets >> (w->desc.effects & 15u)) & 1u))
     w->deadline = now + fmax(g->desc.deadline_min_ms,
-                             g->desc.deadline_factor * w->rate *
-                                 g->strip_cost[s]);
-  w->job_len = w->rate * g->strip_cost[s];
-  w->job_end = w->rate > 0.0 ? now + w->job_len : INFINITY;
+                             g->desc.deadline_factor * w->job_len);
   w->started = 1;
   w->pending = 1;
   w->job = JOB_RENDER;
@@ -415,6 +421,8 @@ static int next_strip(rp_device_group *g, member *w, double now) {
   double retry = INFINITY; /* left to a peer: feed_idle offers it again */
   int s = w->strip;
   w->strip = -1;
+  if (s < 0 && w->status == 0)
+    w->region_done = 1;
   if (s >= 0 && w->status == 0) {
     g->strip_state[s] = STRIP_DONE;
     g->strip_owner[s] = (uint8_t)w->index;
@@ -467,8 +475,9 @@ static void wait_jobs(rp_device_group *g, rp_group_report *rep,
         w->pending = 0;
         w->outcome = w->status;
         memcpy(w->why, w->error, sizeof w->why);
-        if (w->outcome == 0 && w->busy_ms > peer_ms)
-          peer_ms = w->busy_ms;
+        /* Its whole round: with a tail, busy_ms is its last strip's. */
+        if (w->outcome == 0 && w->round.busy_ms > peer_ms)
+          peer_ms = w->round.busy_ms;
       }
     }
     for (i = 0; i < g->count; i++) {
@@ -499,12 +508,19 @@ static void wait_jobs(rp_device_group *g, rp_group_report *rep,
       if (w->deadline < next)
         next = w->deadline;
     }
-    if (g->tail_active)
+    if (g->tail_active) {
       next = fmin(next, feed_idle(g, now));
+      for (i = 0; i < g->count; i++) /* the jobs feed_idle started */
+        if (g->m[i].pending && g->m[i].deadline > now)
+          next = fmin(next, g->m[i].deadline);
+    }
     for (waiting = 0, i = 0; i < g->count; i++)
       waiting |= g->m[i].pending;
     if (!waiting)
       break;
+    /* A worker that takes a strip itself wakes the coordinator only when
+     * the strip's deadline comes before this. */
+    g->wake_at = next;
     if (isinf(next)) {
       uv_cond_wait(&g->done, &g->lock);
     } else {
@@ -1309,7 +1325,7 @@ static int render_round(rp_device_group *g, const rp_camera *cam,
    * of it is reset first, under the lock. */
   uv_mutex_lock(&g->lock);
   for (i = 0; i < g->count; i++) {
-    g->m[i].pending = g->m[i].started = 0;
+    g->m[i].pending = g->m[i].started = g->m[i].region_done = 0;
     g->m[i].strip = -1;
   }
   uv_mutex_unlock(&g->lock);
@@ -1374,7 +1390,11 @@ static int render_round(rp_device_group *g, const rp_camera *cam,
       rep->lost++;
       last = w->outcome;
       rp__fail(g->ctx, w->outcome, "device group: %s", w->why);
-      if (!region_empty(&px[i]))
+      /* Lost on a strip, its region is done and in its buffer, which its
+       * late worker (writing the strip) does not touch. */
+      if (w->region_done)
+        take_region(w, &px[i], sw, tx, rgba, tiles);
+      else if (!region_empty(&px[i]))
         lost[(*n_lost)++] = px[i];
       continue;
     }
@@ -1448,9 +1468,10 @@ static void cut_tail(rp_device_group *g, uint32_t tx, uint32_t ty,
     for (y = ty - rows; y < ty; y++)
       acc += g->cost[(size_t)y * tx + x];
     /* Close strip k at its share of the band, if the strips after it
-     * still get a column each. */
-    if (acc >= band * (double)(k + 1) / (double)n &&
-        tx - (x + 1) >= n - 1 - k) {
+     * still get a column each, and when they need every column left. */
+    if ((acc >= band * (double)(k + 1) / (double)n &&
+         tx - (x + 1) >= n - 1 - k) ||
+        tx - (x + 1) == n - 1 - k) {
       rp_region r = {x0, ty - rows, x + 1, ty};
       t[k++] = r;
       x0 = x + 1;
@@ -1665,7 +1686,7 @@ int rp_device_group_render(rp_device_group *g, const rp_camera *cam,
     return rp__fail(g->ctx, last != 0 ? last : RP_ENODEV,
                     "%s: every device failed; the last said: %s", fn, why);
   }
-  rep->rerender_ms = rep->lost > 0 ? now_ms() - t_rr : 0.0;
+  rep->rerender_ms = rounds > 0 ? now_ms() - t_rr : 0.0;
   rep->render_ms = now_ms() - start;
   rep->alive = rp_device_group_alive(g);
   g->last_render_ms = g->threads ? rep->render_ms : g->m[0].frame_busy_ms;

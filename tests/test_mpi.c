@@ -357,12 +357,14 @@ static void test_open_errors(void **state) {
 
 /* A group on the scene (deadline `factor`: -1 none). */
 static rp_device_group *make_group(scene *s, const rp_device_desc *dd,
-                                   uint32_t count, double factor) {
+                                   uint32_t count, double factor,
+                                   double tail) {
   rp_group_desc gd = {0};
   rp_device_group *g = NULL;
   gd.devices = dd;
   gd.count = count;
   gd.deadline_factor = factor;
+  gd.tail_fraction = tail;
   if (rp_device_group_create(s->ctx, &gd, &g) != 0)
     fail_msg("rp_device_group_create: %s", rp_last_error(s->ctx));
   assert_int_equal(rp_device_group_set_volume(g, s->vol), 0);
@@ -415,7 +417,7 @@ static void test_group_frames(void **state) {
   memset(dd, 0, sizeof dd);
   dd[0].backend = dd[1].backend = "mpi";
   dd[1].index = 1;
-  g = make_group(&s, dd, 2, -1.0);
+  g = make_group(&s, dd, 2, -1.0, 0.0);
   for (f = 0; f < 6; f++) {
     group_frame(&s, g, f, &rep);
     assert_int_equal(rep.alive, 2);
@@ -431,7 +433,7 @@ static void test_group_frames(void **state) {
   dd[2] = dd[0];
   dd[0].backend = s.local;
   dd[0].index = 0;
-  g = make_group(&s, dd, 3, -1.0);
+  g = make_group(&s, dd, 3, -1.0, 0.0);
   for (f = 0; f < 3; f++) {
     group_frame(&s, g, f, &rep);
     assert_int_equal(rep.alive, 3);
@@ -441,6 +443,10 @@ static void test_group_frames(void **state) {
 }
 
 /* ---- stall and kill --------------------------------------------------------- */
+
+/* Without a tail (rp_group_desc), a device raycasts once a frame: the
+ * launch's RP_MPI_STALL_AT / RP_MPI_DIE_AT then fall in a known frame. */
+#define NO_TAIL -1.0
 
 /* Rank 2 fails on a raycast of the group (stalls or dies, as the launch
  * set it up): the frame it fails in is whole and right, rank 2 is
@@ -460,7 +466,7 @@ static void lose_rank_2(int warm, const char *timeout) {
   dd[0].backend = dd[1].backend = "mpi";
   dd[1].index = 1;
   if (warm > 0) {
-    g = make_group(&s, dd, 2, -1.0);
+    g = make_group(&s, dd, 2, -1.0, NO_TAIL);
     for (f = 0; f < warm; f++) {
       group_frame(&s, g, f, &rep);
       assert_false(region_empty(&rep.devices[1].region));
@@ -469,7 +475,7 @@ static void lose_rank_2(int warm, const char *timeout) {
   }
   if (timeout != NULL)
     setenv("RP_MPI_TIMEOUT_MS", timeout, 1); /* no thread reads it now */
-  g = make_group(&s, dd, 2, 0.0); /* the default deadline */
+  g = make_group(&s, dd, 2, 0.0, NO_TAIL); /* the default deadline */
   for (f = 0; f < 8; f++) {
     group_frame(&s, g, f, &rep);
     if (lost_at < 0 && rep.lost > 0) {
@@ -498,7 +504,7 @@ static void lose_rank_2(int warm, const char *timeout) {
   print_message("reopening rank 2: %s\n", rp_last_error(s.ctx));
   assert_non_null(strstr(rp_last_error(s.ctx), "rank 2"));
   /* Rank 1 is as good as ever. */
-  g = make_group(&s, dd, 1, -1.0);
+  g = make_group(&s, dd, 1, -1.0, 0.0);
   group_frame(&s, g, 9, &rep);
   rp_device_group_destroy(g);
   scene_free(&s);
