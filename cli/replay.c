@@ -58,6 +58,7 @@ typedef struct replay_opts {
 typedef struct device_row {
   double share, busy_ms, raycast_ms;
   uint64_t samples;
+  double strip_share; /* the tail strips it took (rp_group_desc) */
 } device_row;
 
 /* One recorded frame of one controller. */
@@ -625,6 +626,7 @@ static void group_row(const replay *r, frame_row *row) {
     row->dev[i].busy_ms = d->busy_ms;
     row->dev[i].raycast_ms = d->raycast_ms;
     row->dev[i].samples = d->samples;
+    row->dev[i].strip_share = d->strip_cost_share;
   }
 }
 
@@ -921,7 +923,9 @@ static void summarise(rp_controller_kind kind, const frame_row *rows,
 
 /* With `ndev` > 0 (--devices) each row ends in dev<i>_share,
  * dev<i>_busy_ms, dev<i>_raycast_ms, dev<i>_samples for every device and
- * the frame's imbalance, all of its last pass. */
+ * the frame's imbalance, all of its last pass, and, after the AO and
+ * upload columns, dev<i>_tail_share: the predicted cost of the tail
+ * strips each device took. */
 static int write_csv(const char *path, const summary *sums,
                      frame_row *const *rows, int nctl, uint32_t n,
                      uint32_t ndev) {
@@ -939,8 +943,11 @@ static int write_csv(const char *path, const summary *sums,
     fprintf(f, ",dev%u_share,dev%u_busy_ms,dev%u_raycast_ms,dev%u_samples",
             j, j, j, j);
   /* Appended, so that the earlier columns keep their places. */
-  fprintf(f, "%s,ao_ms,ao,upload_ms,upload_predicted_ms\n",
+  fprintf(f, "%s,ao_ms,ao,upload_ms,upload_predicted_ms",
           ndev > 0 ? ",imbalance" : "");
+  for (j = 0; j < ndev; j++)
+    fprintf(f, ",dev%u_tail_share", j);
+  fprintf(f, "\n");
   for (k = 0; k < nctl; k++) {
     for (i = 0; i < n; i++) {
       const frame_row *w = &rows[k][i];
@@ -958,8 +965,11 @@ static int write_csv(const char *path, const summary *sums,
                 (unsigned long long)w->dev[j].samples);
       if (ndev > 0)
         fprintf(f, ",%.4f", w->imbalance);
-      fprintf(f, ",%.4f,%d,%.4f,%.4f\n", w->ao_ms, w->ao, w->upload_ms,
+      fprintf(f, ",%.4f,%d,%.4f,%.4f", w->ao_ms, w->ao, w->upload_ms,
               w->upload_pred_ms);
+      for (j = 0; j < ndev; j++)
+        fprintf(f, ",%.5f", w->dev[j].strip_share);
+      fprintf(f, "\n");
     }
   }
   return fclose(f) == 0 ? 0 : 1;

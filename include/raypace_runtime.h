@@ -101,6 +101,8 @@ typedef struct rp_device_frame {
   uint64_t samples;     /* samples it took */
   double share;         /* its share of the work, [0, 1] */
   rp_region region;     /* scaled-image pixels it was given */
+  uint32_t strips;      /* tail strips it took (rp_group_desc) */
+  double strip_share;   /* their share of the frame's predicted cost */
   int status;           /* 0, or the RP_E* it was lost with */
   char error[256];      /* why, when status != 0; "" otherwise */
   int dropped;          /* 1 once lost: it renders no more */

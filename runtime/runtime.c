@@ -474,6 +474,8 @@ static int render_pass(rp_runtime *rt, double rho, double *pass_ms) {
     df->samples += gd->samples;
     df->share = gd->share;
     df->region = gd->region;
+    df->strips = gd->strips;
+    df->strip_share = gd->strip_cost_share;
     df->status = gd->status;
     if (gd->status != 0)
       snprintf(df->error, sizeof df->error, "%s", gd->error);

@@ -526,7 +526,7 @@ static void test_several_devices(void **state) {
   cam = orbit(vol2, 50.0f);
   tf = post_scene(a.rt, a.ctx, vol, "ct-bone", &cam);
   for (f = 0; f < 5; f++) {
-    double sum = 0.0;
+    double sum = 0.0, tail = 0.0;
     (void)frame(&a);
     assert_int_equal(a.s.last.status, 0);
     assert_true(a.s.has_image);
@@ -542,9 +542,15 @@ static void test_several_devices(void **state) {
     assert_int_equal(a.s.last.devices_alive, lost_at >= 0 ? 2 : 3);
     assert_int_equal(a.s.last.devices[1].dropped, lost_at >= 0);
     assert_string_equal(a.s.last.devices[0].error, "");
-    for (i = 0; i < 3; i++)
+    for (i = 0; i < 3; i++) {
       sum += a.s.last.devices[i].share;
+      tail += a.s.last.devices[i].strip_share;
+    }
     assert_true(sum == 1.0);
+    /* The default tail: at least 0.15 of the frame's cost, taken whole
+     * in the round (a strip the lost device failed on goes to the
+     * others). */
+    assert_true(tail >= 0.15 - 1e-9);
     if (lost_at >= 0 && (int)f > lost_at)
       assert_true(a.s.last.devices[1].share == 0.0);
   }
