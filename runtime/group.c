@@ -470,8 +470,8 @@ static void wait_jobs(rp_device_group *g, rp_group_report *rep,
       if (!w->pending)
         continue;
       if (w->job == JOB_NONE) {
-        if (g->tail_active && next_strip(g, w, now))
-          continue;
+        /* With a tail its worker has settled its strip and found none to
+         * take (worker_main); feed_idle below offers it any freed since. */
         w->pending = 0;
         w->outcome = w->status;
         memcpy(w->why, w->error, sizeof w->why);

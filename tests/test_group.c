@@ -693,18 +693,14 @@ static void test_tail_slow_device_leaves_strips(void **state) {
   scene s;
   int f, took = 0;
   (void)state;
-  scene_make(&s, 2 * W, 2 * H);
-  render_alone(&s, "reference", one, NULL);
   memset(dd, 0, sizeof dd);
-  dd[0].backend = dd[1].backend = "reference";
   dd[1].slowdown = 16.0;
-  gd.devices = dd;
-  gd.count = 2;
   gd.share_mode = RP_SHARES_FIXED;
   gd.fixed_shares = fixed;
   gd.tail_fraction = 0.5;
   gd.tail_strips = 4;
-  g = make_group(&s, &gd);
+  g = reference_pair(&s, dd, &gd);
+  render_alone(&s, "reference", one, NULL);
   for (f = 0; f < 13; f++) {
     memset(img, 0, 4 * W * H * 4);
     assert_int_equal(frame(g, &s, img, NULL, &rep), 0);

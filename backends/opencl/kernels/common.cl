@@ -37,7 +37,6 @@ typedef RP_CL_VEC(uchar) vbyte;
 #define to_vuint_sat RP_CL_CAT(RP_CL_CONVERT(uint), _sat)
 #define as_vint RP_CL_CAT(as_int, RP_CL_W)
 #define as_vfloat RP_CL_CAT(as_float, RP_CL_W)
-#define vload_w RP_CL_CAT(vload, RP_CL_W)
 #define vstore_w RP_CL_CAT(vstore, RP_CL_W)
 
 /* A vector and its lanes. A loop over `a` that reads memory at each

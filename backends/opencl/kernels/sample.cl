@@ -322,12 +322,10 @@ void rp_cl_classify(__global const float4 *lut, vint e, vfloat w,
     c[6].a[j] = q[6];
     c[7].a[j] = q[7];
   }
-#define RP_CL_ROW(i) c[i].v
-  *r = mix(RP_CL_ROW(0), RP_CL_ROW(4), w);
-  *g = mix(RP_CL_ROW(1), RP_CL_ROW(5), w);
-  *b = mix(RP_CL_ROW(2), RP_CL_ROW(6), w);
-  *a = mix(RP_CL_ROW(3), RP_CL_ROW(7), w);
-#undef RP_CL_ROW
+  *r = mix(c[0].v, c[4].v, w);
+  *g = mix(c[1].v, c[5].v, w);
+  *b = mix(c[2].v, c[6].v, w);
+  *a = mix(c[3].v, c[7].v, w);
 }
 
 
