@@ -337,12 +337,17 @@ cols="tf_switch,dev0_share,dev0_busy_ms,dev0_raycast_ms,dev0_samples"
 cols="$cols,dev1_share,dev1_busy_ms,dev1_raycast_ms,dev1_samples,imbalance"
 cols="$cols,ao_ms,ao,upload_ms,upload_predicted_ms"
 cols="$cols,dev0_tail_share,dev1_tail_share"
-# The shares sum to 1; the default tail (0.15 of the cost, the fewest
-# bottom tile rows that hold it) went to the two devices whole.
+# The shares sum to 1. The default tail (the fewest bottom tile rows
+# holding 0.15 of the cost, never every row) is cut when the scaled
+# image, rp_scaled_size of the 32x32 output at the row's scale, has two
+# tile rows or more, and went to the two devices whole: a positive share
+# then, none otherwise.
 if [ "$(head -1 "$dir/d.csv" | cut -d, -f16-)" = "$cols" ] &&
    [ "$(wc -l <"$dir/d.csv")" -eq 7 ] &&
    [ "$(awk -F, 'NR > 1 && ($17 + $21 - 1)^2 > 1e-8 { n++ }
-                 NR > 1 && !($30 + $31 >= 0.15 - 1e-6) { n++ }
+                 NR > 1 { sh = int(32 * $10 + 0.5); t = $30 + $31 }
+                 NR > 1 && sh >= 9 && !(t > 0 && t < 1) { n++ }
+                 NR > 1 && sh < 9 && t != 0 { n++ }
                  END { print n + 0 }' \
        "$dir/d.csv")" -eq 0 ]; then
   pass=$((pass + 1)); else
