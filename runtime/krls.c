@@ -66,7 +66,8 @@ static int check_desc(rp_context *ctx, const rp__krls_desc *d) {
            {"nu", d->nu, 1e-12, 1e300},
            {"bias", d->bias, 0, 1e300},
            {"forget", d->forget, 1e-300, 1},
-           {"clip", d->clip, 0, 1e300}};
+           {"clip", d->clip, 0, 1e300},
+           {"noise_ratio", d->noise_ratio, 0, 1e300}};
   size_t i;
   if (d->dim < 1 || d->dim > RP__KRLS_MAX_DIM)
     return rp__fail(ctx, RP_EINVAL, "krls: field 'dim' = %d is not in "
@@ -320,7 +321,7 @@ static void grow(rp__krls *m, const double *x, double yv, double delta,
                  double kxx) {
   const int n = m->n, mm = m->m;
   const double lam = lambda_now(m), s = 1.0 / sqrt(delta);
-  double *u = m->v;
+  double *u = m->v, pnn = 1.0;
   int i, l;
   for (i = 0; i < mm; i++)
     u[i] = m->a[i] * s;
@@ -336,9 +337,30 @@ static void grow(rp__krls *m, const double *x, double yv, double delta,
     m->K[(size_t)i * n + mm] = m->K[(size_t)mm * n + i] = m->k[i];
     m->P[(size_t)i * n + mm] = m->P[(size_t)mm * n + i] = 0;
   }
+  if (m->d.noise_ratio > 0) {
+    /* The prior of krls.h: theta_new = a^T theta + eps, eps of variance
+     * delta / r, observed once with unit noise. A Kalman step on the
+     * grown state; every division is by v + 1 >= 1. */
+    double *c = m->w, fp, e, v, den;
+    matvec(m->P, n, mm, m->a, c);
+    fp = dot(m->a, m->theta, mm);
+    v = dot(m->a, c, mm);
+    if (!(v > 0)) /* P is positive definite; round-off only */
+      v = 0;
+    v += delta / m->d.noise_ratio;
+    den = v + 1.0;
+    e = yv - fp;
+    for (i = 0; i < mm; i++) {
+      m->theta[i] += c[i] * (e / den);
+      axpy(m->P + (size_t)i * n, -c[i] / den, c, mm);
+      m->P[(size_t)i * n + mm] = m->P[(size_t)mm * n + i] = c[i] / den;
+    }
+    pnn = v / den;
+    yv = fp + pnn * e;
+  }
   m->Ki[(size_t)mm * n + mm] = 1.0 / delta;
   m->K[(size_t)mm * n + mm] = kxx;
-  m->P[(size_t)mm * n + mm] = 1.0;
+  m->P[(size_t)mm * n + mm] = pnn;
   m->theta[mm] = yv;
   m->used[mm] = m->t;
   for (i = 0; i < m->d.dim; i++)

@@ -101,7 +101,32 @@
  *   after a few tens of updates rather than ignored. Tested: a timing
  *   1000x off moves the model by under 1% of the target with c = 4, and
  *   by over ten times the target without.
- * For the cost model: forget = 0.995 and clip = 4 are reasonable.
+ * - noise_ratio = r > 0 puts a prior on each new element. Without it a
+ *   novel sample sets its element's value to its own target, noise and
+ *   all, and the next sample beside it is predicted by that one noisy
+ *   value: on a camera orbit, where nearly every frame is novel, the
+ *   model chases each frame's timing noise (measured on bonsai: one frame
+ *   21 % slow raised the next frame's sigma' by 23 %, and that frame came
+ *   in 15 % under). With r, the element's value before its sample is the
+ *   model's prediction a^T theta plus a deviation of variance delta / r
+ *   (in units of the noise variance): delta is the share of k(x, x) the
+ *   dictionary cannot express, the posterior variance of a Gaussian
+ *   process with this kernel, so a sample beside known ones moves the
+ *   model little and one far from them nearly as far as its target; r is
+ *   the noise variance over the variance of the learned function. The
+ *   sample is then learned by a Kalman step on the grown state, with e
+ *   its residual and v = a^T P a + delta / r the prior variance of the
+ *   new value: the old values move by P a e / (v + 1), the new one is
+ *   a^T theta + v e / (v + 1), and P loses (P a)(P a)^T / (v + 1), its
+ *   new row being P a / (v + 1) and its new diagonal entry v / (v + 1).
+ *   v >= 0, so every division is by at least 1. r -> 0 gives the exact
+ *   least-squares model above. The model is then the maximum a
+ *   posteriori fit of the least-squares problem plus, for each element
+ *   j, the term
+ *   (theta_j - b_j^T theta)^2 r / delta_j with b_j its projection on the
+ *   elements before it (tests/test_krls.c solves that directly).
+ * For the cost model: forget = 0.995, clip = 4 and noise_ratio = 0.05
+ * (runtime/predict.c says why).
  *
  * Threading: a model belongs to one thread; predict is const and may run
  * concurrently with other predicts on the same model. */
@@ -140,6 +165,8 @@ typedef struct rp__krls_desc {
   double forget; /* lambda in (0, 1]; default 1: no forgetting */
   double clip;   /* residual clamp factor c >= 1; default 0: off */
   int evict;     /* rp__krls_evict; default least recently used */
+  double noise_ratio; /* r >= 0: the prior on a new element (above);
+                    default 0: none */
   int signed_y;  /* 1: any finite target is learned; 0 (default): a
                     negative one is refused, since a timing or a cost
                     cannot be. A caller that learns a residual around a
