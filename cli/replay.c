@@ -42,6 +42,7 @@
 
 typedef struct replay_opts {
   const char *volume, *sequence, *controller, *backend, *csv, *plot;
+  const char *trace;
   double target_ms, target_fraction;
   uint32_t device, width, height, settle, frames, seed;
   float base_step;
@@ -117,6 +118,7 @@ typedef struct replay {
   rp_ao_run *ao_run;
   int ao_tf;  /* the TF whose AO the devices hold; -1: none */
   int run_tf; /* the TF ao_run computes for */
+  FILE *trace; /* --trace */
 } replay;
 
 static void usage(FILE *f) {
@@ -156,6 +158,10 @@ static void usage(FILE *f) {
       "  --frames N            play only the first N frames\n"
       "  --seed N              ERT pre-pass seed (default 1)\n"
       "  --csv FILE            per-frame rows of every controller\n"
+      "  --trace FILE          what each controller's cost model learned "
+      "from,\n"
+      "                        a row per pass (one device): input to\n"
+      "                        bench_costmodel\n"
       "  --plot FILE.png       frame times and densities against the "
       "target\n"
       "                        (gnuplot); with 2+ --devices also "
@@ -190,6 +196,7 @@ static int parse_opts(int argc, char **argv, replay_opts *o) {
       {"frames", required_argument, 0, 'n'},
       {"seed", required_argument, 0, 'e'},
       {"csv", required_argument, 0, 'C'},
+      {"trace", required_argument, 0, 'T'},
       {"plot", required_argument, 0, 'P'},
       {"json", no_argument, 0, 'j'},
       {"quiet", no_argument, 0, 'Q'},
@@ -244,6 +251,7 @@ static int parse_opts(int argc, char **argv, replay_opts *o) {
     case 'n': bad = cli_parse_u32(optarg, 10000000, &o->frames); break;
     case 'e': bad = cli_parse_u32(optarg, UINT32_MAX, &o->seed); break;
     case 'C': o->csv = optarg; break;
+    case 'T': o->trace = optarg; break;
     case 'P': o->plot = optarg; break;
     case 'j': o->json = 1; break;
     case 'Q': o->quiet = 1; break;
@@ -267,6 +275,12 @@ static int parse_opts(int argc, char **argv, replay_opts *o) {
   if (o->devices_spec != NULL && o->device_given) {
     fprintf(stderr, "raypace replay: --devices excludes --backend and "
                     "--device\n");
+    return 2;
+  }
+  if (o->devices_spec != NULL && o->trace != NULL) {
+    fprintf(stderr, "raypace replay: --trace records one device's cost "
+                    "model; a group has one per device (not with "
+                    "--devices)\n");
     return 2;
   }
   for (c = 0; c < (int)o->ndevices; c++) {
@@ -661,6 +675,36 @@ static void player_close(player *p) {
   p->ctl = NULL;
 }
 
+/* --trace: the columns are rp_cost_train's arguments (the probe's fields
+ * that rp_cost_predict reads, step, scale, samples, raycast and frame
+ * time), each double to 17 digits so that bench_costmodel feeds a model
+ * exactly what this one learned from. `frame` counts the settle frames. */
+static const char trace_header[] =
+    "controller,frame,width,height,effects,rays,rays_hit,rays_ended,"
+    "depth_sum,depth_max,ert_cut,lit_span,lit_ends,view_x,view_y,view_z,"
+    "pixels_per_voxel,diagonal,step,scale,samples,raycast_ms,frame_ms\n";
+
+/* The frame time the cost model learns from: the pass without its brick
+ * uploads, which the replay predicts apart. */
+static double trained_ms(const pass_result *pr) {
+  return fmax(pr->ms - pr->upload_ms, pr->raycast_ms);
+}
+
+static int trace_row(replay *r, rp_controller_kind kind, uint32_t i,
+                     const rp_frame_probe *p, const pass_result *pr) {
+  int n = fprintf(
+      r->trace,
+      "%s,%u,%u,%u,%u,%u,%u,%u,%.17g,%.17g,%.17g,%.17g,%.17g,%.17g,%.17g,"
+      "%.17g,%.17g,%.17g,%.9g,%.9g,%llu,%.17g,%.17g\n",
+      rp_controller_name(kind), i, p->width, p->height, p->effects,
+      p->rays, p->rays_hit, p->rays_ended, p->depth_sum, p->depth_max,
+      p->ert_cut, p->lit_span, p->lit_ends, p->view[0], p->view[1],
+      p->view[2], p->pixels_per_voxel, p->diagonal, (double)pr->step,
+      (double)pr->scale, (unsigned long long)pr->samples, pr->raycast_ms,
+      trained_ms(pr));
+  return n < 0;
+}
+
 /* Frame i of the settle frames and the sequence after them, for one
  * controller. */
 static int play_frame(replay *r, player *p, uint32_t i) {
@@ -756,11 +800,15 @@ static int play_frame(replay *r, player *p, uint32_t i) {
                                            pr.scale, pr.ms)
                    : rp_cost_train(model, &probe, pr.step, pr.scale,
                                    pr.samples, pr.raycast_ms,
-                                   fmax(pr.ms - pr.upload_ms,
-                                        pr.raycast_ms))) != 0 ||
+                                   trained_ms(&pr))) != 0 ||
         (err = rp_controller_end_pass(ctl, pr.ms - pr.upload_ms, &again,
                                       &rho)) != 0)
       return cli_error(r->ctx, "train", err);
+    if (r->trace != NULL && trace_row(r, p->kind, i, &probe, &pr) != 0) {
+      fprintf(stderr, "raypace replay: --trace %s: write failed\n",
+              r->o.trace);
+      return 1;
+    }
   }
   if (i >= r->o.settle) {
     /* What the user waited for: the AO step and the passes. */
@@ -1302,6 +1350,14 @@ int cli_cmd_replay(int argc, char **argv) {
     fprintf(stderr, "raypace replay: --plot path too long\n");
     return 2;
   }
+  if (r.o.trace != NULL) {
+    if ((r.trace = fopen(r.o.trace, "w")) == NULL) {
+      fprintf(stderr, "raypace replay: --trace %s: cannot open for "
+                      "writing\n", r.o.trace);
+      return 1;
+    }
+    fputs(trace_header, r.trace);
+  }
   rc = 1;
   /* A loaded sequence has at least one frame; said here for readers and
    * the analyzer alike. */
@@ -1362,5 +1418,10 @@ out:
   for (k = 0; k < nctl; k++)
     free(rows[k]);
   close_scene(&r);
+  if (r.trace != NULL && fclose(r.trace) != 0 && rc == 0) {
+    fprintf(stderr, "raypace replay: --trace %s: write failed\n",
+            r.o.trace);
+    rc = 1;
+  }
   return rc;
 }

@@ -91,11 +91,13 @@ typedef struct rp_tune_result {
  *  meets the target. Clamps: rho stays in [rho_min, ub] with
  *  ub = min(rho_max, max(rho_min, rho_prev * raise_limit)) (rho_prev
  *  > 0): a rise is damped, a fall is not, and rho_min wins over the
- *  damping. When the damping alone held rho back, one more prediction
- *  prices rho_max, and if it is at most a quarter of the target rho_max
- *  is taken (a 4x error of the model would be needed to overshoot; a
- *  switch to a cheap TF then gets the finest image at once); this
- *  prediction counts against max_iters and max_time_us. Predictions
+ *  damping. When the damping alone held rho back at a density predicted
+ *  at a quarter of the target or less, rho rises at once to the largest
+ *  density predicted at a quarter of the target, searched between the
+ *  two the same way, rho_max first (a 4x error of the model would be
+ *  needed to overshoot; a switch to a cheap TF then gets the finest
+ *  image at once); these predictions count against max_iters and
+ *  max_time_us. Predictions
  *  that are NaN, infinite or <= 0 count as unknown.
  *  The result is the largest rho seen with t' <= target; if none was
  *  seen, rho_min when t'(rho_min) > target, else (the budget ran out
@@ -119,7 +121,9 @@ typedef enum rp_controller_kind {
   RP_CONTROL_TWO_PASS = 2,   /* pass at rho_last / 4; if under half the
                                 target, extrapolate to the rest and
                                 render again */
-  RP_CONTROL_PREDICTED = 3,  /* ours: rp_tune on the caller's model */
+  RP_CONTROL_PREDICTED = 3,  /* ours: rp_tune on the caller's model;
+                                no rise after a frame that took over
+                                1.5x its prediction */
   RP_CONTROL_VTK = 4,        /* isd' = isd sqrt(t_last f / target),
                                 isd in [1, 10], rho = 1 / isd^2 */
   RP_CONTROL_UE5 = 5,        /* UE5 dynamic resolution, rho = s^2 */
@@ -266,6 +270,12 @@ typedef struct rp_cost_model_desc {
   double forget;     /* KRLS forgetting factor; 0: 0.995 */
   double clip;       /* KRLS residual clamp; 0: 4 */
   double sigma0_ns;  /* cost per fetch before any training; 0: 5 */
+  /* KRLS prior on a new dictionary element: the timing noise's variance
+   * over that of what the model learns (runtime/krls.h), so that one
+   * noisy frame is not taken as the cost of every view beside it.
+   * 0: 0.05; negative: none (each new element takes its frame's value).
+   * \since 0.2 */
+  double noise_ratio;
 } rp_cost_model_desc;
 
 typedef struct rp_cost_estimate {
@@ -273,7 +283,9 @@ typedef struct rp_cost_estimate {
   double sample_ratio;   /* kappa: learned S_measured / S' */
   double fetches;        /* k */
   double sigma_ns;       /* predicted cost per fetch */
-  double launch_ms;      /* the raycast's own fixed cost, a */
+  double launch_ms;      /* the raycast's own cost outside its fetches:
+                            a cost per ray a times the rays at this
+                            scale */
   double c0_ms;          /* per-frame fixed cost outside the raycast */
   double ms;             /* t' = (a + sigma * k * kappa * S' + c0) * Q */
   double features[RP_COST_FEATURES]; /* in [0, 1] */

@@ -55,6 +55,18 @@
 #define VALVE_STEP 1.15    /* fill rate per level (15 % steps) */
 #define VALVE_MAX_LEVELS 4096
 
+/* predicted: a frame that took more than this times its prediction
+ * shows the model wrong for the scene at hand (an effect toggled, a TF
+ * it has not learned), and the next frame does not raise the density.
+ * The model's log residual has a standard deviation of about 0.17 on a
+ * trusted scene (docs/pacing.md), so ln 1.5 = 0.41 is 2.4 of them: a
+ * hold after a stall costs one frame's rise, a hold after a wrong model
+ * stops the damped climb from compounding its error. Measured on the
+ * mixed sequence (bonsai, 256^2): shading switched off, the model gave
+ * 2.0 and 2.8 ms for frames of 4.7 and 6.0 ms, rose 1.25x on each, and
+ * the third frame took 10.6 ms against a 6.2 ms target. */
+#define PREDICT_TRUST 1.5
+
 struct rp_controller {
   rp_context *ctx;
   rp_controller_desc d; /* defaults filled in */
@@ -67,6 +79,9 @@ struct rp_controller {
   double rho_last;      /* final density of the last frame (rho_start
                            before the first) */
   double t_last;        /* its time */
+  double pred_ms;       /* predicted: t' of the open frame (NaN if none) */
+  int distrust;         /* predicted: the last frame took more than
+                           PREDICT_TRUST times its t' */
   /* UE5: history newest first, the screen fraction s (rho = s^2) and
    * decisions since the last change. */
   double ue_t[UE_HISTORY], ue_s[UE_HISTORY];
@@ -219,6 +234,8 @@ void rp_controller_reset(rp_controller *c) {
   c->frames = 0;
   c->rho_last = c->d.rho_start;
   c->t_last = 0;
+  c->pred_ms = NAN;
+  c->distrust = 0;
   c->ue_n = 0;
   c->ue_frac = sqrt(c->d.rho_start);
   c->ue_since = 0;
@@ -412,6 +429,12 @@ int rp_controller_begin_frame(rp_controller *c, double target_ms,
       return rp__fail(c->ctx, err, "controller: rp_tune failed (%s)",
                       rp_err_name(err));
     r = res.rho;
+    if (c->distrust && c->frames > 0 && r > c->rho_last) {
+      /* Held, priced at the held density when the model can. */
+      r = c->rho_last;
+      res.predicted_ms = predict(user, r);
+    }
+    c->pred_ms = res.predicted_ms;
     break;
   }
   case RP_CONTROL_VTK:
@@ -444,6 +467,8 @@ static void end_frame(rp_controller *c, double t, double rho) {
   c->frames++;
   c->rho_last = rho;
   c->t_last = t;
+  c->distrust = c->d.kind == RP_CONTROL_PREDICTED && c->pred_ms > 0 &&
+                isfinite(c->pred_ms) && t > PREDICT_TRUST * c->pred_ms;
   for (k = UE_HISTORY - 1; k > 0; k--) {
     c->ue_t[k] = c->ue_t[k - 1];
     c->ue_s[k] = c->ue_s[k - 1];

@@ -937,8 +937,10 @@ int rp_device_group_compute_ao(rp_device_group *g, const rp_ao_plan *plan,
 
 /* ---- Shares and prediction ----------------------------------------------- */
 
-/* Each live device's whole-frame estimate: fixed part (launch + c0) and
- * the part its share scales (the raycast's samples). */
+/* Each live device's whole-frame estimate: fixed part (c0) and the part
+ * its share scales (the raycast: its samples, and its cost per ray,
+ * which scales with the region's area rather than its samples, near
+ * enough). */
 typedef struct device_cost {
   double fixed, var;
   rp_cost_estimate e;
@@ -955,8 +957,8 @@ static void device_costs(rp_device_group *g, const rp_frame_probe *p,
       continue;
     if (rp_cost_predict(w->model, p, step, scale, &c[i].e) != 0)
       continue;
-    /* t' = (a + c0 + variable) * Q: Q scales the fixed part too. */
-    c[i].fixed = (c[i].e.launch_ms + c[i].e.c0_ms) * c[i].e.frame_factor;
+    /* t' = (a R + c0 + variable) * Q: Q scales the fixed part too. */
+    c[i].fixed = c[i].e.c0_ms * c[i].e.frame_factor;
     c[i].var = c[i].e.ms - c[i].fixed;
     c[i].ok = isfinite(c[i].var) && c[i].var > 0.0 && isfinite(c[i].fixed);
   }

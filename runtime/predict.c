@@ -31,7 +31,14 @@
  * m is a robust running mean (below), so it follows a slow drift (a
  * warming cache, the OS) that KRLS's forgetting alone would take a
  * dictionary's worth of frames to follow, and one stalled frame does not
- * drag it.
+ * drag it. KRLS keeps a prior on each new dictionary element
+ * (noise_ratio, runtime/krls.h, default 0.05: timing noise of 3-5 % in
+ * the log against a residual that varies by 15-30 % over views and TFs).
+ * Without it, on a camera move nearly every frame was a new element set
+ * to its own noisy time, and the next frame was predicted from that one
+ * value (bench_costmodel on recorded replays, one-step rms log error of
+ * t': orbit 0.052 -> 0.049 under `none`, zoom-in 0.061 -> 0.053, and
+ * the model no longer degrades as gamma grows).
  *
  * The sample estimate's own bias is learned too, as a ratio
  * kappa = S_measured / S' by a second KRLS on the same features, in the
@@ -45,32 +52,56 @@
  * and the opaque TF there; kappa is left with what the probe's 4x4 grid
  * and the lattice miss.
  *
- * The raycast's own fixed cost a (launch, ray setup, the image write)
- * is taken out before sigma is learned:
- *   raycast time = a + sigma * k * S_measured,
- *   sigma_measured = (raycast time - a) / (k * S_measured).
- * Without it, sigma carries a / (k S): on bonsai at 256^2, an opaque TF
+ * The raycast's own cost per ray a (ray setup, the box entry, the walk
+ * past empty blocks, the pixel write; the launch shared among the rays)
+ * is taken out before sigma is learned, R the rays cast at the frame's
+ * scale:
+ *   raycast time = a R + sigma * k * S_measured,
+ *   sigma_measured = (raycast time - a R) / (k * S_measured).
+ * Per ray, not per launch: a cost per launch fitted at one image scale
+ * was carried whole to every other (mixed sequence: a = 5 ms fitted at
+ * scale 0.64, then a frame at scale 0.19 whose whole raycast took 0.12
+ * ms was priced at 6.1 ms, and its density dropped to the floor).
+ * bench_costmodel on the replays' traces, rms of |ln(frame / t')| on the
+ * predicted controller's frames, per launch against per ray: mixed 0.221
+ * and 0.164, orbit, zoom-in and tf-switch unchanged (0.056, 0.074,
+ * 0.080); the other controllers' frames, whose densities swing wider,
+ * gain most (tf-switch two-pass 0.174 and 0.077, valve 0.219 and 0.112).
+ * Without a, sigma carries a R / (k S): on bonsai at 256^2, an opaque TF
  * ends rays after two samples and its frames "cost" 30-100 ns a fetch
  * against 7-10 ns for a nearly transparent one, so every switch between
  * the two was a jump sigma had to relearn (measured there: the affine
  * fit below leaves 32 % log-rms between the two TFs, a cost per fetch
  * alone 87 %). a is the intercept of a Theil-Sen line (the median of the
  * pairwise slopes, then the median intercept) through the last
- * LAUNCH_WINDOW frames' (k S_measured, raycast time): a quarter of them
+ * LAUNCH_WINDOW frames' (k S_measured / R, raycast time / R), both per
+ * ray, so that frames at other scales share one line: a quarter of them
  * may be stalls without moving it, where a least-squares line follows
- * any one. Pairs closer than a factor LAUNCH_SPREAD in k S carry no
- * slope and are left out; with fewer than LAUNCH_PAIRS pairs left (a
- * steady scene, where a and sigma cannot be told apart and need not be)
- * a stays as it was. a is clamped to [0, LAUNCH_SHARE of the cheapest
- * raycast in the window]: a neighbour on the machine only ever adds time,
- * so the cheapest frame is the one that bounds a. The spread a pair
+ * any one. Pairs closer than a factor LAUNCH_SPREAD in k S / R carry no
+ * slope and are left out, and so are pairs rendered with different
+ * effects: with shading on, k counts the gradient's fetches, which hit
+ * the cache the sample's own fetch just filled, so a fetch costs less
+ * than without, and a line through both mixes two costs per fetch
+ * (measured on the mixed sequence, with a per launch then: switching
+ * shading off left a at 1.8-3 ms of 3-7 ms raycasts, so that no frame
+ * taught sigma and sigma' sat at sigma0 for the last 57 frames). With
+ * fewer than LAUNCH_PAIRS pairs left (a steady scene, where a and sigma
+ * cannot be told apart and need not be) a stays as it was. a is clamped
+ * to [0, LAUNCH_SHARE of the cheapest raycast per ray in the window],
+ * fit or no fit: a neighbour on the machine only ever adds time, so the
+ * cheapest frame is the one that bounds a, and a frame of a new scene
+ * that is cheaper than the old a says so at once. The spread a pair
  * needs is wide because the noise is: on the CI machine (frames +-30 %)
  * an orbit's densities, a factor 2 apart, gave a line whose intercept
  * was half the frame. When a moves, sigma is learned again from the
  * window's frames (sigma_relearn). A frame whose fetches take under half
  * its raycast, or less than SIGMA_CLEAR times the fit's noise, does not
  * teach sigma at all (sigma_learn): its sigma is a small difference of
- * noisy times, and its own time hardly depends on sigma.
+ * noisy times, and its own time hardly depends on sigma. The fit's noise
+ * is relative (the median of |residual| / raycast), as the machine's
+ * is: in ms, the noise of a window of 10 ms frames kept every frame of a
+ * 0.2-2 ms scene that followed from teaching sigma until the window had
+ * turned over.
  *
  * Short-term correction q: sigma' = exp(m + f(x)) * q. When the last
  * RECENT_FRAMES frames all came in dearer than sigma' (or all cheaper),
@@ -145,12 +176,14 @@
 #define SIGMA_CLEAR 4.0
 
 typedef struct launch_fit {
-  double x[LAUNCH_WINDOW]; /* k * S_measured */
-  double y[LAUNCH_WINDOW]; /* raycast ms */
+  double x[LAUNCH_WINDOW]; /* k * S_measured per ray */
+  double y[LAUNCH_WINDOW]; /* raycast ms per ray */
   double feat[LAUNCH_WINDOW][RP_COST_FEATURES]; /* to relearn sigma */
+  uint32_t effects[LAUNCH_WINDOW];
   uint32_t n, next;
-  double a;     /* ms */
-  double noise; /* median |raycast - (a + b k S)| over the window, ms */
+  double a;     /* ms per ray */
+  double noise; /* median |raycast - (a + b k S)| / raycast over the
+                   window */
 } launch_fit;
 
 /* The short-term corrections (above): frames that must agree, and the
@@ -158,6 +191,12 @@ typedef struct launch_fit {
 #define RECENT_FRAMES 3
 #define RECENT_BOUND 0.6931471805599453
 #define FRAME_BOUND 1.3862943611198906
+/* How far (in [0, 1] feature units) a frame's scene features may be from
+ * the last trained frame's for q and Q to apply to it whole. Measured on
+ * bonsai's built-in sequences: consecutive frames of a camera move
+ * differ by at most 0.061 (the zoom; orbit 0.050), a TF switch by
+ * 0.149 to 1. */
+#define SCENE_NEAR 0.1
 
 /* The last RECENT_FRAMES log ratios (measured over predicted) and the
  * correction they give (recent_add). */
@@ -192,6 +231,11 @@ struct rp_cost_model {
    * measured / sigma'), Q from the last frames' ln(frame time / t') of
    * the frames that do not teach sigma. */
   recent_bias sigma_bias, frame_bias;
+  /* The last trained frame's features and effects: q and Q belong to
+   * its scene (same_scene, carried). */
+  double last_x[RP_COST_FEATURES];
+  uint32_t last_effects;
+  int have_last;
 };
 
 static double clamp01(double v) {
@@ -497,38 +541,44 @@ static void launch_reset(launch_fit *f) { memset(f, 0, sizeof *f); }
  * around the line. Returns 1 when a moved by more than LAUNCH_RELEARN of
  * the median raycast kept: what sigma learned under the old a is then
  * off by as much. */
-static int launch_add(launch_fit *f, const double *feat, double x,
-                      double y) {
+static int launch_add(launch_fit *f, const double *feat, uint32_t effects,
+                      double x, double y) {
   double slopes[LAUNCH_WINDOW * (LAUNCH_WINDOW - 1) / 2];
   double v[LAUNCH_WINDOW], b, a, ymin, old = f->a;
   uint32_t i, j, np = 0;
   f->x[f->next] = x;
   f->y[f->next] = y;
   memcpy(f->feat[f->next], feat, sizeof f->feat[0]);
+  f->effects[f->next] = effects;
   f->next = (f->next + 1) % LAUNCH_WINDOW;
   if (f->n < LAUNCH_WINDOW)
     f->n++;
-  for (i = 0; i < f->n; i++)
-    for (j = i + 1; j < f->n; j++) {
-      double lo = fmin(f->x[i], f->x[j]), hi = fmax(f->x[i], f->x[j]);
-      if (hi > LAUNCH_SPREAD * lo)
-        slopes[np++] = (f->y[j] - f->y[i]) / (f->x[j] - f->x[i]);
-    }
-  if (np < LAUNCH_PAIRS)
-    return 0;
-  b = median_of(slopes, np);
-  if (!(b > 0.0))
-    return 0; /* time not rising with the work: nothing to split */
-  for (i = 0; i < f->n; i++)
-    v[i] = f->y[i] - b * f->x[i];
-  a = median_of(v, f->n);
   ymin = f->y[0];
   for (i = 1; i < f->n; i++)
     ymin = fmin(ymin, f->y[i]);
-  f->a = fmin(fmax(a, 0.0), LAUNCH_SHARE * ymin);
   for (i = 0; i < f->n; i++)
-    v[i] = fabs(f->y[i] - f->a - b * f->x[i]);
-  f->noise = median_of(v, f->n);
+    for (j = i + 1; j < f->n; j++) {
+      double lo = fmin(f->x[i], f->x[j]), hi = fmax(f->x[i], f->x[j]);
+      if (hi > LAUNCH_SPREAD * lo && f->effects[i] == f->effects[j])
+        slopes[np++] = (f->y[j] - f->y[i]) / (f->x[j] - f->x[i]);
+    }
+  b = np >= LAUNCH_PAIRS ? median_of(slopes, np) : 0.0;
+  if (b > 0.0) {
+    for (i = 0; i < f->n; i++)
+      v[i] = f->y[i] - b * f->x[i];
+    a = median_of(v, f->n);
+    f->a = fmin(fmax(a, 0.0), LAUNCH_SHARE * ymin);
+    for (i = 0; i < f->n; i++)
+      v[i] = f->y[i] > 0.0 ? fabs(f->y[i] - f->a - b * f->x[i]) / f->y[i]
+                           : 0.0;
+    f->noise = median_of(v, f->n);
+  } else {
+    /* No line (too few pairs, or time not rising with the work): a
+     * stays, but never above what the cheapest frame kept allows. A
+     * fit made across a change of scene can leave an a larger than a
+     * whole raycast of the new one. */
+    f->a = fmin(f->a, LAUNCH_SHARE * ymin);
+  }
   for (i = 0; i < f->n; i++)
     v[i] = f->y[i];
   return fabs(f->a - old) > LAUNCH_RELEARN * median_of(v, f->n);
@@ -550,6 +600,8 @@ static rp_cost_model_desc model_defaults(const rp_cost_model_desc *in) {
     d.clip = 4.0;
   if (d.sigma0_ns == 0)
     d.sigma0_ns = 5.0;
+  if (d.noise_ratio == 0)
+    d.noise_ratio = 0.05;
   return d;
 }
 
@@ -582,6 +634,8 @@ int rp_cost_model_create(rp_context *ctx, const rp_cost_model_desc *desc,
   kd.max_dict = m->d.max_dict;
   kd.forget = m->d.forget;
   kd.clip = m->d.clip;
+  /* Negative is "none"; NaN reaches KRLS, which names the field. */
+  kd.noise_ratio = m->d.noise_ratio < 0 ? 0 : m->d.noise_ratio;
   kd.signed_y = 1;
   if ((err = rp__krls_create(ctx, &kd, &m->krls)) != 0 ||
       (err = rp__krls_create(ctx, &kd, &m->kappa_krls)) != 0) {
@@ -615,6 +669,7 @@ void rp_cost_model_reset(rp_cost_model *m) {
   launch_reset(&m->launch);
   memset(&m->sigma_bias, 0, sizeof m->sigma_bias);
   memset(&m->frame_bias, 0, sizeof m->frame_bias);
+  m->have_last = 0;
 }
 
 static double log2_unit(double v, double lo_log2, double hi_log2) {
@@ -643,17 +698,22 @@ static double probe_samples(const rp_frame_probe *p, float step) {
          (double)p->rays_ended;
 }
 
-static double estimate_samples(const rp_frame_probe *p, float step,
-                               float scale) {
+/* Rays the raycast casts at image scale `scale`. */
+static double rays_at(const rp_frame_probe *p, float scale) {
   rp_render_desc d = {0};
   uint32_t w, h;
-  if (p->rays == 0)
-    return 0.0;
   d.width = p->width;
   d.height = p->height;
   d.image_scale = scale;
   rp_scaled_size(&d, &w, &h);
-  return (double)w * (double)h / (double)p->rays * probe_samples(p, step);
+  return (double)w * (double)h;
+}
+
+static double estimate_samples(const rp_frame_probe *p, float step,
+                               float scale) {
+  if (p->rays == 0)
+    return 0.0;
+  return rays_at(p, scale) / (double)p->rays * probe_samples(p, step);
 }
 
 /* k at `step`: a fetch per sample, and per sample that shows (the
@@ -735,9 +795,38 @@ static void recent_add(recent_bias *r, double log_ratio, double bound) {
     r->log_corr = fmax(hi, -bound);
 }
 
+/* Whether features x with `effects` show the scene of the last trained
+ * frame: the same effects, and the features the density does not set
+ * (all but 3 and 4) within SCENE_NEAR of its. */
+static int same_scene(const rp_cost_model *m, const double *x,
+                      uint32_t effects) {
+  static const int scene[] = {0, 1, 2, 5, 6, 7};
+  size_t k;
+  if (!m->have_last || effects != m->last_effects)
+    return 0;
+  for (k = 0; k < sizeof scene / sizeof scene[0]; k++)
+    if (fabs(x[scene[k]] - m->last_x[scene[k]]) > SCENE_NEAR)
+      return 0;
+  return 1;
+}
+
+/* A correction q or Q for a frame: whole on the scene it was learned on;
+ * on another (a TF switch, effects toggled) only if it raises the
+ * prediction. The recent frames' errors may be the machine, which
+ * carries over, or the model's error on their scene, which does not:
+ * carried over, a correction that lowers the cost risks an overshoot on
+ * exactly the switch frame. Measured on bonsai (mixed, frame 120): q =
+ * 1/2 from three opaque-TF frames the model had priced at twice their
+ * cost, applied to the first frame of the next TF, made it 65 % over
+ * the target. A correction that raises it costs at most an image
+ * coarser than the budget allowed. */
+static double carried(const recent_bias *r, int local) {
+  return local || r->log_corr > 0.0 ? r->log_corr : 0.0;
+}
+
 int rp_cost_predict(const rp_cost_model *m, const rp_frame_probe *p,
                     float step, float scale, rp_cost_estimate *out) {
-  int err, up;
+  int err, up, local;
   if (m == NULL)
     return RP_EINVAL;
   if ((err = check_point(m->ctx, "rp_cost_predict", p, step, scale)) != 0)
@@ -745,18 +834,19 @@ int rp_cost_predict(const rp_cost_model *m, const rp_frame_probe *p,
   if (out == NULL)
     return rp__fail(m->ctx, RP_EINVAL, "rp_cost_predict: out is NULL");
   features(p, step, scale, out->features);
+  local = same_scene(m, out->features, p->effects);
   out->samples = estimate_samples(p, step, scale);
   out->fetches = fetches_per_sample(p, step);
   out->sigma_ns =
-      exp(log_sigma_at(m, out->features) + m->sigma_bias.log_corr);
+      exp(log_sigma_at(m, out->features) + carried(&m->sigma_bias, local));
   out->sample_ratio =
       exp(log_at(m->kappa_krls, &m->log_kappa, out->features));
   /* Until frames of its own kind arrive, the other kind's is the best
    * guess. */
   up = scale < 1.0f;
   out->c0_ms = m->c0[up].n > 0 ? m->c0[up].mean : m->c0[!up].mean;
-  out->launch_ms = m->launch.a;
-  out->frame_factor = exp(m->frame_bias.log_corr);
+  out->launch_ms = m->launch.a * rays_at(p, scale);
+  out->frame_factor = exp(carried(&m->frame_bias, local));
   out->ms = (out->launch_ms +
              out->sigma_ns * 1e-6 * out->fetches * out->sample_ratio *
                  out->samples +
@@ -775,11 +865,12 @@ int rp_cost_predict(const rp_cost_model *m, const rp_frame_probe *p,
  * learns the clamped value too: a stalled frame must not reach the model
  * through the back door of a huge residual. */
 static int sigma_teaches(const rp_cost_model *m, double raycast_ms) {
-  double per_fetch_ms = raycast_ms - m->launch.a;
+  double per_fetch_ms = raycast_ms - m->launch.a; /* both per ray */
   return per_fetch_ms >= SIGMA_SHARE * raycast_ms &&
-         per_fetch_ms >= SIGMA_CLEAR * m->launch.noise;
+         per_fetch_ms >= SIGMA_CLEAR * m->launch.noise * raycast_ms;
 }
 
+/* fetches and raycast_ms per ray, as the launch fit keeps them. */
 static int sigma_learn(rp_cost_model *m, const double *x, double fetches,
                        double raycast_ms, int relearning) {
   double ls;
@@ -822,7 +913,7 @@ int rp_cost_train(rp_cost_model *m, const rp_frame_probe *p, float step,
                   float scale, uint64_t samples, double raycast_ms,
                   double frame_ms) {
   static const char fn[] = "rp_cost_train";
-  double x[RP_COST_FEATURES], ls, lk, est, fetches, base_ms;
+  double x[RP_COST_FEATURES], ls, lk, est, fetches, base_ms, rays;
   rp_cost_estimate e;
   int err;
   if (m == NULL)
@@ -856,6 +947,10 @@ int rp_cost_train(rp_cost_model *m, const rp_frame_probe *p, float step,
   if (rp_cost_predict(m, p, step, scale, &e) != 0)
     return RP_EINVAL; /* checked above; said for readers */
   base_ms = e.ms / e.frame_factor;
+  features(p, step, scale, x);
+  memcpy(m->last_x, x, sizeof m->last_x);
+  m->last_effects = p->effects;
+  m->have_last = 1;
   (void)mean_add(&m->c0[scale < 1.0f], frame_ms - raycast_ms);
   /* A frame with no sample (all empty) or no measurable time says
    * nothing about the cost of a fetch. */
@@ -863,14 +958,15 @@ int rp_cost_train(rp_cost_model *m, const rp_frame_probe *p, float step,
     frame_feed(m, frame_ms, base_ms);
     return 0;
   }
-  features(p, step, scale, x);
-  err = launch_add(&m->launch, x, fetches, raycast_ms)
+  rays = rays_at(p, scale);
+  err = launch_add(&m->launch, x, p->effects, fetches / rays,
+                   raycast_ms / rays)
             ? sigma_relearn(m)
-            : sigma_learn(m, x, fetches, raycast_ms, 0);
+            : sigma_learn(m, x, fetches / rays, raycast_ms / rays, 0);
   if (err != 0)
     return err;
   /* Judged by the launch fit sigma_learn just used. */
-  if (sigma_teaches(m, raycast_ms))
+  if (sigma_teaches(m, raycast_ms / rays))
     memset(&m->frame_bias, 0, sizeof m->frame_bias);
   else
     frame_feed(m, frame_ms, base_ms);

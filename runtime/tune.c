@@ -37,11 +37,15 @@
 /* Bracket ends further apart than this factor are split geometrically. */
 #define TUNE_WIDE 4.0
 /* The damping guards against a rise the model priced too low. A rise to
- * rho_max predicted at this share of the target or less would overshoot
- * only if the model were off by 4x; its log residual has a standard
- * deviation of about 0.17 here (docs/pacing.md), so 4x (ln 4 = 1.39) is
- * eight of them. Such a rise is taken at once: after a switch to a cheap
- * TF the finest image comes in one frame, not after five damped ones. */
+ * a density predicted at this share of the target or less would
+ * overshoot only if the model were off by 4x; its log residual has a
+ * standard deviation of about 0.17 here (docs/pacing.md), so 4x (ln 4 =
+ * 1.39) is eight of them. Such a rise is taken at once: after a switch
+ * to a cheap TF the finest image comes in one frame, not after five
+ * damped ones, and after a frame that came in far under its prediction
+ * (a fixed cost priced for the scene before) the density climbs back to
+ * a quarter of the target in one frame, then damped the rest of the
+ * way. */
 #define TUNE_LIFT 0.25
 
 /* The desc with its defaults filled in: the one place that knows them
@@ -275,6 +279,42 @@ static void record_bad(search *s, double r) {
     s->have_hi = s->have_hi2 = 0;
 }
 
+static void search_init(search *s, double target, double tol, double lb,
+                        double ub) {
+  memset(s, 0, sizeof *s);
+  s->target = target;
+  s->aim = target * (1.0 - 0.5 * tol);
+  s->band_lo = target * (1.0 - tol);
+  s->lb = lb;
+  s->ub = ub;
+}
+
+/* The search from r0 until a prediction lands in the band, the bracket
+ * closes, or the call's iterations or time run out (iters counts every
+ * prediction of the call). */
+static void run_search(search *s, double r0, const rp_tune_desc *d,
+                       rp_predict_fn predict, void *user, double start,
+                       int *iters) {
+  while (*iters < d->max_iters) {
+    double r, t;
+    /* Checked before each prediction but the first: the call overruns
+     * max_time_us by at most one prediction. */
+    if (*iters > 0 && spent(start, d->max_time_us))
+      break;
+    r = next_candidate(s, r0);
+    if (r < 0)
+      break;
+    t = predict(user, r);
+    (*iters)++;
+    if (priced(t)) {
+      if (record(s, r, t))
+        break;
+    } else {
+      record_bad(s, r);
+    }
+  }
+}
+
 int rp_tune(const rp_tune_desc *desc, rp_predict_fn predict, void *user,
             rp_tune_result *out) {
   rp_tune_desc d;
@@ -287,54 +327,45 @@ int rp_tune(const rp_tune_desc *desc, rp_predict_fn predict, void *user,
   if ((err = check_desc(&d)) != 0)
     return err;
 
-  memset(&s, 0, sizeof s);
-  s.target = d.target_ms;
-  s.aim = d.target_ms * (1.0 - 0.5 * d.tolerance);
-  s.band_lo = d.target_ms * (1.0 - d.tolerance);
   /* The clamps: rho in [rho_min, ub], ub = min(rho_max, rho_prev *
    * raise_limit) (seed 000 §6.1: damping applies to rises only), and
    * never under rho_min, which wins over the damping. */
-  s.lb = d.rho_min;
-  s.ub = d.rho_max;
-  if (d.rho_prev > 0 && d.rho_prev * d.raise_limit < s.ub)
-    s.ub = d.rho_prev * d.raise_limit;
-  if (s.ub < s.lb)
-    s.ub = s.lb;
+  r = d.rho_max;
+  if (d.rho_prev > 0 && d.rho_prev * d.raise_limit < r)
+    r = d.rho_prev * d.raise_limit;
+  search_init(&s, d.target_ms, d.tolerance, d.rho_min,
+              r < d.rho_min ? d.rho_min : r);
   /* Start at last frame's density: Eq. 2 extrapolates from it, and for
    * a scene that did not change it is the answer already. */
   r0 = d.rho_prev > 0 ? fmin(fmax(d.rho_prev, s.lb), s.ub) : s.ub;
 
   start = rp__now_ms() * 1e3; /* microseconds */
-  while (iters < d.max_iters) {
-    double t;
-    /* Checked before each prediction but the first: the call overruns
-     * max_time_us by at most one prediction. */
-    if (iters > 0 && spent(start, d.max_time_us))
-      break;
-    r = next_candidate(&s, r0);
-    if (r < 0)
-      break;
-    t = predict(user, r);
-    iters++;
-    if (priced(t)) {
-      if (record(&s, r, t))
-        break;
-    } else {
-      record_bad(&s, r);
-    }
-  }
+  run_search(&s, r0, &d, predict, user, start, &iters);
 
   memset(out, 0, sizeof *out);
-  if (held_at_ub(&s) && s.ub < d.rho_max && iters < d.max_iters &&
+  if (held_at_ub(&s) && s.ub < d.rho_max &&
+      s.best.t <= TUNE_LIFT * s.target && iters < d.max_iters &&
       !spent(start, d.max_time_us)) {
-    /* Held back by the damping alone: lifted when rho_max itself is
-     * predicted far under the target (TUNE_LIFT). */
+    /* Held back by the damping alone, with the density it allows
+     * predicted far under the target: lifted to the largest density
+     * predicted at TUNE_LIFT of the target, searched the same way
+     * between that density and rho_max (first asking at rho_max, which
+     * is the answer after a switch to a cheap TF). */
+    search l;
     double t = predict(user, d.rho_max);
     iters++;
-    if (priced(t) && t <= TUNE_LIFT * s.target) {
-      s.best.r = d.rho_max;
-      s.best.t = t;
-      s.ub = d.rho_max;
+    search_init(&l, TUNE_LIFT * s.target, d.tolerance, s.best.r,
+                d.rho_max);
+    if (priced(t))
+      (void)record(&l, d.rho_max, t);
+    else
+      record_bad(&l, d.rho_max);
+    if (!(l.have_best && l.best.r >= d.rho_max) &&
+        !record(&l, s.best.r, s.best.t))
+      run_search(&l, d.rho_max, &d, predict, user, start, &iters);
+    if (l.have_best && l.best.r > s.best.r) {
+      s.best = l.best;
+      s.ub = l.best.r; /* still held by the damping, or at rho_max */
     }
   }
   out->iters = iters;

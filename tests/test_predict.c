@@ -524,23 +524,34 @@ static void test_model_learns_plant(void **state) {
   rp_context_destroy(ctx);
 }
 
-/* Trains one frame at `step` of a plant whose raycast costs launch_ms
- * plus sigma_ns a fetch, times `stall` (1 for an honest frame). */
+/* Trains one frame at (step, scale) of a plant whose raycast costs
+ * launch_ms at scale 1, a cost per ray (scale^2 of it at `scale`), plus
+ * sigma_ns a fetch, times `stall` (1 for an honest frame). */
+static void train_affine_at(rp_cost_model *m, const rp_frame_probe *p,
+                            float step, float scale, double launch_ms,
+                            double sigma_ns, double stall) {
+  rp_cost_estimate e;
+  double ray_ms;
+  assert_int_equal(rp_cost_predict(m, p, step, scale, &e), 0);
+  ray_ms = stall * (launch_ms * scale * scale +
+                    sigma_ns * 1e-6 * e.fetches * floor(e.samples));
+  assert_int_equal(rp_cost_train(m, p, step, scale, (uint64_t)e.samples,
+                                 ray_ms, ray_ms + 0.5), 0);
+}
+
+/* Trains one frame at `step` and image scale 1 of a plant whose raycast
+ * costs launch_ms plus sigma_ns a fetch, times `stall` (1 for an honest
+ * frame). */
 static void train_affine(rp_cost_model *m, const rp_frame_probe *p,
                          float step, double launch_ms, double sigma_ns,
                          double stall) {
-  rp_cost_estimate e;
-  double ray_ms;
-  assert_int_equal(rp_cost_predict(m, p, step, 1.0f, &e), 0);
-  ray_ms = stall * (launch_ms + sigma_ns * 1e-6 * e.fetches *
-                                    floor(e.samples));
-  assert_int_equal(rp_cost_train(m, p, step, 1.0f, (uint64_t)e.samples,
-                                 ray_ms, ray_ms + 0.5), 0);
+  train_affine_at(m, p, step, 1.0f, launch_ms, sigma_ns, stall);
 }
 
 /* A raycast of 1.2 ms plus 4 ns a fetch, seen at six steps (S' from
  * 3.2 M at step 1 to 0.54 M at step 6): the launch cost and sigma are
- * told apart, and a step never trained is priced by the line. As a cost
+ * told apart, and a step never trained is priced by the line; seen at
+ * two scales too, the launch cost is priced per ray. As a cost
  * per fetch alone this plant would read 4.4 ns at step 1 and 6.2 ns at
  * step 6. A fifth of the frames stalled tenfold moves the launch cost
  * by under 2 %. */
@@ -572,7 +583,101 @@ static void test_model_launch_cost(void **state) {
     train_affine(m, &p, 2.0f, 1.2, 4.0, 1.0);
   assert_int_equal(rp_cost_predict(m, &p, 2.0f, 1.0f, &e), 0);
   assert_float_equal(e.launch_ms, 0.0, 0.0);
+  /* The fixed cost is a cost per ray: 20 ns a ray (1.31 ms at 256^2)
+   * seen at scales 1 and 0.5 prices a frame at scale 0.25 with 20 ns
+   * times its 4096 rays. A cost per launch would carry the 1.31 ms to
+   * every scale: at scale 0.25 and step 6, more than the whole raycast. */
+  rp_cost_model_reset(m);
+  for (i = 0; i < 48; i++)
+    train_affine_at(m, &p, steps[i % 6], i % 12 < 6 ? 1.0f : 0.5f,
+                    20e-6 * 65536, 4.0, 1.0);
+  assert_int_equal(rp_cost_predict(m, &p, 6.0f, 0.25f, &e), 0);
+  printf("scale 0.25: launch %.6f ms (20 ns x 4096 rays = %.6f)\n",
+         e.launch_ms, 20e-6 * 4096);
+  assert_float_equal(e.launch_ms, 20e-6 * 4096, 1e-3 * 20e-6 * 4096);
+  assert_float_equal(e.sigma_ns, 4.0, 4e-3);
   rp_cost_model_destroy(m);
+  rp_context_destroy(ctx);
+}
+
+/* The launch fit across scenes. A window of one steady setting keeps
+ * the a an earlier fit found (no pair to fit with); a frame of a new
+ * scene whose whole raycast is cheaper than that a lowers it at once to
+ * LAUNCH_SHARE (0.9) of that raycast, fit or no fit. And pairs are made
+ * within one set of effects only: a plant of 1.2 ms plus 4 ns a fetch
+ * without shading and 1.2 ms plus 2 ns a fetch with it (the gradient's
+ * fetches hit the cache), each seen at two steps, gives a = 1.2 ms; the
+ * pairs across the two would put a line through both costs per fetch. */
+static void test_model_launch_new_scene(void **state) {
+  static const float steps[] = {1.0f, 1.5f, 2.0f, 3.0f, 4.0f, 6.0f};
+  rp_context *ctx = rp_test_context();
+  rp_cost_model *m;
+  rp_frame_probe p = synthetic_probe(0, 0, -1), q;
+  rp_cost_estimate e;
+  int i;
+  (void)state;
+  assert_int_equal(rp_cost_model_create(ctx, NULL, &m), 0);
+  for (i = 0; i < 48; i++)
+    train_affine(m, &p, steps[i % 6], 1.2, 4.0, 1.0);
+  for (i = 0; i < 24; i++)
+    train_affine(m, &p, 2.0f, 1.2, 4.0, 1.0);
+  assert_int_equal(rp_cost_predict(m, &p, 2.0f, 1.0f, &e), 0);
+  assert_float_equal(e.launch_ms, 1.2, 1e-3);
+  assert_int_equal(rp_cost_train(m, &p, 2.0f, 1.0f, (uint64_t)e.samples,
+                                 0.5, 1.0), 0);
+  assert_int_equal(rp_cost_predict(m, &p, 2.0f, 1.0f, &e), 0);
+  assert_float_equal(e.launch_ms, 0.9 * 0.5, 1e-12);
+
+  rp_cost_model_reset(m);
+  q = p;
+  q.effects |= RP_EFFECT_SHADING;
+  q.lit_span = q.depth_sum;
+  q.lit_ends = 1000;
+  for (i = 0; i < 48; i++)
+    train_affine(m, i % 2 ? &q : &p, i % 4 < 2 ? 1.0f : 6.0f, 1.2,
+                 i % 2 ? 2.0 : 4.0, 1.0);
+  assert_int_equal(rp_cost_predict(m, &p, 1.0f, 1.0f, &e), 0);
+  printf("launch cost with and without shading: %.6f ms\n", e.launch_ms);
+  assert_float_equal(e.launch_ms, 1.2, 1e-3);
+  rp_cost_model_destroy(m);
+  rp_context_destroy(ctx);
+}
+
+/* The short-term correction across a change of scene. Three frames of
+ * one scene at half the cost the model had learned make q about 1/2
+ * there; a frame of another scene (other view, spans, ERT share) is
+ * priced without it, since it lowers the prediction. Three frames at
+ * twice the cost make q about 2, and that one is carried over: it can
+ * only cost image quality, never an overshoot. */
+static void test_model_correction_new_scene(void **state) {
+  rp_context *ctx = rp_test_context();
+  rp_cost_model *m;
+  rp_frame_probe a = synthetic_probe(1, 1, 0), b = synthetic_probe(0, 0, 1);
+  double base, on_a, on_b;
+  int i, k;
+  (void)state;
+  b.ert_cut = 0.8;
+  b.depth_sum /= 3;
+  b.depth_max /= 3;
+  for (k = 0; k < 2; k++) {
+    const double f = k ? 2.0 : 0.5;
+    assert_int_equal(rp_cost_model_create(ctx, NULL, &m), 0);
+    for (i = 0; i < 40; i++)
+      train_plant(m, &a, 4.0, 0.5);
+    base = predicted_sigma(m, &b);
+    for (i = 0; i < 3; i++)
+      train_plant(m, &a, 4.0 * f, 0.5);
+    on_a = predicted_sigma(m, &a);
+    on_b = predicted_sigma(m, &b);
+    printf("cost x%.1f on scene a: sigma' %.3f there, %.3f on scene b "
+           "(%.3f before)\n", f, on_a, on_b, base);
+    assert_float_equal(on_a, 4.0 * f, 0.1 * 4.0 * f);
+    if (k == 0)
+      assert_true(on_b > 1.4 * on_a && on_b <= base);
+    else
+      assert_true(on_b > 1.4 * base);
+    rp_cost_model_destroy(m);
+  }
   rp_context_destroy(ctx);
 }
 
@@ -842,7 +947,9 @@ int main(void) {
       cmocka_unit_test(test_probe_errors),
       cmocka_unit_test(test_model_learns_plant),
       cmocka_unit_test(test_model_launch_cost),
+      cmocka_unit_test(test_model_launch_new_scene),
       cmocka_unit_test(test_model_short_term),
+      cmocka_unit_test(test_model_correction_new_scene),
       cmocka_unit_test(test_model_frame_correction),
       cmocka_unit_test(test_model_views_and_unseen),
       cmocka_unit_test(test_model_outlier_and_duplicates),

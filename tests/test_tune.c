@@ -236,13 +236,13 @@ static void tune_constant_models(void **state) {
   assert_true(r.predicted_ms == 10);
   assert_int_equal(r.limited, 0);
   /* Half the target everywhere: up to the damped clamp 0.5 / 0.8 after
-   * one extrapolation (0.5 * 9.95 / 5 = 0.995, cut to 0.625); rho_max's
-   * 5 ms is over a quarter of the target, so the damping stays (a third
-   * prediction). */
+   * one extrapolation (0.5 * 9.95 / 5 = 0.995, cut to 0.625); its 5 ms
+   * is over a quarter of the target, so the damping stays and no lift
+   * is tried (two predictions). */
   memset(&m, 0, sizeof m);
   m.value = 5;
   r = tune(10, 0.5, m_const, &m);
-  assert_int_equal(r.iters, 3);
+  assert_int_equal(r.iters, 2);
   assert_true(r.rho == 0.5 * (1.0 / 0.8));
   assert_true(r.predicted_ms == 5);
   assert_int_equal(r.limited, 1);
@@ -369,19 +369,31 @@ static void tune_clamps(void **state) {
   assert_true(r.rho == 0.2);
   assert_true(r.predicted_ms == 20);
   assert_int_equal(r.limited, 1);
-  /* rho_prev * raise_limit under rho_min: rho_min wins (rho_max's 5 ms
-   * is over a quarter of the target: no lift). */
+  /* rho_prev * raise_limit under rho_min: rho_min wins over the
+   * damping. Its 0.005 ms is under a quarter of the target, so the lift
+   * then takes rho to where t' = 5 rho is a quarter of it, in the
+   * band [0.99, 1] of 2.5 ms. */
   d.rho_min = 0;
   d.rho_prev = 1e-4;
+  m.a = 5;
+  assert_int_equal(rp_tune(&d, m_linear, &m, &r), 0);
+  assert_true(r.rho >= 0.99 * 0.5 && r.rho <= 0.5);
+  assert_int_equal(r.limited, 1);
+  /* With a lower target the damped rho_min is over a quarter of it: no
+   * lift, rho_min. */
+  d.target_ms = 0.015;
+  memset(&m, 0, sizeof m);
   m.a = 5;
   assert_int_equal(rp_tune(&d, m_linear, &m, &r), 0);
   assert_true(r.rho == 1e-3);
 }
 
-/* The damping is lifted when rho_max is predicted at a quarter of the
- * target or less, and only then: the boundary itself, just over it, a
- * model that cannot price rho_max, and a lift that the budget of
- * predictions leaves no room for. */
+/* The damping is lifted when the damped density is predicted at a
+ * quarter of the target or less, and only then, to the largest density
+ * predicted at a quarter: rho_max at the boundary itself, just under
+ * rho_max when it is priced just over, a model that cannot price
+ * rho_max, a damped density over a quarter, and a lift that the budget
+ * of predictions leaves no room for. */
 static void tune_damping_lift(void **state) {
   model m = {0};
   rp_tune_desc d = {0};
@@ -394,19 +406,36 @@ static void tune_damping_lift(void **state) {
   assert_true(r.predicted_ms == 2.5);
   assert_int_equal(r.limited, 1);
   assert_int_equal(r.iters, m.calls);
-  /* Just over a quarter: damped to 0.3 / 0.8. */
+  /* Just over a quarter: not rho_max, but the density whose t' is in
+   * the band [0.99, 1] of a quarter of the target. */
   memset(&m, 0, sizeof m);
   m.a = 2.5000001;
   r = tune(10, 0.3, m_linear, &m);
-  assert_true(r.rho == 0.3 * (1.0 / 0.8));
+  assert_true(r.rho < 1.0 && r.rho >= 0.99 * 2.5 / 2.5000001);
+  assert_true(r.predicted_ms <= 2.5 && r.predicted_ms >= 0.99 * 2.5);
   assert_int_equal(r.limited, 1);
-  /* rho_max not priced (NaN above 0.9): damped. */
+  assert_int_equal(r.iters, m.calls);
+  /* A steeper model, t' = 10 rho from 0.05: damped to 0.0625 (0.625
+   * ms), lifted to t' = 2.5 ms, rho in [0.2475, 0.25]. */
+  memset(&m, 0, sizeof m);
+  m.a = 10;
+  r = tune(10, 0.05, m_linear, &m);
+  assert_true(r.rho >= 0.2475 && r.rho <= 0.25);
+  /* The damped density itself over a quarter (t' = 10 rho from 0.3:
+   * 3.75 ms at 0.375): damped, no lift. */
+  memset(&m, 0, sizeof m);
+  m.a = 10;
+  r = tune(10, 0.3, m_linear, &m);
+  assert_true(r.rho == 0.3 * (1.0 / 0.8));
+  /* rho_max not priced (NaN above 0.9): lifted toward the gap, never
+   * into it, and priced under a quarter. */
   memset(&m, 0, sizeof m);
   m.a = 1;
   m.nan_lo = 0.9;
   m.nan_hi = 2;
   r = tune(10, 0.3, m_nan_band, &m);
-  assert_true(r.rho == 0.3 * (1.0 / 0.8));
+  assert_true(r.rho > 0.3 * (1.0 / 0.8) && r.rho < 0.9);
+  assert_true(r.predicted_ms <= 2.5);
   /* The search used every prediction: no lift is tried. */
   memset(&m, 0, sizeof m);
   m.a = 1;
@@ -728,6 +757,42 @@ static void controller_predicted_vs_last_frame(void **state) {
   }
   rp_controller_destroy(pc);
   rp_controller_destroy(lc);
+  rp_context_destroy(ctx);
+}
+
+/* predicted, with a model three times too cheap (t' = 10 rho + 1, the
+ * frames 30 rho + 1): the first frame rises, damped, from 0.4 to 0.5
+ * and takes 16 ms against a t' of 6; that is over 1.5 times t', so the
+ * next frame holds 0.5 rather than rising to 0.625. Once a frame comes
+ * within 1.5 times its t' the rise resumes, and a fall is never held. */
+static void controller_predicted_holds_on_a_miss(void **state) {
+  rp_context *ctx = rp_test_context();
+  rp_controller *c = make(ctx, RP_CONTROL_PREDICTED, 0.4);
+  plant cheap = {10, 1};
+  double rho, r2, t;
+  int again;
+  (void)state;
+  assert_int_equal(
+      rp_controller_begin_frame(c, 10, plant_predict, &cheap, &rho), 0);
+  assert_close(rho, 0.5, 1e-12);
+  t = 30 * rho + 1;
+  assert_int_equal(rp_controller_end_pass(c, t, &again, &r2), 0);
+  assert_int_equal(
+      rp_controller_begin_frame(c, 10, plant_predict, &cheap, &rho), 0);
+  assert_close(rho, 0.5, 1e-12); /* held */
+  /* This one came in at its t' (6 ms): the rise resumes. */
+  assert_int_equal(rp_controller_end_pass(c, 6, &again, &r2), 0);
+  assert_int_equal(
+      rp_controller_begin_frame(c, 10, plant_predict, &cheap, &rho), 0);
+  assert_close(rho, 0.625, 1e-12);
+  /* A miss, then a lower target: the fall happens at once. */
+  assert_int_equal(rp_controller_end_pass(c, 30 * rho + 1, &again, &r2),
+                   0);
+  assert_int_equal(
+      rp_controller_begin_frame(c, 4, plant_predict, &cheap, &rho), 0);
+  assert_true(rho < 0.4 && rho >= 0.99 * 0.3 - 1e-12);
+  assert_int_equal(rp_controller_end_pass(c, 4, &again, &r2), 0);
+  rp_controller_destroy(c);
   rp_context_destroy(ctx);
 }
 
@@ -1121,6 +1186,7 @@ int main(void) {
       cmocka_unit_test(controller_last_frame),
       cmocka_unit_test(controller_two_pass),
       cmocka_unit_test(controller_predicted_vs_last_frame),
+      cmocka_unit_test(controller_predicted_holds_on_a_miss),
       cmocka_unit_test(controller_vtk),
       cmocka_unit_test(controller_ue5),
       cmocka_unit_test(controller_valve),
