@@ -544,8 +544,9 @@ static void launch_reset(launch_fit *f) { memset(f, 0, sizeof *f); }
 static int launch_add(launch_fit *f, const double *feat, uint32_t effects,
                       double x, double y) {
   double slopes[LAUNCH_WINDOW * (LAUNCH_WINDOW - 1) / 2];
-  double v[LAUNCH_WINDOW], b, a, ymin, old = f->a;
-  uint32_t i, j, np = 0;
+  /* Zeroed: the static analyzer cannot follow the loops that fill it. */
+  double v[LAUNCH_WINDOW] = {0}, b, a, ymin, old = f->a;
+  uint32_t i, j, n, np = 0;
   f->x[f->next] = x;
   f->y[f->next] = y;
   memcpy(f->feat[f->next], feat, sizeof f->feat[0]);
@@ -553,25 +554,25 @@ static int launch_add(launch_fit *f, const double *feat, uint32_t effects,
   f->next = (f->next + 1) % LAUNCH_WINDOW;
   if (f->n < LAUNCH_WINDOW)
     f->n++;
+  n = f->n < LAUNCH_WINDOW ? f->n : LAUNCH_WINDOW; /* said for it too */
   ymin = f->y[0];
-  for (i = 1; i < f->n; i++)
+  for (i = 1; i < n; i++)
     ymin = fmin(ymin, f->y[i]);
-  for (i = 0; i < f->n; i++)
-    for (j = i + 1; j < f->n; j++) {
+  for (i = 0; i < n; i++)
+    for (j = i + 1; j < n; j++) {
       double lo = fmin(f->x[i], f->x[j]), hi = fmax(f->x[i], f->x[j]);
       if (hi > LAUNCH_SPREAD * lo && f->effects[i] == f->effects[j])
         slopes[np++] = (f->y[j] - f->y[i]) / (f->x[j] - f->x[i]);
     }
-  b = np >= LAUNCH_PAIRS ? median_of(slopes, np) : 0.0;
-  if (b > 0.0) {
-    for (i = 0; i < f->n; i++)
+  if (np >= LAUNCH_PAIRS && (b = median_of(slopes, np)) > 0.0) {
+    for (i = 0; i < n; i++)
       v[i] = f->y[i] - b * f->x[i];
-    a = median_of(v, f->n);
+    a = median_of(v, n);
     f->a = fmin(fmax(a, 0.0), LAUNCH_SHARE * ymin);
-    for (i = 0; i < f->n; i++)
+    for (i = 0; i < n; i++)
       v[i] = f->y[i] > 0.0 ? fabs(f->y[i] - f->a - b * f->x[i]) / f->y[i]
                            : 0.0;
-    f->noise = median_of(v, f->n);
+    f->noise = median_of(v, n);
   } else {
     /* No line (too few pairs, or time not rising with the work): a
      * stays, but never above what the cheapest frame kept allows. A
@@ -579,9 +580,9 @@ static int launch_add(launch_fit *f, const double *feat, uint32_t effects,
      * whole raycast of the new one. */
     f->a = fmin(f->a, LAUNCH_SHARE * ymin);
   }
-  for (i = 0; i < f->n; i++)
+  for (i = 0; i < n; i++)
     v[i] = f->y[i];
-  return fabs(f->a - old) > LAUNCH_RELEARN * median_of(v, f->n);
+  return fabs(f->a - old) > LAUNCH_RELEARN * median_of(v, n);
 }
 
 static rp_cost_model_desc model_defaults(const rp_cost_model_desc *in) {
