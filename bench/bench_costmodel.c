@@ -33,6 +33,7 @@
 #define MAX_VARIANTS 8
 #define MAX_STREAMS 16
 #define LINE_MAX_LEN 4096
+#define MAX_FIELDS 64
 
 enum {
   C_CONTROLLER, C_WIDTH, C_HEIGHT, C_EFFECTS, C_RAYS, C_RAYS_HIT,
@@ -65,24 +66,38 @@ static void usage(FILE *f) {
              "[--skip N] [--rows OUT.csv]\n");
 }
 
-/* Splits `line` at commas in place; returns the field count. */
+/* Splits `line` at commas in place; returns the field count, or max + 1
+ * when there are more than max. */
 static int split(char *line, char **field, int max) {
   int n = 0;
   char *p = line;
   line[strcspn(line, "\r\n")] = '\0';
-  while (n < max) {
+  for (;;) {
+    if (n == max)
+      return max + 1;
     field[n++] = p;
     if ((p = strchr(p, ',')) == NULL)
-      break;
+      return n;
     *p++ = '\0';
   }
-  return n;
 }
 
 static int number(const char *s, double *out) {
   char *end;
   *out = strtod(s, &end);
   return end != s && *end == '\0' && isfinite(*out);
+}
+
+/* One line into buf: 1, 0 at the end of the file, -1 for a line that
+ * does not fit. */
+static int read_line(FILE *f, char *buf, int size) {
+  size_t len;
+  if (fgets(buf, size, f) == NULL)
+    return 0;
+  len = strlen(buf);
+  if (len > 0 && buf[len - 1] != '\n' && !feof(f))
+    return -1;
+  return 1;
 }
 
 static stream *stream_of(stream *s, int *ns, const char *name) {
@@ -96,21 +111,40 @@ static stream *stream_of(stream *s, int *ns, const char *name) {
   return &s[(*ns)++];
 }
 
+/* Whether column c's value v is what the trace can hold there: counts
+ * whole and in range, times and sizes >= 0 (frame time > 0: it is what
+ * the predictions are scored against), the view any finite value. */
+static int fits(int c, double v) {
+  switch (c) {
+  case C_WIDTH: case C_HEIGHT: case C_EFFECTS: case C_RAYS:
+  case C_RAYS_HIT: case C_RAYS_ENDED:
+    return v >= 0 && v <= 4294967295.0 && v == floor(v);
+  case C_SAMPLES: return v >= 0 && v <= 9007199254740992.0 && v == floor(v);
+  case C_VIEW_X: case C_VIEW_Y: case C_VIEW_Z: return 1;
+  case C_FRAME_MS: return v > 0;
+  default: return v >= 0;
+  }
+}
+
 /* Reads the trace into one stream per controller, in file order. */
 static int read_trace(const char *path, stream *s, int *ns) {
   FILE *f = fopen(path, "r");
-  char line[LINE_MAX_LEN], *field[64];
-  int col[C_COUNT], nf, i, c, lineno = 1;
+  char line[LINE_MAX_LEN], *field[MAX_FIELDS];
+  int col[C_COUNT], nf, n, i, c, got, lineno = 1;
   if (f == NULL) {
     fprintf(stderr, "bench_costmodel: cannot open '%s'\n", path);
     return -1;
   }
-  if (fgets(line, sizeof line, f) == NULL) {
-    fprintf(stderr, "bench_costmodel: '%s' is empty\n", path);
-    fclose(f);
-    return -1;
+  if ((got = read_line(f, line, sizeof line)) <= 0) {
+    fprintf(stderr, "bench_costmodel: '%s' is %s\n", path,
+            got == 0 ? "empty" : "not a trace (first line too long)");
+    goto fail;
   }
-  nf = split(line, field, 64);
+  if ((nf = split(line, field, MAX_FIELDS)) > MAX_FIELDS) {
+    fprintf(stderr, "bench_costmodel: '%s': over %d columns\n", path,
+            MAX_FIELDS);
+    goto fail;
+  }
   for (c = 0; c < C_COUNT; c++) {
     col[c] = -1;
     for (i = 0; i < nf; i++)
@@ -119,44 +153,44 @@ static int read_trace(const char *path, stream *s, int *ns) {
     if (col[c] < 0) {
       fprintf(stderr, "bench_costmodel: '%s' has no column '%s' (not a "
                       "raypace replay --trace file?)\n", path, columns[c]);
-      fclose(f);
-      return -1;
+      goto fail;
     }
   }
-  while (fgets(line, sizeof line, f) != NULL) {
+  while ((got = read_line(f, line, sizeof line)) != 0) {
     double v[C_COUNT];
     stream *st;
     row *r;
     lineno++;
-    if (split(line, field, 64) != nf) {
-      fprintf(stderr, "bench_costmodel: %s:%d: %d fields, the header has "
-                      "%d\n", path, lineno, split(line, field, 64), nf);
-      fclose(f);
-      return -1;
+    if (got < 0) {
+      fprintf(stderr, "bench_costmodel: %s:%d: line over %d characters\n",
+              path, lineno, LINE_MAX_LEN - 2);
+      goto fail;
+    }
+    if (line[strspn(line, " \t\r\n")] == '\0')
+      continue; /* a blank line */
+    if ((n = split(line, field, MAX_FIELDS)) != nf) {
+      fprintf(stderr, "bench_costmodel: %s:%d: %s%d fields, the header has "
+                      "%d\n", path, lineno, n > MAX_FIELDS ? "over " : "",
+              n > MAX_FIELDS ? MAX_FIELDS : n, nf);
+      goto fail;
     }
     for (c = 1; c < C_COUNT; c++)
-      if (!number(field[col[c]], &v[c]) ||
-          (v[c] < 0 && c != C_VIEW_X && c != C_VIEW_Y && c != C_VIEW_Z)) {
-        fprintf(stderr, "bench_costmodel: %s:%d: '%s' = '%s' is not a "
-                        "finite number (>= 0 but for the view)\n", path,
-                lineno, columns[c],
-                field[col[c]]);
-        fclose(f);
-        return -1;
+      if (!number(field[col[c]], &v[c]) || !fits(c, v[c])) {
+        fprintf(stderr, "bench_costmodel: %s:%d: '%s' = '%s' is out of "
+                        "range\n", path, lineno, columns[c], field[col[c]]);
+        goto fail;
       }
     if ((st = stream_of(s, ns, field[col[C_CONTROLLER]])) == NULL) {
       fprintf(stderr, "bench_costmodel: %s:%d: too many controllers or "
                       "a name too long\n", path, lineno);
-      fclose(f);
-      return -1;
+      goto fail;
     }
     if (st->n == st->cap) {
       int cap = st->cap ? 2 * st->cap : 256;
       row *g = realloc(st->rows, sizeof(row) * (size_t)cap);
       if (g == NULL) {
         fprintf(stderr, "bench_costmodel: out of memory\n");
-        fclose(f);
-        return -1;
+        goto fail;
       }
       st->rows = g;
       st->cap = cap;
@@ -191,6 +225,9 @@ static int read_trace(const char *path, stream *s, int *ns) {
     return -1;
   }
   return 0;
+fail:
+  fclose(f);
+  return -1;
 }
 
 /* Timing noise of a stream (above); NAN with under 10 pairs. The

@@ -430,7 +430,8 @@ int rp_controller_begin_frame(rp_controller *c, double target_ms,
                       rp_err_name(err));
     r = res.rho;
     if (c->distrust && c->frames > 0 && r > c->rho_last) {
-      /* Held, priced at the held density when the model can. */
+      /* Held, priced at the held density when the model can: one
+       * prediction past rp_tune's max_iters and time. */
       r = c->rho_last;
       res.predicted_ms = predict(user, r);
     }

@@ -89,6 +89,10 @@ static int check_desc(rp_context *ctx, const rp__krls_desc *d) {
   if (d->clip != 0 && d->clip < 1)
     return rp__fail(ctx, RP_EINVAL, "krls: field 'clip' = %g: 0 (off) "
                     "or >= 1", d->clip);
+  /* delta / r must stay finite: delta <= 1 + bias. */
+  if (d->noise_ratio != 0 && d->noise_ratio < 1e-12)
+    return rp__fail(ctx, RP_EINVAL, "krls: field 'noise_ratio' = %g: 0 "
+                    "(off) or >= 1e-12", d->noise_ratio);
   return 0;
 }
 
@@ -341,7 +345,7 @@ static void grow(rp__krls *m, const double *x, double yv, double delta,
     /* The prior of krls.h: theta_new = a^T theta + eps, eps of variance
      * delta / r, observed once with unit noise. A Kalman step on the
      * grown state; every division is by v + 1 >= 1. */
-    double *c = m->w, fp, e, v, den;
+    double *c = m->w, *uc = m->v, fp, e, v, den, sd;
     matvec(m->P, n, mm, m->a, c);
     fp = dot(m->a, m->theta, mm);
     v = dot(m->a, c, mm);
@@ -349,10 +353,16 @@ static void grow(rp__krls *m, const double *x, double yv, double delta,
       v = 0;
     v += delta / m->d.noise_ratio;
     den = v + 1.0;
+    sd = 1.0 / sqrt(den);
     e = yv - fp;
+    /* The downdate as u u^T with u = c / sqrt(den), so that P stays
+     * symmetric bit for bit, as rls_step keeps it (u is m->v, free
+     * again: the Ki update above is done). */
+    for (i = 0; i < mm; i++)
+      uc[i] = c[i] * sd;
     for (i = 0; i < mm; i++) {
       m->theta[i] += c[i] * (e / den);
-      axpy(m->P + (size_t)i * n, -c[i] / den, c, mm);
+      axpy(m->P + (size_t)i * n, -uc[i], uc, mm);
       m->P[(size_t)i * n + mm] = m->P[(size_t)mm * n + i] = c[i] / den;
     }
     pnn = v / den;

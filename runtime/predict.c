@@ -67,6 +67,7 @@
  * and 0.164, orbit, zoom-in and tf-switch unchanged (0.056, 0.074,
  * 0.080); the other controllers' frames, whose densities swing wider,
  * gain most (tf-switch two-pass 0.174 and 0.077, valve 0.219 and 0.112).
+ * (Both with the prior below, and pairs within one set of effects.)
  * Without a, sigma carries a R / (k S): on bonsai at 256^2, an opaque TF
  * ends rays after two samples and its frames "cost" 30-100 ns a fetch
  * against 7-10 ns for a nearly transparent one, so every switch between
@@ -78,10 +79,11 @@
  * ray, so that frames at other scales share one line: a quarter of them
  * may be stalls without moving it, where a least-squares line follows
  * any one. Pairs closer than a factor LAUNCH_SPREAD in k S / R carry no
- * slope and are left out, and so are pairs rendered with different
- * effects: with shading on, k counts the gradient's fetches, which hit
- * the cache the sample's own fetch just filled, so a fetch costs less
- * than without, and a line through both mixes two costs per fetch
+ * slope and are left out, and so are pairs, and frames for the
+ * intercept, rendered with other effects than the newest frame: with
+ * shading on, k counts the gradient's fetches, which hit the cache the
+ * sample's own fetch just filled, so a fetch costs less than without,
+ * and a line through both mixes two costs per fetch
  * (measured on the mixed sequence, with a per launch then: switching
  * shading off left a at 1.8-3 ms of 3-7 ms raycasts, so that no frame
  * taught sigma and sigma' sat at sigma0 for the last 57 frames). With
@@ -198,12 +200,15 @@ typedef struct launch_fit {
  * 0.149 to 1. */
 #define SCENE_NEAR 0.1
 
-/* The last RECENT_FRAMES log ratios (measured over predicted) and the
- * correction they give (recent_add). */
+/* The last RECENT_FRAMES log ratios (measured over predicted), the
+ * correction they give (recent_add), and the scene of the newest: the
+ * features and effects of the frame that filed it (carried). */
 typedef struct recent_bias {
   double v[RECENT_FRAMES];
   uint32_t n, next;
   double log_corr;
+  double x[RP_COST_FEATURES];
+  uint32_t effects;
 } recent_bias;
 
 /* The robust running mean (above): window, clamp start and factor. */
@@ -231,11 +236,6 @@ struct rp_cost_model {
    * measured / sigma'), Q from the last frames' ln(frame time / t') of
    * the frames that do not teach sigma. */
   recent_bias sigma_bias, frame_bias;
-  /* The last trained frame's features and effects: q and Q belong to
-   * its scene (same_scene, carried). */
-  double last_x[RP_COST_FEATURES];
-  uint32_t last_effects;
-  int have_last;
 };
 
 static double clamp01(double v) {
@@ -546,7 +546,7 @@ static int launch_add(launch_fit *f, const double *feat, uint32_t effects,
   double slopes[LAUNCH_WINDOW * (LAUNCH_WINDOW - 1) / 2];
   /* Zeroed: the static analyzer cannot follow the loops that fill it. */
   double v[LAUNCH_WINDOW] = {0}, b, a, ymin, old = f->a;
-  uint32_t i, j, n, np = 0;
+  uint32_t i, j, n, nv, np = 0;
   f->x[f->next] = x;
   f->y[f->next] = y;
   memcpy(f->feat[f->next], feat, sizeof f->feat[0]);
@@ -561,18 +561,23 @@ static int launch_add(launch_fit *f, const double *feat, uint32_t effects,
   for (i = 0; i < n; i++)
     for (j = i + 1; j < n; j++) {
       double lo = fmin(f->x[i], f->x[j]), hi = fmax(f->x[i], f->x[j]);
-      if (hi > LAUNCH_SPREAD * lo && f->effects[i] == f->effects[j])
+      if (hi > LAUNCH_SPREAD * lo && f->effects[i] == effects &&
+          f->effects[j] == effects)
         slopes[np++] = (f->y[j] - f->y[i]) / (f->x[j] - f->x[i]);
     }
   if (np >= LAUNCH_PAIRS && (b = median_of(slopes, np)) > 0.0) {
-    for (i = 0; i < n; i++)
-      v[i] = f->y[i] - b * f->x[i];
-    a = median_of(v, n);
+    /* The line of the newest frame's effects, and its frames only. */
+    for (i = nv = 0; i < n; i++)
+      if (f->effects[i] == effects)
+        v[nv++] = f->y[i] - b * f->x[i];
+    a = median_of(v, nv);
     f->a = fmin(fmax(a, 0.0), LAUNCH_SHARE * ymin);
-    for (i = 0; i < n; i++)
-      v[i] = f->y[i] > 0.0 ? fabs(f->y[i] - f->a - b * f->x[i]) / f->y[i]
-                           : 0.0;
-    f->noise = median_of(v, n);
+    for (i = nv = 0; i < n; i++)
+      if (f->effects[i] == effects)
+        v[nv++] = f->y[i] > 0.0
+                      ? fabs(f->y[i] - f->a - b * f->x[i]) / f->y[i]
+                      : 0.0;
+    f->noise = median_of(v, nv);
   } else {
     /* No line (too few pairs, or time not rising with the work): a
      * stays, but never above what the cheapest frame kept allows. A
@@ -670,7 +675,6 @@ void rp_cost_model_reset(rp_cost_model *m) {
   launch_reset(&m->launch);
   memset(&m->sigma_bias, 0, sizeof m->sigma_bias);
   memset(&m->frame_bias, 0, sizeof m->frame_bias);
-  m->have_last = 0;
 }
 
 static double log2_unit(double v, double lo_log2, double hi_log2) {
@@ -776,9 +780,12 @@ static double log_sigma_at(const rp_cost_model *m, const double *x) {
  * nothing, a machine slowed for a while is followed from its third
  * frame, and a model that errs one way for one view and the other way
  * for another (alternating views) is left to KRLS. */
-static void recent_add(recent_bias *r, double log_ratio, double bound) {
+static void recent_add(recent_bias *r, double log_ratio, double bound,
+                       const double *x, uint32_t effects) {
   double lo = INFINITY, hi = -INFINITY;
   uint32_t i;
+  memcpy(r->x, x, sizeof r->x);
+  r->effects = effects;
   r->v[r->next] = log_ratio;
   r->next = (r->next + 1) % RECENT_FRAMES;
   if (r->n < RECENT_FRAMES)
@@ -796,17 +803,17 @@ static void recent_add(recent_bias *r, double log_ratio, double bound) {
     r->log_corr = fmax(hi, -bound);
 }
 
-/* Whether features x with `effects` show the scene of the last trained
- * frame: the same effects, and the features the density does not set
- * (all but 3 and 4) within SCENE_NEAR of its. */
-static int same_scene(const rp_cost_model *m, const double *x,
+/* Whether features x with `effects` show the scene of the frame that
+ * last filed into r: the same effects, and the features the density
+ * does not set (all but 3 and 4) within SCENE_NEAR of its. */
+static int same_scene(const recent_bias *r, const double *x,
                       uint32_t effects) {
   static const int scene[] = {0, 1, 2, 5, 6, 7};
   size_t k;
-  if (!m->have_last || effects != m->last_effects)
+  if (effects != r->effects)
     return 0;
   for (k = 0; k < sizeof scene / sizeof scene[0]; k++)
-    if (fabs(x[scene[k]] - m->last_x[scene[k]]) > SCENE_NEAR)
+    if (fabs(x[scene[k]] - r->x[scene[k]]) > SCENE_NEAR)
       return 0;
   return 1;
 }
@@ -821,13 +828,15 @@ static int same_scene(const rp_cost_model *m, const double *x,
  * cost, applied to the first frame of the next TF, made it 65 % over
  * the target. A correction that raises it costs at most an image
  * coarser than the budget allowed. */
-static double carried(const recent_bias *r, int local) {
-  return local || r->log_corr > 0.0 ? r->log_corr : 0.0;
+static double carried(const recent_bias *r, const double *x,
+                      uint32_t effects) {
+  return r->log_corr > 0.0 || same_scene(r, x, effects) ? r->log_corr
+                                                        : 0.0;
 }
 
 int rp_cost_predict(const rp_cost_model *m, const rp_frame_probe *p,
                     float step, float scale, rp_cost_estimate *out) {
-  int err, up, local;
+  int err, up;
   if (m == NULL)
     return RP_EINVAL;
   if ((err = check_point(m->ctx, "rp_cost_predict", p, step, scale)) != 0)
@@ -835,11 +844,11 @@ int rp_cost_predict(const rp_cost_model *m, const rp_frame_probe *p,
   if (out == NULL)
     return rp__fail(m->ctx, RP_EINVAL, "rp_cost_predict: out is NULL");
   features(p, step, scale, out->features);
-  local = same_scene(m, out->features, p->effects);
   out->samples = estimate_samples(p, step, scale);
   out->fetches = fetches_per_sample(p, step);
   out->sigma_ns =
-      exp(log_sigma_at(m, out->features) + carried(&m->sigma_bias, local));
+      exp(log_sigma_at(m, out->features) +
+          carried(&m->sigma_bias, out->features, p->effects));
   out->sample_ratio =
       exp(log_at(m->kappa_krls, &m->log_kappa, out->features));
   /* Until frames of its own kind arrive, the other kind's is the best
@@ -847,7 +856,8 @@ int rp_cost_predict(const rp_cost_model *m, const rp_frame_probe *p,
   up = scale < 1.0f;
   out->c0_ms = m->c0[up].n > 0 ? m->c0[up].mean : m->c0[!up].mean;
   out->launch_ms = m->launch.a * rays_at(p, scale);
-  out->frame_factor = exp(carried(&m->frame_bias, local));
+  out->frame_factor =
+      exp(carried(&m->frame_bias, out->features, p->effects));
   out->ms = (out->launch_ms +
              out->sigma_ns * 1e-6 * out->fetches * out->sample_ratio *
                  out->samples +
@@ -872,14 +882,15 @@ static int sigma_teaches(const rp_cost_model *m, double raycast_ms) {
 }
 
 /* fetches and raycast_ms per ray, as the launch fit keeps them. */
-static int sigma_learn(rp_cost_model *m, const double *x, double fetches,
-                       double raycast_ms, int relearning) {
+static int sigma_learn(rp_cost_model *m, const double *x, uint32_t effects,
+                       double fetches, double raycast_ms, int relearning) {
   double ls;
   if (!sigma_teaches(m, raycast_ms))
     return 0;
   ls = log((raycast_ms - m->launch.a) * 1e6 / fetches);
   if (!relearning)
-    recent_add(&m->sigma_bias, ls - log_sigma_at(m, x), RECENT_BOUND);
+    recent_add(&m->sigma_bias, ls - log_sigma_at(m, x), RECENT_BOUND, x,
+               effects);
   ls = mean_add(&m->log_sigma, ls);
   return rp__krls_update(m->krls, x, ls - m->log_sigma.mean);
 }
@@ -897,7 +908,8 @@ static int sigma_relearn(rp_cost_model *m) {
   mean_reset(&m->log_sigma, log(m->d.sigma0_ns), 0.02);
   for (i = 0; i < f->n; i++) {
     uint32_t k = (first + i) % LAUNCH_WINDOW;
-    if ((err = sigma_learn(m, f->feat[k], f->x[k], f->y[k], 1)) != 0)
+    if ((err = sigma_learn(m, f->feat[k], f->effects[k], f->x[k], f->y[k],
+                           1)) != 0)
       return err;
   }
   return 0;
@@ -905,9 +917,11 @@ static int sigma_relearn(rp_cost_model *m) {
 
 /* Files a frame that does not teach sigma into Q: its time against t'
  * without Q (both positive, or nothing is filed). */
-static void frame_feed(rp_cost_model *m, double frame_ms, double base_ms) {
+static void frame_feed(rp_cost_model *m, const double *x, uint32_t effects,
+                       double frame_ms, double base_ms) {
   if (frame_ms > 0.0 && base_ms > 0.0 && isfinite(base_ms))
-    recent_add(&m->frame_bias, log(frame_ms / base_ms), FRAME_BOUND);
+    recent_add(&m->frame_bias, log(frame_ms / base_ms), FRAME_BOUND, x,
+               effects);
 }
 
 int rp_cost_train(rp_cost_model *m, const rp_frame_probe *p, float step,
@@ -949,28 +963,26 @@ int rp_cost_train(rp_cost_model *m, const rp_frame_probe *p, float step,
     return RP_EINVAL; /* checked above; said for readers */
   base_ms = e.ms / e.frame_factor;
   features(p, step, scale, x);
-  memcpy(m->last_x, x, sizeof m->last_x);
-  m->last_effects = p->effects;
-  m->have_last = 1;
   (void)mean_add(&m->c0[scale < 1.0f], frame_ms - raycast_ms);
   /* A frame with no sample (all empty) or no measurable time says
    * nothing about the cost of a fetch. */
   if (samples == 0 || raycast_ms <= 0.0) {
-    frame_feed(m, frame_ms, base_ms);
+    frame_feed(m, x, p->effects, frame_ms, base_ms);
     return 0;
   }
   rays = rays_at(p, scale);
   err = launch_add(&m->launch, x, p->effects, fetches / rays,
                    raycast_ms / rays)
             ? sigma_relearn(m)
-            : sigma_learn(m, x, fetches / rays, raycast_ms / rays, 0);
+            : sigma_learn(m, x, p->effects, fetches / rays,
+                          raycast_ms / rays, 0);
   if (err != 0)
     return err;
   /* Judged by the launch fit sigma_learn just used. */
   if (sigma_teaches(m, raycast_ms / rays))
     memset(&m->frame_bias, 0, sizeof m->frame_bias);
   else
-    frame_feed(m, frame_ms, base_ms);
+    frame_feed(m, x, p->effects, frame_ms, base_ms);
   if (est <= 0.0)
     return 0;
   lk = mean_add(&m->log_kappa, lk);

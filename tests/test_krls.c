@@ -231,6 +231,15 @@ static void defaults_and_validation(void **state) {
   d.bias = -0.1;
   assert_int_equal(rp__krls_create(ctx, &d, &m), RP_EINVAL);
   d.bias = 0;
+  /* A prior so weak that delta / r overflows is refused. */
+  d.noise_ratio = 1e-13;
+  assert_int_equal(rp__krls_create(ctx, &d, &m), RP_EINVAL);
+  assert_non_null(strstr(rp_last_error(ctx), "'noise_ratio'"));
+  d.noise_ratio = -1;
+  assert_int_equal(rp__krls_create(ctx, &d, &m), RP_EINVAL);
+  d.noise_ratio = NAN;
+  assert_int_equal(rp__krls_create(ctx, &d, &m), RP_ENOTFINITE);
+  d.noise_ratio = 0;
   d.evict = 2;
   assert_int_equal(rp__krls_create(ctx, &d, &m), RP_EINVAL);
   assert_non_null(strstr(rp_last_error(ctx), "'evict'"));

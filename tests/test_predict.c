@@ -646,7 +646,8 @@ static void test_model_launch_new_scene(void **state) {
 /* The short-term correction across a change of scene. Three frames of
  * one scene at half the cost the model had learned make q about 1/2
  * there; a frame of another scene (other view, spans, ERT share) is
- * priced without it, since it lowers the prediction. Three frames at
+ * priced without it, since it lowers the prediction, also after a frame
+ * of that scene that taught sigma nothing. Three frames at
  * twice the cost make q about 2, and that one is carried over: it can
  * only cost image quality, never an overshoot. */
 static void test_model_correction_new_scene(void **state) {
@@ -672,10 +673,15 @@ static void test_model_correction_new_scene(void **state) {
     printf("cost x%.1f on scene a: sigma' %.3f there, %.3f on scene b "
            "(%.3f before)\n", f, on_a, on_b, base);
     assert_float_equal(on_a, 4.0 * f, 0.1 * 4.0 * f);
-    if (k == 0)
+    if (k == 0) {
       assert_true(on_b > 1.4 * on_a && on_b <= base);
-    else
+      /* A frame of scene b that teaches sigma nothing (no sample) leaves
+       * q as scene a made it: still not carried to b. */
+      assert_int_equal(rp_cost_train(m, &b, 1.0f, 1.0f, 0, 0.1, 0.6), 0);
+      assert_float_equal(predicted_sigma(m, &b), on_b, 1e-12);
+    } else {
       assert_true(on_b > 1.4 * base);
+    }
     rp_cost_model_destroy(m);
   }
   rp_context_destroy(ctx);
