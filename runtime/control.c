@@ -79,9 +79,8 @@ struct rp_controller {
   double rho_last;      /* final density of the last frame (rho_start
                            before the first) */
   double t_last;        /* its time */
-  double pred_ms;       /* predicted: t' of the open frame (NaN if none) */
-  int distrust;         /* predicted: the last frame took more than
-                           PREDICT_TRUST times its t' */
+  double pred_ms;       /* predicted: t' of the open frame, then of the
+                           last one (NaN if none) */
   /* UE5: history newest first, the screen fraction s (rho = s^2) and
    * decisions since the last change. */
   double ue_t[UE_HISTORY], ue_s[UE_HISTORY];
@@ -235,7 +234,6 @@ void rp_controller_reset(rp_controller *c) {
   c->rho_last = c->d.rho_start;
   c->t_last = 0;
   c->pred_ms = NAN;
-  c->distrust = 0;
   c->ue_n = 0;
   c->ue_frac = sqrt(c->d.rho_start);
   c->ue_since = 0;
@@ -429,7 +427,9 @@ int rp_controller_begin_frame(rp_controller *c, double target_ms,
       return rp__fail(c->ctx, err, "controller: rp_tune failed (%s)",
                       rp_err_name(err));
     r = res.rho;
-    if (c->distrust && c->frames > 0 && r > c->rho_last) {
+    /* The last frame against its own t' (NaN compares false). */
+    if (c->frames > 0 && c->pred_ms > 0 &&
+        c->t_last > PREDICT_TRUST * c->pred_ms && r > c->rho_last) {
       /* Held, priced at the held density when the model can: one
        * prediction past rp_tune's max_iters and time. */
       r = c->rho_last;
@@ -468,8 +468,6 @@ static void end_frame(rp_controller *c, double t, double rho) {
   c->frames++;
   c->rho_last = rho;
   c->t_last = t;
-  c->distrust = c->d.kind == RP_CONTROL_PREDICTED && c->pred_ms > 0 &&
-                isfinite(c->pred_ms) && t > PREDICT_TRUST * c->pred_ms;
   for (k = UE_HISTORY - 1; k > 0; k--) {
     c->ue_t[k] = c->ue_t[k - 1];
     c->ue_s[k] = c->ue_s[k - 1];

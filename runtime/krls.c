@@ -319,6 +319,15 @@ static void downdate_a(rp__krls *m, int j) {
     m->a[i] -= c[i] * coef;
 }
 
+/* pa = P a and returns a^T P a, at least 0 (P is positive definite: a
+ * negative value is round-off). */
+static double p_of_a(const rp__krls *m, double *pa) {
+  double apa;
+  matvec(m->P, m->n, m->m, m->a, pa);
+  apa = dot(m->a, pa, m->m);
+  return apa > 0 ? apa : 0;
+}
+
 /* Appends x with kernel column k (m->k), projection a (m->a), ALD residual
  * delta > 0 and target value yv: the paper's block-inverse step. */
 static void grow(rp__krls *m, const double *x, double yv, double delta,
@@ -346,12 +355,8 @@ static void grow(rp__krls *m, const double *x, double yv, double delta,
      * delta / r, observed once with unit noise. A Kalman step on the
      * grown state; every division is by v + 1 >= 1. */
     double *c = m->w, *uc = m->v, fp, e, v, den, sd;
-    matvec(m->P, n, mm, m->a, c);
+    v = p_of_a(m, c) + delta / m->d.noise_ratio;
     fp = dot(m->a, m->theta, mm);
-    v = dot(m->a, c, mm);
-    if (!(v > 0)) /* P is positive definite; round-off only */
-      v = 0;
-    v += delta / m->d.noise_ratio;
     den = v + 1.0;
     sd = 1.0 / sqrt(den);
     e = yv - fp;
@@ -387,10 +392,7 @@ static void rls_step(rp__krls *m, double e) {
   const double lam = lambda_now(m);
   double *pa = m->v, *u = m->w, apa, g, s;
   int i, l;
-  matvec(m->P, n, mm, m->a, pa);
-  apa = dot(m->a, pa, mm);
-  if (!(apa > 0)) /* P is positive definite; round-off only */
-    apa = 0;
+  apa = p_of_a(m, pa);
   g = 1.0 / (lam + apa);
   s = sqrt(g);
   for (i = 0; i < mm; i++) {

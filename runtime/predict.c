@@ -714,11 +714,12 @@ static double rays_at(const rp_frame_probe *p, float scale) {
   return (double)w * (double)h;
 }
 
+/* S' at `step` for a raycast of `rays` rays (rays_at). */
 static double estimate_samples(const rp_frame_probe *p, float step,
-                               float scale) {
+                               double rays) {
   if (p->rays == 0)
     return 0.0;
-  return rays_at(p, scale) / (double)p->rays * probe_samples(p, step);
+  return rays / (double)p->rays * probe_samples(p, step);
 }
 
 /* k at `step`: a fetch per sample, and per sample that shows (the
@@ -836,6 +837,7 @@ static double carried(const recent_bias *r, const double *x,
 
 int rp_cost_predict(const rp_cost_model *m, const rp_frame_probe *p,
                     float step, float scale, rp_cost_estimate *out) {
+  double rays;
   int err, up;
   if (m == NULL)
     return RP_EINVAL;
@@ -844,7 +846,8 @@ int rp_cost_predict(const rp_cost_model *m, const rp_frame_probe *p,
   if (out == NULL)
     return rp__fail(m->ctx, RP_EINVAL, "rp_cost_predict: out is NULL");
   features(p, step, scale, out->features);
-  out->samples = estimate_samples(p, step, scale);
+  rays = rays_at(p, scale);
+  out->samples = estimate_samples(p, step, rays);
   out->fetches = fetches_per_sample(p, step);
   out->sigma_ns =
       exp(log_sigma_at(m, out->features) +
@@ -855,7 +858,7 @@ int rp_cost_predict(const rp_cost_model *m, const rp_frame_probe *p,
    * guess. */
   up = scale < 1.0f;
   out->c0_ms = m->c0[up].n > 0 ? m->c0[up].mean : m->c0[!up].mean;
-  out->launch_ms = m->launch.a * rays_at(p, scale);
+  out->launch_ms = m->launch.a * rays;
   out->frame_factor =
       exp(carried(&m->frame_bias, out->features, p->effects));
   out->ms = (out->launch_ms +
@@ -951,7 +954,8 @@ int rp_cost_train(rp_cost_model *m, const rp_frame_probe *p, float step,
   ls = samples > 0 && raycast_ms > 0.0
            ? log(SIGMA_SHARE * raycast_ms * 1e6 / fetches)
            : 0.0;
-  est = estimate_samples(p, step, scale);
+  rays = rays_at(p, scale);
+  est = estimate_samples(p, step, rays);
   lk = samples > 0 && est > 0.0 ? log((double)samples / est) : 0.0;
   if (!isfinite(ls) || !isfinite(lk))
     return rp__fail(m->ctx, RP_ERANGE, "%s: raycast_ms %g for %llu "
@@ -970,7 +974,6 @@ int rp_cost_train(rp_cost_model *m, const rp_frame_probe *p, float step,
     frame_feed(m, x, p->effects, frame_ms, base_ms);
     return 0;
   }
-  rays = rays_at(p, scale);
   err = launch_add(&m->launch, x, p->effects, fetches / rays,
                    raycast_ms / rays)
             ? sigma_relearn(m)
