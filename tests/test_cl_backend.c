@@ -247,16 +247,15 @@ static void probe_and_caps(void **state) {
   assert_non_null(strstr(rp_last_error(ctx), "does not exist"));
 }
 
-/* (1) Shading compiled out costs nothing: fewer fetches, less time; and
+/* (1) Shading compiled out costs nothing: fewer fetches, the same samples; and
  * the counting variant's fetches are the reference's: one per sample,
  * six more per sample with opacity above 0 (the others are not shaded). */
-static void fetch_counts_and_cost(void **state) {
+static void shading_fetch_counts(void **state) {
   scene s = make_scene(RP_GEN_PHANTOM, 64, 64, 64, RP_U8, "ct-soft");
   rp_camera cam = camera(s.vol, 0);
   device dev;
   image plain, lit, want;
   uint64_t f_plain = 0, f_lit = 0, total = 0, off = 0, samples = 0;
-  double t_plain = 1e30, t_lit = 1e30;
   uint32_t k;
   int r;
   (void)state;
@@ -293,34 +292,12 @@ static void fetch_counts_and_cost(void **state) {
    * shaded and some not. */
   assert_true(f_plain > 0 && f_plain == samples);
   assert_true(f_lit > f_plain && f_lit < 7 * f_plain);
-  /* Device time of the non-counting variants at 160^2, alternating, the
-   * best of nine each: a burst of load from a test beside this one falls
-   * on both (best of three at 96^2, a few ms a frame, was once reversed
-   * under ASan in CI). */
-  image_free(&plain);
-  image_free(&lit);
-  for (r = 0; r < 18; r++) {
-    rp_render_desc d = {0};
-    rp__raygen rg;
-    rp_frame_params p;
-    double t;
-    d.width = d.height = 160;
-    d.effects = RP_EFFECT_SKIP | ((r & 1) ? RP_EFFECT_SHADING : 0u);
-    frame_params(&s, &cam, &d, &rg, &p);
-    if (r < 2)
-      image_alloc((r & 1) ? &lit : &plain, p.width, p.height);
-    render(&dev, &p, (r & 1) ? &lit : &plain, 0);
-    t = (double)dev.ops->last_time_ns(dev.impl);
-    assert_true(t > 0);
-    if (r & 1)
-      t_lit = t < t_lit ? t : t_lit;
-    else
-      t_plain = t < t_plain ? t : t_plain;
-  }
-  print_message("fetches %llu vs %llu; device time %.2f ms vs %.2f ms "
-                "(no shading vs shading)\n", (unsigned long long)f_plain,
-                (unsigned long long)f_lit, t_plain * 1e-6, t_lit * 1e-6);
-  assert_true(t_plain < t_lit);
+  /* What the extra fetches cost in time is a benchmark's figure, not a
+   * unit test's (bench_backends: ert+skip against shade+ert+skip): on a
+   * shared machine a timing order between two renders can flip (it did
+   * once, in CI, at 160^2, best of nine each). */
+  print_message("fetches %llu vs %llu (no shading vs shading)\n",
+                (unsigned long long)f_plain, (unsigned long long)f_lit);
   image_free(&plain);
   image_free(&lit);
   close_device(&dev);
@@ -331,7 +308,6 @@ static void fetch_counts_and_cost(void **state) {
 static void build_cache(void **state) {
   device dev;
   uint32_t b0, h0, b1, h1;
-  double t0, t_hit;
   (void)state;
   open_device(0, &dev);
   rp_cl__cache_stats(dev.impl, &b0, &h0);
@@ -340,14 +316,10 @@ static void build_cache(void **state) {
   rp_cl__cache_stats(dev.impl, &b1, &h1);
   assert_int_equal(b1, 1);
   assert_int_equal(h1, h0);
-  t0 = now();
   assert_int_equal(rp_cl__prepare_raycast(dev.impl, RP_EFFECT_ERT, 0), 0);
-  t_hit = now() - t0;
   rp_cl__cache_stats(dev.impl, &b1, &h1);
   assert_int_equal(b1, 1);
   assert_int_equal(h1, h0 + 1);
-  /* A hit is a table lookup, not a compile. */
-  assert_true(t_hit < 1e-3);
   /* Another effect set, or the counting variant, is another program. */
   assert_int_equal(rp_cl__prepare_raycast(dev.impl, RP_EFFECT_SKIP, 0), 0);
   assert_int_equal(rp_cl__prepare_raycast(dev.impl, RP_EFFECT_ERT, 1), 0);
@@ -780,13 +752,15 @@ static void regions(void **state) {
   drop_scene(&s);
 }
 
-/* Device time comes from OpenCL profiling events: non-zero for every
- * op, and the raycast's grows with the work. */
+/* Device time comes from OpenCL profiling events: non-zero for every op,
+ * and never more than the wall time of the blocking call that ran the
+ * raycast (with 1 % and 10 us for the device clock's rate and
+ * granularity). Whether it grows with the work is a timing order, which
+ * a shared machine can flip: bench_backends shows that as medians. */
 static void device_timing(void **state) {
   scene s = make_scene(RP_GEN_PHANTOM, 48, 48, 48, RP_U8, "ct-bone");
   rp_camera cam = camera(s.vol, 0);
   device dev;
-  uint64_t t_small = 0, t_big = 0;
   int r;
   (void)state;
   open_device(0, &dev);
@@ -796,19 +770,29 @@ static void device_timing(void **state) {
     rp_render_desc d = {0};
     rp__raygen rg;
     rp_frame_params p;
+    rp_region all;
     image im;
+    double t0, wall_ns, dev_ns;
     d.width = d.height = r ? 128 : 16;
     frame_params(&s, &cam, &d, &rg, &p);
     image_alloc(&im, p.width, p.height);
     render(&dev, &p, &im, 0);
-    render(&dev, &p, &im, 0);
-    if (r)
-      t_big = dev.ops->last_time_ns(dev.impl);
-    else
-      t_small = dev.ops->last_time_ns(dev.impl);
+    assert_true(dev.ops->last_time_ns(dev.impl) > 0);
+    all.x0 = all.y0 = 0;
+    all.x1 = p.width;
+    all.y1 = p.height;
+    t0 = now();
+    assert_int_equal(dev.ops->raycast(dev.impl, &p, &all, im.rgba, im.tiles,
+                                      NULL),
+                     0);
+    wall_ns = (now() - t0) * 1e9;
+    dev_ns = (double)dev.ops->last_time_ns(dev.impl);
+    print_message("%ux%u raycast: device %.3f ms, call %.3f ms\n",
+                  (unsigned)p.width, (unsigned)p.height, dev_ns * 1e-6,
+                  wall_ns * 1e-6);
+    assert_true(dev_ns > 0 && dev_ns <= 1.01 * wall_ns + 1e4);
     image_free(&im);
   }
-  assert_true(t_small > 0 && t_big > t_small);
   close_device(&dev);
   drop_scene(&s);
 }
@@ -1148,7 +1132,7 @@ int main(void) {
       cmocka_unit_test(probe_and_caps),
       cmocka_unit_test(build_cache),
       cmocka_unit_test(build_failure),
-      cmocka_unit_test(fetch_counts_and_cost),
+      cmocka_unit_test(shading_fetch_counts),
       cmocka_unit_test(opacity_correction),
       cmocka_unit_test(depth_pass),
       cmocka_unit_test(ert_prepass),

@@ -882,34 +882,13 @@ static uint64_t counted(const scene *s, const frame *f, uint64_t *samples) {
   return total;
 }
 
-/* The best of three device times of one render. */
-static uint64_t device_time(const frame *f) {
-  size_t px = (size_t)f->p.width * f->p.height;
-  uint8_t *rgba = calloc(px, 4);
-  uint64_t best = UINT64_MAX;
-  rp_region all = {0, 0, f->p.width, f->p.height};
-  int i;
-  assert_non_null(rgba);
-  assert_int_equal(g_ops->depth_pass(g_impl, &f->p, NULL), 0);
-  for (i = 0; i < 3; i++) {
-    uint64_t t;
-    assert_int_equal(g_ops->raycast(g_impl, &f->p, &all, rgba, NULL, NULL),
-                     0);
-    t = g_ops->last_time_ns(g_impl);
-    best = t < best ? t : best;
-  }
-  free(rgba);
-  return best;
-}
-
 static void test_fetch_counts(void **state) {
   rp_camera cams[3];
   scene s;
   frame f, fs;
-  uint64_t shaded, plain, t_shaded, t_plain, n_shaded, n_plain;
+  uint64_t shaded, plain, n_shaded, n_plain;
   frame_desc fd = {64, 64, 1.0f, 1.0f, 0};
   size_t e;
-  int round, attempt;
   (void)state;
   scene_init(&s, generate(RP_GEN_PHANTOM, 48, 48, 48, RP_U8),
              rp_test_preset(g_ctx, "ct-soft"));
@@ -920,14 +899,10 @@ static void test_fetch_counts(void **state) {
     frame_init(&s, &cams[0], &fd, &f);
     counted(&s, &f, &n_plain);
   }
-  /* Timing on a shared machine: a larger frame, both variants measured
-   * in alternating rounds, each at its best of nine, so a burst of load
-   * lands on both rather than on one. Shading does up to 7 fetches per
-   * sample against 1 (here about 1.5 on average: only visible samples
-   * are shaded). Best of five was once reversed under ASan in CI, with
-   * a test beside this one; a reversal is measured again, up to three
-   * times: a real one (shading that costs nothing, or plain rendering
-   * that pays for it) stays reversed every time. */
+  /* What the extra fetches cost in time is bench_backends' figure (medians,
+   * ert+skip against shade+ert+skip), not a unit test's: on a shared
+   * machine the order of two renders' times can flip (the OpenCL twin of
+   * this check did, in CI, at its best of nine). */
   fd.width = fd.height = 160;
   fd.effects = RP_EFFECT_SHADING;
   frame_init(&s, &cams[0], &fd, &fs);
@@ -935,26 +910,12 @@ static void test_fetch_counts(void **state) {
   fd.effects = 0;
   frame_init(&s, &cams[0], &fd, &f);
   plain = counted(&s, &f, &n_plain);
-  t_shaded = t_plain = UINT64_MAX;
-  for (attempt = 0; attempt < 3 && !(t_plain < t_shaded); attempt++) {
-    t_shaded = t_plain = UINT64_MAX;
-    for (round = 0; round < 9; round++) {
-      uint64_t a = device_time(&fs), b = device_time(&f);
-      t_shaded = a < t_shaded ? a : t_shaded;
-      t_plain = b < t_plain ? b : t_plain;
-    }
-  }
   /* Shading changes colour, never opacity: the same samples; of them,
    * the ones that show are shaded, and this view has both kinds. */
   assert_true(plain > 0 && plain == n_plain && n_shaded == n_plain);
   assert_true(plain < shaded && shaded < 7 * plain);
-  if (!(t_plain < t_shaded))
-    fail_msg("no-shading render took %llu ns, shaded %llu ns (best of "
-             "nine, three times)", (unsigned long long)t_plain,
-             (unsigned long long)t_shaded);
-  print_message("device time %.2f ms vs %.2f ms (no shading vs shading), "
-                "attempt %d\n", (double)t_plain * 1e-6,
-                (double)t_shaded * 1e-6, attempt);
+  print_message("fetches %llu vs %llu (no shading vs shading)\n",
+                (unsigned long long)plain, (unsigned long long)shaded);
   scene_free(&s);
 }
 
