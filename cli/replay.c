@@ -46,6 +46,7 @@ typedef struct replay_opts {
   double target_ms, target_fraction;
   uint32_t device, width, height, settle, frames, seed;
   float base_step;
+  float min_step; /* 0: base_step */
   rp_space space;
   int json, list, quiet;
   int device_given;
@@ -100,7 +101,8 @@ typedef struct replay {
   rp_histograms *h;
   rp_occupancy *occ;
   rp_tf **tfs;
-  int tf_count, tf_active;
+  int tf_count, tf_active; /* tf_active: the TF the device(s) hold */
+  int occ_tf;              /* the TF occ is built for */
   rp_device *dev;
   rp_device_group *group; /* --devices, instead of dev */
   int group_used;         /* its models have learned from a controller */
@@ -140,7 +142,11 @@ static void usage(FILE *f) {
       "                        adaptation, measured at the start\n"
       "                        (default: the sequence's target)\n"
       "  --space S             ray, image or hybrid (default hybrid)\n"
-      "  --base-step D         step at full quality, voxels (default 1)\n"
+      "  --base-step D         step at density 1, voxels (default 1)\n"
+      "  --min-step D          finest step, voxels: a step under the base\n"
+      "                        step (density above 1) where the budget\n"
+      "                        allows; image space stops at 1 (default:\n"
+      "                        the base step)\n"
       "  --size WxH            output size (default 384x384)\n"
       "  --backend NAME        opencl, vulkan, reference or mpi\n"
       "  --device N            device index within the backend\n"
@@ -188,6 +194,7 @@ static int parse_opts(int argc, char **argv, replay_opts *o) {
       {"target-fraction", required_argument, 0, 'F'},
       {"space", required_argument, 0, 'p'},
       {"base-step", required_argument, 0, 'd'},
+      {"min-step", required_argument, 0, 'm'},
       {"size", required_argument, 0, 's'},
       {"backend", required_argument, 0, 'B'},
       {"device", required_argument, 0, 'D'},
@@ -231,6 +238,7 @@ static int parse_opts(int argc, char **argv, replay_opts *o) {
       break;
     case 'p': bad = rp_space_from_name(optarg, &o->space) != 0; break;
     case 'd': bad = cli_parse_positive(optarg, &o->base_step); break;
+    case 'm': bad = cli_parse_positive(optarg, &o->min_step); break;
     case 's': bad = cli_parse_size(optarg, &o->width, &o->height); break;
     case 'B':
       o->backend = optarg;
@@ -270,6 +278,11 @@ static int parse_opts(int argc, char **argv, replay_opts *o) {
   if (o->target_ms > 0 && o->target_fraction > 0) {
     fprintf(stderr, "raypace replay: --target-ms and --target-fraction "
                     "exclude each other\n");
+    return 2;
+  }
+  if (o->min_step > o->base_step) {
+    fprintf(stderr, "raypace replay: --min-step %g is over the base step "
+                    "%g\n", (double)o->min_step, (double)o->base_step);
     return 2;
   }
   if (o->devices_spec != NULL && o->device_given) {
@@ -402,13 +415,20 @@ static double predicted_upload_ms(replay *r, const rp_camera *cam,
                                                                    : 0.0;
 }
 
-/* Makes TF `index` current on the host (occupancy) and the device. */
+/* Makes TF `index` current on the host (occupancy) and the device. The
+ * two are kept apart: with a device per controller (play()), the host's
+ * occupancy may already be the TF's when the next controller's device
+ * still holds the one before. */
 static int use_tf(replay *r, int index) {
   int err;
+  if (index != r->occ_tf) {
+    if ((err = rp_occupancy_update(r->occ, r->tfs[index])) != 0)
+      return cli_error(r->ctx, "transfer function", err);
+    r->occ_tf = index;
+  }
   if (index == r->tf_active)
     return 0;
-  if ((err = rp_occupancy_update(r->occ, r->tfs[index])) != 0 ||
-      (err = r->group != NULL
+  if ((err = r->group != NULL
                  ? rp_device_group_set_tf(r->group, r->tfs[index], r->occ)
                  : rp_device_set_tf(r->dev, r->tfs[index], r->occ)) != 0)
     return cli_error(r->ctx, "transfer function", err);
@@ -545,12 +565,15 @@ static int probe_frame(replay *r, const rp_camera *cam, uint32_t effects,
 }
 
 /* Warms every kernel variant the sequence uses: a first build must not
- * land in a recorded frame. */
+ * land in a recorded frame. An effect set with AO also renders without
+ * it, for the frames that wait for a TF's AO (ao_effects): unwarmed,
+ * that variant's build made the first switch of ao-tf-switch 43 % over
+ * its target on every controller with a device of its own. */
 static int warm_kernels(replay *r) {
   rp_sequence_state st;
   rp_camera cam;
   pass_result pr;
-  uint32_t i, seen[16], nseen = 0, k;
+  uint32_t i, seen[16], nseen = 0, k, v;
   int err;
   for (i = 0; i < r->frames; i++) {
     if ((err = rp_sequence_frame(r->seq, i, &st)) != 0)
@@ -558,12 +581,17 @@ static int warm_kernels(replay *r) {
     for (k = 0; k < nseen && seen[k] != st.effects; k++)
       ;
     if (k == nseen && nseen < 16) {
+      uint32_t variants[2] = {st.effects,
+                              st.effects & ~(uint32_t)RP_EFFECT_AO};
       seen[nseen++] = st.effects;
       rp_sequence_camera(&st, r->vol, &cam);
-      if ((err = use_tf(r, st.tf)) != 0 || (err = ao_now(r, st.effects)) ||
-          (err = render_pass(r, &cam, st.effects, 1.0, NULL, &pr)) != 0 ||
-          (err = render_pass(r, &cam, st.effects, 0.3, NULL, &pr)) != 0)
+      if ((err = use_tf(r, st.tf)) != 0 || (err = ao_now(r, st.effects)))
         return err;
+      for (v = 0; v < (variants[1] != variants[0] ? 2u : 1u); v++)
+        if ((err = render_pass(r, &cam, variants[v], 1.0, NULL, &pr)) !=
+                0 ||
+            (err = render_pass(r, &cam, variants[v], 0.3, NULL, &pr)) != 0)
+          return err;
     }
   }
   return 0;
@@ -646,6 +674,53 @@ static void group_row(const replay *r, frame_row *row) {
 
 /* ---- One controller over the sequence ------------------------------------ */
 
+/* What a device holds for the frames played on it: the device, the TF
+ * on it, its AO and the AO run under way (replay's fields of the same
+ * names). */
+typedef struct device_slot {
+  rp_device *dev;
+  rp_ao_plan *ao_plan;
+  rp_ao_run *ao_run;
+  int tf_active, ao_tf, run_tf;
+} device_slot;
+
+/* Exchanges the replay's device with the slot's: after one call the
+ * replay plays on the slot's device, after a second on its own again. */
+static void slot_swap(replay *r, device_slot *s) {
+  device_slot t = *s;
+  s->dev = r->dev, s->ao_plan = r->ao_plan, s->ao_run = r->ao_run;
+  s->tf_active = r->tf_active, s->ao_tf = r->ao_tf, s->run_tf = r->run_tf;
+  r->dev = t.dev, r->ao_plan = t.ao_plan, r->ao_run = t.ao_run;
+  r->tf_active = t.tf_active, r->ao_tf = t.ao_tf, r->run_tf = t.run_tf;
+}
+
+static int start_state(replay *r);
+
+/* A second device like the replay's (same backend and index), with the
+ * volume, warmed and in the start state: a controller of its own plays
+ * on it. */
+static int slot_open(replay *r, device_slot *s) {
+  int err;
+  memset(s, 0, sizeof *s);
+  s->tf_active = s->ao_tf = s->run_tf = -1;
+  if (cli_open_device(r->ctx, "--backend", r->o.backend, r->o.device,
+                      &r->o.mem, &s->dev) != 0)
+    return 1;
+  if ((err = rp_device_set_volume(s->dev, r->vol)) != 0)
+    return cli_error(r->ctx, "upload", err);
+  slot_swap(r, s);
+  err = warm_kernels(r) != 0 || start_state(r) != 0;
+  slot_swap(r, s);
+  return err;
+}
+
+static void slot_close(device_slot *s) {
+  rp_ao_run_destroy(s->ao_run);
+  rp_ao_plan_destroy(s->ao_plan);
+  rp_device_destroy(s->dev);
+  memset(s, 0, sizeof *s);
+}
+
 /* One controller's part of a replay: its state and its rows. */
 typedef struct player {
   rp_controller_kind kind;
@@ -654,6 +729,8 @@ typedef struct player {
   frame_row *rows;
   uint32_t devices_alive; /* --devices: in its group, after its frames;
                              0 without a group */
+  device_slot slot; /* its own device (AO, frame by frame), when */
+  int own_device;    /* set; else it plays on the replay's */
 } player;
 
 static int player_open(replay *r, player *p) {
@@ -661,7 +738,10 @@ static int player_open(replay *r, player *p) {
   int err;
   cd.kind = p->kind;
   cd.rho_min = rp_space_min_density(&r->space);
-  cd.rho_max = 1.0;
+  cd.rho_max = rp_space_max_density(&r->space);
+  /* The first frame, and NONE's every frame, at the base step: finer is
+   * for a frame the budget is known to allow. */
+  cd.rho_start = fmin(1.0, cd.rho_max);
   if ((err = rp_controller_create(r->ctx, &cd, &p->ctl)) != 0 ||
       (err = rp_cost_model_create(r->ctx, NULL, &p->model)) != 0)
     return cli_error(r->ctx, "controller", err);
@@ -850,34 +930,53 @@ static int out_of_core(const replay *r) {
          bs.out_of_core;
 }
 
-/* Plays the sequence under every controller of `ps`. On one device, in
- * core and without AO, they play frame by frame in turn, the order
- * rotating each frame, so that a burst of the machine's noise (ten
- * frames at +30 % are common on a shared machine) falls on all of them
- * alike: every frame's scene is the same for all, and each keeps its own
- * controller and cost model. With two or more, the device's depth pass
- * is forgotten before each frame, so that none reuses another's
+/* Plays the sequence under every controller of `ps`. On one device and
+ * in core they play frame by frame in turn, the order rotating each
+ * frame, so that a burst of the machine's noise (ten frames at +30 %
+ * are common on a shared machine) falls on all of them alike: every
+ * frame's scene is the same for all, and each keeps its own controller
+ * and cost model. With two or more, the device's depth pass is
+ * forgotten before each frame, so that none reuses another's
  * (rp_device_render skips it for the same camera and scale); a single
- * controller still reuses its own, as it always has. A device group, a
- * brick pool and an AO run hold what one controller's frames did (the
- * devices' models, the bricks loaded, AO progress), so there each
- * controller plays the whole sequence in turn, each from the same start
- * (start_state; a group a fresh one). */
+ * controller still reuses its own, as it always has. A sequence with AO
+ * gives each controller after the first a device of its own (same
+ * backend and index, slot_open), because a device holds what one
+ * controller's frames did to its AO: the run under way, the TF whose AO
+ * it holds. A device group and a brick pool hold such things too (the
+ * devices' models, the bricks loaded), so there each controller plays
+ * the whole sequence in turn, each from the same start (start_state; a
+ * group a fresh one). */
 static int play(replay *r, player *ps, int n) {
   uint32_t total = r->o.settle + r->frames, i;
   int k, rc = 1;
-  if (r->group == NULL && !out_of_core(r) && !sequence_uses_ao(r)) {
+  if (r->group == NULL && !out_of_core(r)) {
     if (!r->o.quiet && n > 1)
-      fprintf(stderr, "replay: %d controllers, frame by frame in turn\n",
-              n);
+      fprintf(stderr, "replay: %d controllers, frame by frame in turn%s\n",
+              n, sequence_uses_ao(r) ? ", a device each (AO)" : "");
+    if (sequence_uses_ao(r)) {
+      for (k = 1; k < n; k++) {
+        ps[k].own_device = 1;
+        if (slot_open(r, &ps[k].slot) != 0)
+          goto out;
+      }
+      if (start_state(r) != 0)
+        goto out;
+    }
     for (k = 0; k < n; k++)
       if (player_open(r, &ps[k]) != 0)
         goto out;
     for (i = 0; i < total; i++)
       for (k = 0; k < n; k++) {
+        player *p = &ps[(i + (uint32_t)k) % (uint32_t)n];
+        int err;
+        if (p->own_device)
+          slot_swap(r, &p->slot);
         if (n > 1)
           rp_device_forget_depth(r->dev);
-        if (play_frame(r, &ps[(i + (uint32_t)k) % (uint32_t)n], i) != 0)
+        err = play_frame(r, p, i);
+        if (p->own_device)
+          slot_swap(r, &p->slot);
+        if (err != 0)
           goto out;
       }
   } else {
@@ -899,8 +998,11 @@ static int play(replay *r, player *ps, int n) {
   }
   rc = 0;
 out:
-  for (k = 0; k < n; k++)
+  for (k = 0; k < n; k++) {
     player_close(&ps[k]);
+    slot_close(&ps[k].slot);
+    ps[k].own_device = 0;
+  }
   return rc;
 }
 
@@ -910,7 +1012,7 @@ out:
 #define SWITCH_AFTER 2
 
 static void summarise(rp_controller_kind kind, const frame_row *rows,
-                      uint32_t n, summary *s) {
+                      uint32_t n, double rho_max, summary *s) {
   uint32_t i, over = 0, sig_n = 0, open_n = 0, since_switch = UINT32_MAX;
   double se_open = 0;
   double se = 0, se_rel = 0, pe = 0, sig = 0, dens = 0, ov = 0, oh = 0;
@@ -925,7 +1027,7 @@ static void summarise(rp_controller_kind kind, const frame_row *rows,
     se_rel += rel * rel;
     /* A frame at the finest density that is still under the target had
      * no better choice: it is left out of rmse_open. */
-    if (!(w->rho >= 1.0 && d < 0.0)) {
+    if (!(w->rho >= rho_max && d < 0.0)) {
       se_open += d * d;
       open_n++;
     }
@@ -1051,7 +1153,7 @@ static int write_plot(const char *png, const char *csv, const summary *sums,
                "with lines title '%s'",
             rp_controller_name(sums[k].kind),
             rp_controller_name(sums[k].kind));
-  fprintf(g, "\nset xlabel 'frame'\nset ylabel 'density (1 = finest)'\n"
+  fprintf(g, "\nset xlabel 'frame'\nset ylabel 'density (1 = base step, full size)'\n"
              "set logscale y\nplot ");
   for (k = 0; k < nctl; k++) {
     fprintf(g, "%s", k ? ", " : "");
@@ -1272,7 +1374,7 @@ static int open_scene(replay *r) {
     return cli_error(r->ctx, "sequence", err);
   if ((err = rp_occupancy_build(r->ctx, r->h, r->tfs[st.tf], &r->occ)) != 0)
     return cli_error(r->ctx, "occupancy", err);
-  r->tf_active = st.tf;
+  r->tf_active = r->occ_tf = st.tf;
   r->ao_tf = -1;
   if (r->o.ndevices > 0) {
     if (open_group(r) != 0)
@@ -1287,6 +1389,7 @@ static int open_scene(replay *r) {
   }
   r->space.space = r->o.space;
   r->space.base_step = r->o.base_step;
+  r->space.min_step = r->o.min_step; /* 0, or over base_step: base_step */
   rp_tile_grid(r->o.width, r->o.height, &tx, &ty);
   r->scaled = malloc(px * 4);
   r->image = malloc(px * 4);
@@ -1375,7 +1478,8 @@ int cli_cmd_replay(int argc, char **argv) {
   if (play(&r, players, nctl) != 0)
     goto out;
   for (k = 0; k < nctl; k++) {
-    summarise(kinds[k], rows[k], r.frames, &sums[k]);
+    summarise(kinds[k], rows[k], r.frames, rp_space_max_density(&r.space),
+              &sums[k]);
     sums[k].devices_alive = players[k].devices_alive;
   }
   if (r.o.json) {

@@ -26,8 +26,10 @@ extern "C" {
 /* ---- Sampling density and tuning spaces -------------------------------- */
 
 /** Where quality is traded for time. Density rho = scale^2 * base_step /
- *  step: 1 is the finest image (base step, full resolution); frame time
- *  is close to linear in it (rays x samples per ray). */
+ *  step: 1 is the base step at full resolution; frame time is close to
+ *  linear in it (rays x samples per ray). Above 1 (min_step under
+ *  base_step), only the step refines: the image is never rendered above
+ *  the output's resolution, and pure image space stops at 1. */
 typedef enum rp_space {
   RP_SPACE_RAY = 0,    /* step changes, full resolution */
   RP_SPACE_IMAGE = 1,  /* image scale changes (upscaled to the output) */
@@ -40,14 +42,20 @@ typedef struct rp_space_desc {
   float base_step;   /* step at rho = 1, voxels; 0: 1.0 */
   float max_step;    /* coarsest step; 0: 16 * base_step */
   float min_scale;   /* smallest image scale; 0: 0.125 */
+  float min_step;    /* finest step; 0 (or above base_step): base_step,
+                        no density above 1 */
 } rp_space_desc;
 
 /** The step and image scale that give density rho in d's space (rho
- *  clamped to [rp_space_min_density(d), 1]). \since 0.1 */
+ *  clamped to [rp_space_min_density(d), rp_space_max_density(d)]).
+ *  \since 0.1 */
 RP_API void rp_space_map(const rp_space_desc *d, double rho, float *step,
                          float *scale);
 /** The smallest density d's space can reach. \since 0.1 */
 RP_API double rp_space_min_density(const rp_space_desc *d);
+/** The largest: base_step / min_step in ray and hybrid space, 1 in image
+ *  space. \since 0.1 */
+RP_API double rp_space_max_density(const rp_space_desc *d);
 /** "ray", "image", "hybrid"; and the reverse (RP_EINVAL if unknown).
  *  \since 0.1 */
 RP_API const char *rp_space_name(rp_space space);
@@ -67,7 +75,7 @@ typedef struct rp_tune_desc {
                          the search's start; 0: no damping, start at
                          rho_max (first frame) */
   double rho_min;     /* 0: 1e-3; 0 < rho_min <= rho_max */
-  double rho_max;     /* 0: 1; at most 1 */
+  double rho_max;     /* 0: 1; rp_space_max_density() for the space */
   double raise_limit; /* largest rise of rho per frame, >= 1;
                          0: 1 / 0.8 */
   int max_iters;      /* predictions per frame; 0: 8 */
@@ -138,7 +146,7 @@ typedef struct rp_controller rp_controller;
 typedef struct rp_controller_desc {
   rp_controller_kind kind;
   double rho_min;     /* 0: 1e-3; 0 < rho_min <= rho_max */
-  double rho_max;     /* 0: 1; at most 1 */
+  double rho_max;     /* 0: 1; rp_space_max_density() for the space */
   double rho_start;   /* the density before the first frame, in
                          [rho_min, rho_max]; 0: rho_max. NONE renders it
                          every frame; LAST_FRAME, VTK and UE5 render it on

@@ -153,9 +153,9 @@ static int check_desc(rp_context *ctx, const rp_controller_desc *d) {
     if (!isfinite(f[i].v))
       return rp__fail(ctx, RP_ENOTFINITE, "controller: field '%s' is %g",
                       f[i].name, f[i].v);
-  if (!(d->rho_min > 0) || d->rho_min > d->rho_max || d->rho_max > 1)
+  if (!(d->rho_min > 0) || d->rho_min > d->rho_max)
     return rp__fail(ctx, RP_EINVAL, "controller: need 0 < rho_min (%g) <= "
-                    "rho_max (%g) <= 1", d->rho_min, d->rho_max);
+                    "rho_max (%g)", d->rho_min, d->rho_max);
   if (d->rho_start < d->rho_min || d->rho_start > d->rho_max)
     return rp__fail(ctx, RP_EINVAL, "controller: field 'rho_start' = %g is "
                     "not in [rho_min, rho_max] = [%g, %g]", d->rho_start,

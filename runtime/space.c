@@ -11,7 +11,13 @@
  *   factor reaches its bound the other takes the rest. An even split in
  *   the logarithm degrades both the same relative amount: seed 000 §7.6
  *   finds that neither pure space wins everywhere (under-sampling along
- *   rays shows on thin structures, image scaling blurs edges). */
+ *   rays shows on thin structures, image scaling blurs edges).
+ * Above 1 (a min_step under base_step), ray and hybrid space refine the
+ * step alone, down to min_step: a scale above 1 would render more rays
+ * than the output has pixels, which the upscale cannot use. A frame
+ * whose TF leaves budget over at the base step (an opaque TF ends its
+ * rays early) then spends it on samples between voxels, which brings
+ * the image closer to the fine reference (raypace bench quality). */
 #include <math.h>
 #include <string.h>
 
@@ -36,6 +42,9 @@ static rp_space_desc space_defaults(const rp_space_desc *in) {
     d.min_scale = 1.0f;
   if (!(d.min_scale > 0.0f))
     d.min_scale = 0.125f;
+  if (!(d.min_step > 0.0f) || !isfinite(d.min_step) ||
+      d.min_step > d.base_step || d.space == RP_SPACE_IMAGE)
+    d.min_step = d.base_step;
   return d;
 }
 
@@ -54,12 +63,28 @@ double rp_space_min_density(const rp_space_desc *in) {
   return exp(-(ray + image));
 }
 
+double rp_space_max_density(const rp_space_desc *in) {
+  rp_space_desc d = space_defaults(in);
+  return (double)d.base_step / (double)d.min_step;
+}
+
 void rp_space_map(const rp_space_desc *in, double rho, float *step,
                   float *scale) {
   rp_space_desc d = space_defaults(in);
   double ray_max, image_max, h, ray, image;
+  if (rho > 1.0) {
+    /* Finer than the base step; NaN does not get here. */
+    double top = (double)d.base_step / (double)d.min_step;
+    *scale = 1.0f;
+    *step = rho >= top ? d.min_step
+                       : fminf(fmaxf((float)((double)d.base_step / rho),
+                                     d.min_step),
+                               d.base_step);
+    return;
+  }
   reductions(&d, &ray_max, &image_max);
-  /* NaN and rho > 1 give the finest setting: never a NaN step. */
+  /* NaN and rho = 1 give the base step at full resolution: never a NaN
+   * step. */
   h = !(rho < 1.0) ? 0.0 : rho > 0.0 ? -log(rho) : INFINITY;
   if (h > ray_max + image_max)
     h = ray_max + image_max;

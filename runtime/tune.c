@@ -83,7 +83,7 @@ static int check_desc(const rp_tune_desc *d) {
       return rp__fail(NULL, RP_ENOTFINITE, "tune: field '%s' is %g",
                       f[i].name, f[i].v);
   if (!(d->target_ms > 0) || d->rho_prev < 0 || !(d->rho_min > 0) ||
-      d->rho_min > d->rho_max || d->rho_max > 1 || d->raise_limit < 1 ||
+      d->rho_min > d->rho_max || d->raise_limit < 1 ||
       d->max_iters < 1 || !(d->tolerance > 0 && d->tolerance < 1) ||
       !(d->max_time_us > 0))
     return rp__fail(NULL, RP_EINVAL, "tune: a field is out of range");

@@ -55,20 +55,44 @@ static void test_space_closed_forms(void **state) {
   rp_space_map(&d, 1.0 / 32, &st, &sc);
   assert_float_equal(st, 2.0, 1e-6);
   assert_float_equal(sc, 0.25, 1e-6);
+  /* Above 1, a min_step under the base step: the step alone refines,
+   * to min_step and no further; pure image space stops at 1. A
+   * min_step over the base step, or none, is the base step. */
+  memset(&d, 0, sizeof(d));
+  d.min_step = 0.25f;
+  for (i = 0; i < 3; i++) {
+    d.space = (rp_space)i;
+    rp_space_map(&d, 2.0, &st, &sc);
+    assert_float_equal(st, i == RP_SPACE_IMAGE ? 1.0 : 0.5, 1e-7);
+    assert_float_equal(sc, 1.0, 0.0);
+    rp_space_map(&d, 7.0, &st, &sc);
+    assert_float_equal(st, i == RP_SPACE_IMAGE ? 1.0 : 0.25, 0.0);
+    rp_space_map(&d, NAN, &st, &sc);
+    assert_float_equal(st, 1.0, 0.0);
+    assert_float_equal(rp_space_max_density(&d),
+                       i == RP_SPACE_IMAGE ? 1.0 : 4.0, 0.0);
+  }
+  d.min_step = 3.0f;
+  assert_float_equal(rp_space_max_density(&d), 1.0, 0.0);
+  d.min_step = NAN;
+  assert_float_equal(rp_space_max_density(&d), 1.0, 0.0);
   /* The identity rho = scale^2 * base / step, in every space, for
-   * densities inside the bounds; base step 0.5. */
+   * densities inside the bounds; base step 0.5, min_step 0.0625. */
   for (i = 0; i < 3; i++) {
     int k;
     memset(&d, 0, sizeof(d));
     d.space = (rp_space)i;
     d.base_step = 0.5f;
+    d.min_step = 0.0625f;
     for (k = 0; k < 50; k++) {
-      double lo = rp_space_min_density(&d);
-      double rho = lo * pow(1.0 / lo, k / 49.0);
+      double lo = rp_space_min_density(&d), hi = rp_space_max_density(&d);
+      double rho = lo * pow(hi / lo, k / 49.0);
       rp_space_map(&d, rho, &st, &sc);
       assert_float_equal((double)sc * sc * 0.5 / st, rho, 1e-5 * rho);
-      assert_true(st >= 0.5f && st <= 8.0f);
+      assert_true(st >= (i == RP_SPACE_IMAGE ? 0.5f : 0.0625f) &&
+                  st <= 8.0f);
       assert_true(sc >= 0.125f && sc <= 1.0f);
+      assert_true(rho <= 1.0 || sc == 1.0f);
     }
   }
   /* A min_scale above 1 means no image scaling: clamped, not replaced. */

@@ -406,6 +406,17 @@ static void tune_damping_lift(void **state) {
   assert_true(r.predicted_ms == 2.5);
   assert_int_equal(r.limited, 1);
   assert_int_equal(r.iters, m.calls);
+  /* The same with rho_max 8 (a step an eighth of the base), first
+   * frame: past 1 to the band [0.99, 1] of the target, rho in [3.96, 4]. */
+  memset(&m, 0, sizeof m);
+  memset(&d, 0, sizeof d);
+  m.a = 2.5;
+  d.target_ms = 10;
+  d.rho_max = 8;
+  d.max_time_us = NO_TIME_LIMIT_US;
+  assert_int_equal(rp_tune(&d, m_linear, &m, &r), 0);
+  assert_true(r.rho <= 4.0 && r.rho >= 0.99 * 4.0);
+  assert_int_equal(r.limited, 0);
   /* Just over a quarter: not rho_max, but the density whose t' is in
    * the band [0.99, 1] of a quarter of the target. */
   memset(&m, 0, sizeof m);
@@ -542,8 +553,6 @@ static void tune_bad_desc(void **state) {
   d.rho_max = 0;
   assert_int_equal(rp_tune(&d, m_linear, &m, &r), RP_EINVAL);
   d.rho_min = 0;
-  d.rho_max = 2;
-  assert_int_equal(rp_tune(&d, m_linear, &m, &r), RP_EINVAL);
   d.rho_max = 0;
   d.raise_limit = 0.5;
   assert_int_equal(rp_tune(&d, m_linear, &m, &r), RP_EINVAL);
@@ -560,6 +569,11 @@ static void tune_bad_desc(void **state) {
   assert_int_equal(rp_tune(&d, m_linear, &m, &r), RP_ENOTFINITE);
   assert_memory_equal(&r, &before, sizeof r);
   assert_int_equal(m.calls, 0);
+  /* A density above 1 is a step under the base step: allowed. */
+  d.max_time_us = 0;
+  d.rho_max = 2;
+  assert_int_equal(rp_tune(&d, m_linear, &m, &r), 0);
+  assert_true(r.rho == 2.0); /* t' = rho: 2 ms of 10 at most */
 }
 
 /* ---- controllers ------------------------------------------------------- */
@@ -1055,7 +1069,7 @@ static void controller_bad_desc(void **state) {
   d.rho_max = 0.4;
   assert_int_equal(rp_controller_create(ctx, &d, &c), RP_EINVAL);
   d.rho_min = 0;
-  d.rho_max = 1.5;
+  d.rho_max = -1;
   assert_int_equal(rp_controller_create(ctx, &d, &c), RP_EINVAL);
   d.rho_max = 0.5;
   d.rho_start = 0.7;

@@ -130,16 +130,28 @@ if [ "$(head -1 "$dir/r.csv" | cut -d, -f1-5)" = \
 # AO in steps: frames before the switch at 40 render with AO; the switch
 # starts a new AO run, the frames during it render without AO, and one
 # before frame 50 renders with it again (24^3: eight 16^3 jobs at most,
-# at least one per frame).
+# at least one per frame). All seven controllers, frame by frame in
+# turn, each on a device of its own: each sees the same, none another's
+# run.
 check "replay ao" "$rp" replay gen:phantom:24 --backend reference \
   --sequence ao-tf-switch --frames 50 --settle 2 --size 32x32 \
-  --controller predicted --quiet --csv "$dir/ao.csv"
+  --quiet --csv "$dir/ao.csv"
 ao_col=$(head -1 "$dir/ao.csv" | tr ',' '\n' | grep -nx ao | cut -d: -f1)
-ao_of() { awk -F, -v c="$ao_col" -v f="$1" '$2 == f { print $c }' \
+ao_of() { awk -F, -v c="$ao_col" -v f="$1" '$2 == f { printf "%s", $c }' \
   "$dir/ao.csv"; }
-if [ -n "$ao_col" ] && [ "$(ao_of 39)" = 1 ] && [ "$(ao_of 40)" = 0 ] &&
-   [ "$(ao_of 49)" = 1 ]; then pass=$((pass + 1)); else
+if [ -n "$ao_col" ] && [ "$(ao_of 39)" = 1111111 ] &&
+   [ "$(ao_of 40)" = 0000000 ] && [ "$(ao_of 49)" = 1111111 ]; then
+  pass=$((pass + 1)); else
   echo "FAIL: replay ao (frames 39/40/49: $(ao_of 39)/$(ao_of 40)/$(ao_of 49))"
+  fails=$((fails + 1)); fi
+# Each controller's run is its own: every one renders at least two frames
+# of 40..49 without AO (here seven; one run shared by all seven would be
+# done within the first two rounds, one frame each for most).
+short=$(awk -F, -v c="$ao_col" 'NR > 1 && $2 >= 40 && $2 < 50 {
+          n[$1] += ($c == 0) } END { for (k in n) if (n[k] < 2) print k }' \
+        "$dir/ao.csv")
+if [ -n "$ao_col" ] && [ -z "$short" ]; then pass=$((pass + 1)); else
+  echo "FAIL: replay ao runs (under two frames without AO: $short)"
   fails=$((fails + 1)); fi
 # Back to the first TF while the second's AO is still being computed: the
 # devices still hold the first's AO, so that frame renders with it, and
@@ -153,9 +165,9 @@ cat >"$dir/back.json" <<'EOF'
 EOF
 check "replay ao back" "$rp" replay gen:phantom:24 --backend reference \
   --sequence "$dir/back.json" --settle 2 --size 32x32 \
-  --controller predicted --quiet --csv "$dir/ao.csv"
-if [ "$(ao_of 3)" = 1 ] && [ "$(ao_of 4)" = 0 ] && [ "$(ao_of 5)" = 1 ]
-then pass=$((pass + 1)); else
+  --quiet --csv "$dir/ao.csv"
+if [ "$(ao_of 3)" = 1111111 ] && [ "$(ao_of 4)" = 0000000 ] &&
+   [ "$(ao_of 5)" = 1111111 ]; then pass=$((pass + 1)); else
   echo "FAIL: replay ao back (frames 3/4/5: $(ao_of 3)/$(ao_of 4)/$(ao_of 5))"
   fails=$((fails + 1)); fi
 check "replay table" "$rp" replay gen:ml:16 --backend reference \
@@ -170,6 +182,20 @@ refuse "replay targets" "exclude each other" "$rp" replay gen:ml:8 \
   --target-ms 5 --target-fraction 0.5
 refuse "replay space" "bad value 'diagonal' for --space" "$rp" replay \
   gen:ml:8 --space diagonal
+refuse "replay min step" "over the base step" "$rp" replay gen:ml:8 \
+  --min-step 2
+# A budget far above any frame's cost, --min-step a quarter of the base
+# step: the predicted controller ends at the finest step (density 4),
+# NONE stays at the base step.
+check "replay min step" "$rp" replay gen:ml:16 --backend reference \
+  --sequence orbit --frames 6 --settle 2 --size 16x16 --target-ms 1000 \
+  --min-step 0.25 --quiet --csv "$dir/ms.csv"
+last_of() { awk -F, -v c="$1" '$1 == c && $2 == 5 { print $8 "/" $9 }' \
+  "$dir/ms.csv"; }
+if [ "$(last_of predicted)" = "4.00000/0.2500" ] &&
+   [ "$(last_of none)" = "1.00000/1.0000" ]; then pass=$((pass + 1)); else
+  echo "FAIL: replay min step (predicted $(last_of predicted), none" \
+    "$(last_of none))"; fails=$((fails + 1)); fi
 if command -v gnuplot >/dev/null 2>&1; then
   check "replay plot" "$rp" replay gen:ml:16 --backend reference \
     --sequence zoom-in --frames 6 --settle 1 --size 16x16 --quiet \
