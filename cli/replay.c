@@ -696,18 +696,26 @@ static void slot_swap(replay *r, device_slot *s) {
 
 static int start_state(replay *r);
 
-/* A second device like the replay's (same backend and index), with the
- * volume, warmed and in the start state: a controller of its own plays
- * on it. */
+/* A second device like the replay's (the backend it opened, the same
+ * index), with the volume, warmed and in the start state: a controller
+ * of its own plays on it. -1 when the device cannot be had (the MPI
+ * backend has one device per rank; memory for another copy of the
+ * volume may be short): rp_last_error says why, and the caller plays
+ * the controllers in turn instead. 1 on any other failure (reported). */
 static int slot_open(replay *r, device_slot *s) {
+  rp_device_desc dd = {0};
+  rp_caps caps;
   int err;
   memset(s, 0, sizeof *s);
   s->tf_active = s->ao_tf = s->run_tf = -1;
-  if (cli_open_device(r->ctx, "--backend", r->o.backend, r->o.device,
-                      &r->o.mem, &s->dev) != 0)
-    return 1;
-  if ((err = rp_device_set_volume(s->dev, r->vol)) != 0)
-    return cli_error(r->ctx, "upload", err);
+  rp_device_get_caps(r->dev, &caps);
+  dd.backend = r->o.backend != NULL ? r->o.backend : caps.backend;
+  dd.index = r->o.device;
+  dd.budget_bytes = r->o.mem.budget_bytes;
+  dd.brick_size = r->o.mem.brick_size;
+  if (rp_device_create(r->ctx, &dd, &s->dev) != 0 ||
+      rp_device_set_volume(s->dev, r->vol) != 0)
+    return -1;
   slot_swap(r, s);
   err = warm_kernels(r) != 0 || start_state(r) != 0;
   slot_swap(r, s);
@@ -739,9 +747,6 @@ static int player_open(replay *r, player *p) {
   cd.kind = p->kind;
   cd.rho_min = rp_space_min_density(&r->space);
   cd.rho_max = rp_space_max_density(&r->space);
-  /* The first frame, and NONE's every frame, at the base step: finer is
-   * for a frame the budget is known to allow. */
-  cd.rho_start = fmin(1.0, cd.rho_max);
   if ((err = rp_controller_create(r->ctx, &cd, &p->ctl)) != 0 ||
       (err = rp_cost_model_create(r->ctx, NULL, &p->model)) != 0)
     return cli_error(r->ctx, "controller", err);
@@ -948,20 +953,33 @@ static int out_of_core(const replay *r) {
  * group a fresh one). */
 static int play(replay *r, player *ps, int n) {
   uint32_t total = r->o.settle + r->frames, i;
-  int k, rc = 1;
-  if (r->group == NULL && !out_of_core(r)) {
+  int k, rc = 1, in_turn = r->group == NULL && !out_of_core(r);
+  if (in_turn && n > 1 && sequence_uses_ao(r)) {
+    int got = 0;
+    for (k = 1; k < n && got == 0; k++) {
+      ps[k].own_device = 1;
+      got = slot_open(r, &ps[k].slot);
+    }
+    if (got > 0)
+      goto out;
+    if (got < 0) {
+      if (!r->o.quiet)
+        fprintf(stderr, "replay: no device for each controller (%s): "
+                        "each plays the whole sequence in turn\n",
+                rp_last_error(r->ctx));
+      for (k = 0; k < n; k++) {
+        slot_close(&ps[k].slot);
+        ps[k].own_device = 0;
+      }
+      in_turn = 0;
+    } else if (start_state(r) != 0) {
+      goto out;
+    }
+  }
+  if (in_turn) {
     if (!r->o.quiet && n > 1)
       fprintf(stderr, "replay: %d controllers, frame by frame in turn%s\n",
-              n, sequence_uses_ao(r) ? ", a device each (AO)" : "");
-    if (sequence_uses_ao(r)) {
-      for (k = 1; k < n; k++) {
-        ps[k].own_device = 1;
-        if (slot_open(r, &ps[k].slot) != 0)
-          goto out;
-      }
-      if (start_state(r) != 0)
-        goto out;
-    }
+              n, ps[n - 1].own_device ? ", a device each (AO)" : "");
     for (k = 0; k < n; k++)
       if (player_open(r, &ps[k]) != 0)
         goto out;

@@ -1,7 +1,8 @@
 /* raypace pacing: hold a frame-time target (DESIGN sections 5 and 6).
  *
  * Three parts, usable on their own:
- * - sampling density and the tuning spaces: one number rho in (0, 1]
+ * - sampling density and the tuning spaces: one number rho (1: the base
+ *   step at full size; above 1 only with a min_step under the base step)
  *   that frame time is (nearly) linear in, and its mapping to a step and
  *   an image scale in ray, image or hybrid space;
  * - the cost model: a probe of the frame (the depth pass and ERT
@@ -43,7 +44,9 @@ typedef struct rp_space_desc {
   float max_step;    /* coarsest step; 0: 16 * base_step */
   float min_scale;   /* smallest image scale; 0: 0.125 */
   float min_step;    /* finest step; 0 (or above base_step): base_step,
-                        no density above 1 */
+                        no density above 1. The cost model's step
+                        feature stops at 1/8 voxel (S' does not).
+                        \since 0.2 */
 } rp_space_desc;
 
 /** The step and image scale that give density rho in d's space (rho
@@ -54,7 +57,7 @@ RP_API void rp_space_map(const rp_space_desc *d, double rho, float *step,
 /** The smallest density d's space can reach. \since 0.1 */
 RP_API double rp_space_min_density(const rp_space_desc *d);
 /** The largest: base_step / min_step in ray and hybrid space, 1 in image
- *  space. \since 0.1 */
+ *  space. \since 0.2 */
 RP_API double rp_space_max_density(const rp_space_desc *d);
 /** "ray", "image", "hybrid"; and the reverse (RP_EINVAL if unknown).
  *  \since 0.1 */
@@ -148,7 +151,8 @@ typedef struct rp_controller_desc {
   double rho_min;     /* 0: 1e-3; 0 < rho_min <= rho_max */
   double rho_max;     /* 0: 1; rp_space_max_density() for the space */
   double rho_start;   /* the density before the first frame, in
-                         [rho_min, rho_max]; 0: rho_max. NONE renders it
+                         [rho_min, rho_max]; 0: 1 clamped to them. NONE
+                         renders it
                          every frame; LAST_FRAME, VTK and UE5 render it on
                          the first frame, VALVE its highest ladder level
                          not above it; PREDICTED uses it as the first

@@ -126,8 +126,10 @@ static rp_controller_desc controller_defaults(const rp_controller_desc *in) {
     d.rho_min = RP__RHO_MIN;
   if (d.rho_max == 0)
     d.rho_max = RP__RHO_MAX;
+  /* Density 1 (the base step at full size) unless the bounds exclude it:
+   * a density above 1 is for a frame the budget is known to allow. */
   if (d.rho_start == 0)
-    d.rho_start = d.rho_max;
+    d.rho_start = fmax(d.rho_min, fmin(1.0, d.rho_max));
   if (d.raise_limit == 0)
     d.raise_limit = RP__RAISE_LIMIT;
   /* vtk_f = 0 stays: VTK's own f depends on each frame's target, so

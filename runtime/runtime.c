@@ -388,9 +388,6 @@ static int recompute(rp_runtime *rt) {
     cd.kind = s->controller_kind;
     cd.rho_min = rp_space_min_density(&rt->space);
     cd.rho_max = rp_space_max_density(&rt->space);
-    /* The first frame, and NONE's every frame, at the base step: finer
-     * is for a frame the budget is known to allow. */
-    cd.rho_start = fmin(1.0, cd.rho_max);
     if ((err = rp_controller_create(rt->ctx, &cd, &c)) != 0)
       return err;
     rp_controller_destroy(s->controller);

@@ -69,11 +69,17 @@ static void test_space_closed_forms(void **state) {
     assert_float_equal(st, i == RP_SPACE_IMAGE ? 1.0 : 0.25, 0.0);
     rp_space_map(&d, NAN, &st, &sc);
     assert_float_equal(st, 1.0, 0.0);
+    rp_space_map(&d, INFINITY, &st, &sc);
+    assert_float_equal(st, i == RP_SPACE_IMAGE ? 1.0 : 0.25, 0.0);
+    assert_float_equal(sc, 1.0, 0.0);
     assert_float_equal(rp_space_max_density(&d),
                        i == RP_SPACE_IMAGE ? 1.0 : 4.0, 0.0);
   }
   d.min_step = 3.0f;
   assert_float_equal(rp_space_max_density(&d), 1.0, 0.0);
+  rp_space_map(&d, 2.0, &st, &sc);
+  assert_float_equal(st, 1.0, 0.0);
+  assert_float_equal(sc, 1.0, 0.0);
   d.min_step = NAN;
   assert_float_equal(rp_space_max_density(&d), 1.0, 0.0);
   /* The identity rho = scale^2 * base / step, in every space, for

@@ -670,6 +670,39 @@ static void controller_none(void **state) {
   rp_context_destroy(ctx);
 }
 
+/* Densities above 1 (a step under the base step): rho_max 4 is taken.
+ * The start defaults to 1 clamped to the bounds; LAST_FRAME on a plant of
+ * 2 rho ms against 10 ms wants 5, rises by 1.25x a frame from 1 and stops
+ * at rho_max. */
+static void controller_above_one(void **state) {
+  static const double want[] = {1,           1.25,          1.5625,
+                                1.953125,    2.44140625,    3.0517578125,
+                                3.814697265625, 4,          4};
+  rp_context *ctx = rp_test_context();
+  rp_controller_desc d = {0};
+  rp_controller *c = NULL;
+  plant cheap = {2, 0};
+  size_t f;
+  (void)state;
+  d.kind = RP_CONTROL_NONE;
+  d.rho_max = 4;
+  assert_int_equal(rp_controller_create(ctx, &d, &c), 0);
+  assert_true(frame(c, 10, &cheap, NULL, NULL, NULL) == 1.0);
+  rp_controller_destroy(c);
+  d.rho_min = 2;
+  assert_int_equal(rp_controller_create(ctx, &d, &c), 0);
+  assert_true(frame(c, 10, &cheap, NULL, NULL, NULL) == 2.0);
+  rp_controller_destroy(c);
+  d.kind = RP_CONTROL_LAST_FRAME;
+  d.rho_min = 0;
+  assert_int_equal(rp_controller_create(ctx, &d, &c), 0);
+  for (f = 0; f < sizeof want / sizeof want[0]; f++)
+    assert_float_equal(frame(c, 10, &cheap, NULL, NULL, NULL), want[f],
+                       1e-12 * want[f]);
+  rp_controller_destroy(c);
+  rp_context_destroy(ctx);
+}
+
 /* rho <- rho * target / t_last, a rise capped at 1 / 0.8. Target 10,
  * plant 20 rho + 1 from rho 1: 10/21, 100/221, 1000/2221,
  * 10000/22221; then the plant turns cheap (2 rho + 1) and each rise is
@@ -1197,6 +1230,7 @@ int main(void) {
       cmocka_unit_test(tune_bad_desc),
       cmocka_unit_test(controller_names),
       cmocka_unit_test(controller_none),
+      cmocka_unit_test(controller_above_one),
       cmocka_unit_test(controller_last_frame),
       cmocka_unit_test(controller_two_pass),
       cmocka_unit_test(controller_predicted_vs_last_frame),
