@@ -1043,8 +1043,8 @@ static void summarise(rp_controller_kind kind, const frame_row *rows,
     double d = w->measured_ms - w->target_ms, rel = d / w->target_ms;
     se += d * d;
     se_rel += rel * rel;
-    /* A frame at the finest density that is still under the target had
-     * no better choice: it is left out of rmse_open. */
+    /* A frame at the top density that is still under the target had no
+     * better choice: it is left out of rmse_open. */
     if (!(w->rho >= rho_max && d < 0.0)) {
       se_open += d * d;
       open_n++;
@@ -1171,7 +1171,8 @@ static int write_plot(const char *png, const char *csv, const summary *sums,
                "with lines title '%s'",
             rp_controller_name(sums[k].kind),
             rp_controller_name(sums[k].kind));
-  fprintf(g, "\nset xlabel 'frame'\nset ylabel 'density (1 = base step, full size)'\n"
+  fprintf(g, "\nset xlabel 'frame'\n"
+             "set ylabel 'density (1 = base step, full size)'\n"
              "set logscale y\nplot ");
   for (k = 0; k < nctl; k++) {
     fprintf(g, "%s", k ? ", " : "");

@@ -1,8 +1,9 @@
 /* Sampling density and the three tuning spaces (DESIGN section 6).
  *
  * Density rho = scale^2 * base_step / step: rays per output pixel times
- * samples per voxel of depth, relative to the base step at full size. Frame time
- * is close to linear in it, which is what lets the tuner extrapolate.
+ * samples per voxel of depth, relative to the base step at full size.
+ * Frame time is close to linear in it, which is what lets the tuner
+ * extrapolate.
  * Each space turns a rho into a (step, scale) pair:
  * - ray: scale 1, step = base_step / rho;
  * - image: step = base_step, scale = sqrt(rho);
