@@ -931,7 +931,8 @@ int rp_cost_train(rp_cost_model *m, const rp_frame_probe *p, float step,
                   float scale, uint64_t samples, double raycast_ms,
                   double frame_ms) {
   static const char fn[] = "rp_cost_train";
-  double x[RP_COST_FEATURES], ls, lk, est, fetches, base_ms, rays;
+  const double *x;
+  double ls, lk, est, fetches, base_ms, rays;
   rp_cost_estimate e;
   int err;
   if (m == NULL)
@@ -947,26 +948,27 @@ int rp_cost_train(rp_cost_model *m, const rp_frame_probe *p, float step,
   /* A raycast the device could not time (0) costs the whole frame. */
   if (raycast_ms == 0.0 || raycast_ms > frame_ms)
     raycast_ms = frame_ms;
-  fetches = fetches_per_sample(p, step) * (double)samples;
+  /* t' without Q as the controller saw it, before this frame is learned:
+   * what Q's ratio is taken against. Its features, S' and k are this
+   * frame's too. */
+  if (rp_cost_predict(m, p, step, scale, &e) != 0)
+    return RP_EINVAL; /* checked above; said for readers */
+  x = e.features;
+  est = e.samples;
+  fetches = e.fetches * (double)samples;
   /* Everything is checked before anything is learned: a time so large
    * that its cost per fetch overflows is refused whole. What sigma_learn
    * takes the log of lies between SIGMA_SHARE of this and this. */
   ls = samples > 0 && raycast_ms > 0.0
            ? log(SIGMA_SHARE * raycast_ms * 1e6 / fetches)
            : 0.0;
-  rays = rays_at(p, scale);
-  est = estimate_samples(p, step, rays);
   lk = samples > 0 && est > 0.0 ? log((double)samples / est) : 0.0;
   if (!isfinite(ls) || !isfinite(lk))
     return rp__fail(m->ctx, RP_ERANGE, "%s: raycast_ms %g for %llu "
                     "samples is out of range", fn, raycast_ms,
                     (unsigned long long)samples);
-  /* t' without Q as the controller saw it, before this frame is learned:
-   * what Q's ratio is taken against. */
-  if (rp_cost_predict(m, p, step, scale, &e) != 0)
-    return RP_EINVAL; /* checked above; said for readers */
+  rays = rays_at(p, scale);
   base_ms = e.ms / e.frame_factor;
-  features(p, step, scale, x);
   (void)mean_add(&m->c0[scale < 1.0f], frame_ms - raycast_ms);
   /* A frame with no sample (all empty) or no measurable time says
    * nothing about the cost of a fetch. */
