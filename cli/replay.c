@@ -94,6 +94,20 @@ typedef struct summary {
   uint32_t devices_alive; /* --devices: at the end of the run */
 } summary;
 
+/* What the device played on holds for the frames played on it: the
+ * device (NULL with a group), the TF on it, its AO, and AO as the runtime
+ * does it: computed in steps over frames for the active TF, frames
+ * rendering without AO until it is ready. A controller with a device of
+ * its own keeps its slot in its player (play()). */
+typedef struct device_slot {
+  rp_device *dev;
+  rp_ao_plan *ao_plan;
+  rp_ao_run *ao_run;
+  int tf_active; /* the TF the device(s) hold */
+  int ao_tf;     /* the TF whose AO the devices hold; -1: none */
+  int run_tf;    /* the TF ao_run computes for */
+} device_slot;
+
 typedef struct replay {
   replay_opts o;
   rp_context *ctx;
@@ -101,10 +115,10 @@ typedef struct replay {
   rp_histograms *h;
   rp_occupancy *occ;
   rp_tf **tfs;
-  int tf_count, tf_active; /* tf_active: the TF the device(s) hold */
-  int occ_tf;              /* the TF occ is built for */
-  rp_device *dev;
-  rp_device_group *group; /* --devices, instead of dev */
+  int tf_count;
+  int occ_tf; /* the TF occ is built for */
+  device_slot on;
+  rp_device_group *group; /* --devices, instead of on.dev */
   int group_used;         /* its models have learned from a controller */
   rp_group_report rep;    /* the last group pass's */
   rp_sequence *seq;
@@ -114,12 +128,6 @@ typedef struct replay {
   rp_tile_stats *tiles;
   double full_ms;     /* frame time without adaptation, at the start */
   double seq_target0; /* the sequence's first target, ms */
-  /* AO as the runtime does it: computed in steps over frames for the
-   * active TF, frames rendering without AO until it is ready. */
-  rp_ao_plan *ao_plan;
-  rp_ao_run *ao_run;
-  int ao_tf;  /* the TF whose AO the devices hold; -1: none */
-  int run_tf; /* the TF ao_run computes for */
   FILE *trace; /* --trace */
 } replay;
 
@@ -371,7 +379,7 @@ static int render_pass(replay *r, const rp_camera *cam, uint32_t effects,
     err = rp_device_group_render(r->group, cam, &d, probe, r->scaled,
                                  r->tiles, &r->rep);
   else
-    err = rp_device_render(r->dev, cam, &d, NULL, r->scaled, r->tiles);
+    err = rp_device_render(r->on.dev, cam, &d, NULL, r->scaled, r->tiles);
   if (err != 0)
     return cli_error(r->ctx, "render", err);
   if (sw != d.width || sh != d.height)
@@ -390,8 +398,8 @@ static int render_pass(replay *r, const rp_camera *cam, uint32_t effects,
               r->rep.lost, r->rep.alive, rp_last_error(r->ctx));
   } else {
     rp_brick_stats bs;
-    out->raycast_ms = rp_device_last_time_ns(r->dev) * 1e-6;
-    if (rp_device_get_brick_stats(r->dev, &bs) == 0 && bs.out_of_core) {
+    out->raycast_ms = rp_device_last_time_ns(r->on.dev) * 1e-6;
+    if (rp_device_get_brick_stats(r->on.dev, &bs) == 0 && bs.out_of_core) {
       out->upload_ms = bs.last_upload_ns * 1e-6;
       out->raycast_ms = fmax(out->raycast_ms - out->upload_ms, 0.0);
     }
@@ -411,7 +419,7 @@ static double predicted_upload_ms(replay *r, const rp_camera *cam,
   d.effects = effects;
   if (r->group != NULL)
     return rp_device_group_upload_ms(r->group, cam, &d, &ms) == 0 ? ms : 0.0;
-  return rp_device_upload_estimate(r->dev, cam, &d, NULL, &e) == 0 ? e.ms
+  return rp_device_upload_estimate(r->on.dev, cam, &d, NULL, &e) == 0 ? e.ms
                                                                    : 0.0;
 }
 
@@ -426,13 +434,13 @@ static int use_tf(replay *r, int index) {
       return cli_error(r->ctx, "transfer function", err);
     r->occ_tf = index;
   }
-  if (index == r->tf_active)
+  if (index == r->on.tf_active)
     return 0;
   if ((err = r->group != NULL
                  ? rp_device_group_set_tf(r->group, r->tfs[index], r->occ)
-                 : rp_device_set_tf(r->dev, r->tfs[index], r->occ)) != 0)
+                 : rp_device_set_tf(r->on.dev, r->tfs[index], r->occ)) != 0)
     return cli_error(r->ctx, "transfer function", err);
-  r->tf_active = index;
+  r->on.tf_active = index;
   return 0;
 }
 
@@ -441,15 +449,15 @@ static int use_tf(replay *r, int index) {
 #define AO_FRAME_SHARE 0.25
 
 static void ao_drop_run(replay *r) {
-  rp_ao_run_destroy(r->ao_run);
-  rp_ao_plan_destroy(r->ao_plan);
-  r->ao_run = NULL;
-  r->ao_plan = NULL;
+  rp_ao_run_destroy(r->on.ao_run);
+  rp_ao_plan_destroy(r->on.ao_plan);
+  r->on.ao_run = NULL;
+  r->on.ao_plan = NULL;
 }
 
 /* The effects a frame renders: AO only once its volume is ready. */
 static uint32_t ao_effects(const replay *r, uint32_t effects) {
-  return r->ao_tf == r->tf_active ? effects
+  return r->on.ao_tf == r->on.tf_active ? effects
                                   : effects & ~(uint32_t)RP_EFFECT_AO;
 }
 
@@ -461,24 +469,24 @@ static int ao_start(replay *r) {
   int err;
   /* A run for another TF goes first: the devices no longer hold its TF,
    * even when they still hold the AO of the one now active. */
-  if (r->ao_run != NULL && r->run_tf != r->tf_active)
+  if (r->on.ao_run != NULL && r->on.run_tf != r->on.tf_active)
     ao_drop_run(r);
-  if (r->ao_tf == r->tf_active || r->ao_run != NULL)
+  if (r->on.ao_tf == r->on.tf_active || r->on.ao_run != NULL)
     return 0;
   sc.block = RP_AO_FRAME_BLOCK;
-  err = rp_ao_plan_create(r->ctx, r->vol, r->tfs[r->tf_active], NULL,
-                          &r->ao_plan);
+  err = rp_ao_plan_create(r->ctx, r->vol, r->tfs[r->on.tf_active], NULL,
+                          &r->on.ao_plan);
   if (err == 0)
     err = r->group != NULL
-              ? rp_device_group_ao_begin(r->group, r->ao_plan, &sc,
-                                         &r->ao_run)
-              : rp_ao_run_create(r->ctx, &r->dev, 1, r->ao_plan, &sc,
-                                 &r->ao_run);
+              ? rp_device_group_ao_begin(r->group, r->on.ao_plan, &sc,
+                                         &r->on.ao_run)
+              : rp_ao_run_create(r->ctx, &r->on.dev, 1, r->on.ao_plan, &sc,
+                                 &r->on.ao_run);
   if (err != 0) {
     ao_drop_run(r);
     return cli_error(r->ctx, "ambient occlusion", err);
   }
-  r->run_tf = r->tf_active;
+  r->on.run_tf = r->on.tf_active;
   return 0;
 }
 
@@ -487,27 +495,27 @@ static int ao_start(replay *r) {
 static int ao_step(replay *r, double budget_ms) {
   rp_ao *ao = NULL;
   double fraction = 0.0;
-  int err = rp_ao_run_step(r->ao_run, budget_ms, &fraction);
+  int err = rp_ao_run_step(r->on.ao_run, budget_ms, &fraction);
   if (err == 0 && fraction < 1.0)
     return 0;
   if (r->group != NULL)
-    err = rp_device_group_ao_end(r->group, r->ao_run, err, &ao, NULL);
+    err = rp_device_group_ao_end(r->group, r->on.ao_run, err, &ao, NULL);
   else if (err == 0)
-    err = rp_ao_run_finish(r->ao_run, &ao, NULL);
+    err = rp_ao_run_finish(r->on.ao_run, &ao, NULL);
   if (err == 0)
     err = r->group != NULL ? rp_device_group_set_ao(r->group, ao)
-                           : rp_device_set_ao(r->dev, ao);
+                           : rp_device_set_ao(r->on.dev, ao);
   rp_ao_destroy(ao);
   ao_drop_run(r);
   if (err != 0)
     return cli_error(r->ctx, "ambient occlusion", err);
-  r->ao_tf = r->run_tf;
+  r->on.ao_tf = r->on.run_tf;
   return 0;
 }
 
 /* AO for the active TF, all of it now (warming up, calibrating). */
 static int ao_now(replay *r, uint32_t effects) {
-  if (!(effects & RP_EFFECT_AO) || r->ao_tf == r->tf_active)
+  if (!(effects & RP_EFFECT_AO) || r->on.ao_tf == r->on.tf_active)
     return 0;
   if (ao_start(r) != 0)
     return 1;
@@ -559,7 +567,7 @@ static int probe_frame(replay *r, const rp_camera *cam, uint32_t effects,
   d.width = r->o.width;
   d.height = r->o.height;
   d.effects = effects;
-  err = rp_frame_probe_compute(r->ctx, r->vol, r->tfs[r->tf_active], r->occ,
+  err = rp_frame_probe_compute(r->ctx, r->vol, r->tfs[r->on.tf_active], r->occ,
                                cam, &d, r->o.seed, frame, p);
   return err != 0 ? cli_error(r->ctx, "probe", err) : 0;
 }
@@ -635,11 +643,11 @@ static int open_group(replay *r) {
   gd.devices = r->o.devices;
   gd.count = r->o.ndevices;
   ao_drop_run(r);
-  r->ao_tf = -1; /* a new group holds no AO */
+  r->on.ao_tf = -1; /* a new group holds no AO */
   if ((err = rp_device_group_create(r->ctx, &gd, &r->group)) != 0)
     return cli_error(r->ctx, "--devices", err);
   if ((err = rp_device_group_set_volume(r->group, r->vol)) != 0 ||
-      (err = rp_device_group_set_tf(r->group, r->tfs[r->tf_active],
+      (err = rp_device_group_set_tf(r->group, r->tfs[r->on.tf_active],
                                     r->occ)) != 0)
     return cli_error(r->ctx, "upload", err);
   r->group_used = 0;
@@ -674,24 +682,12 @@ static void group_row(const replay *r, frame_row *row) {
 
 /* ---- One controller over the sequence ------------------------------------ */
 
-/* What a device holds for the frames played on it: the device, the TF
- * on it, its AO and the AO run under way (replay's fields of the same
- * names). */
-typedef struct device_slot {
-  rp_device *dev;
-  rp_ao_plan *ao_plan;
-  rp_ao_run *ao_run;
-  int tf_active, ao_tf, run_tf;
-} device_slot;
-
 /* Exchanges the replay's device with the slot's: after one call the
  * replay plays on the slot's device, after a second on its own again. */
 static void slot_swap(replay *r, device_slot *s) {
   device_slot t = *s;
-  s->dev = r->dev, s->ao_plan = r->ao_plan, s->ao_run = r->ao_run;
-  s->tf_active = r->tf_active, s->ao_tf = r->ao_tf, s->run_tf = r->run_tf;
-  r->dev = t.dev, r->ao_plan = t.ao_plan, r->ao_run = t.ao_run;
-  r->tf_active = t.tf_active, r->ao_tf = t.ao_tf, r->run_tf = t.run_tf;
+  *s = r->on;
+  r->on = t;
 }
 
 static int start_state(replay *r);
@@ -708,7 +704,7 @@ static int slot_open(replay *r, device_slot *s) {
   int err;
   memset(s, 0, sizeof *s);
   s->tf_active = s->ao_tf = s->run_tf = -1;
-  rp_device_get_caps(r->dev, &caps);
+  rp_device_get_caps(r->on.dev, &caps);
   dd.backend = r->o.backend != NULL ? r->o.backend : caps.backend;
   dd.index = r->o.device;
   dd.budget_bytes = r->o.mem.budget_bytes;
@@ -819,7 +815,7 @@ static int play_frame(replay *r, player *p, uint32_t i) {
     ao_drop_run(r);
   else if (ao_start(r) != 0)
     return 1;
-  if (r->ao_run != NULL) {
+  if (r->on.ao_run != NULL) {
     t0 = cli_now();
     if (ao_step(r, AO_FRAME_SHARE * target) != 0)
       return 1;
@@ -931,7 +927,7 @@ static int start_state(replay *r) {
 /* Whether the single device renders from bricks. */
 static int out_of_core(const replay *r) {
   rp_brick_stats bs;
-  return r->dev != NULL && rp_device_get_brick_stats(r->dev, &bs) == 0 &&
+  return r->on.dev != NULL && rp_device_get_brick_stats(r->on.dev, &bs) == 0 &&
          bs.out_of_core;
 }
 
@@ -990,7 +986,7 @@ static int play(replay *r, player *ps, int n) {
         if (p->own_device)
           slot_swap(r, &p->slot);
         if (n > 1)
-          rp_device_forget_depth(r->dev);
+          rp_device_forget_depth(r->on.dev);
         err = play_frame(r, p, i);
         if (p->own_device)
           slot_swap(r, &p->slot);
@@ -1393,17 +1389,17 @@ static int open_scene(replay *r) {
     return cli_error(r->ctx, "sequence", err);
   if ((err = rp_occupancy_build(r->ctx, r->h, r->tfs[st.tf], &r->occ)) != 0)
     return cli_error(r->ctx, "occupancy", err);
-  r->tf_active = r->occ_tf = st.tf;
-  r->ao_tf = -1;
+  r->on.tf_active = r->occ_tf = st.tf;
+  r->on.ao_tf = -1;
   if (r->o.ndevices > 0) {
     if (open_group(r) != 0)
       return 1;
   } else {
     if (cli_open_device(r->ctx, "--backend", r->o.backend, r->o.device,
-                        &r->o.mem, &r->dev) != 0)
+                        &r->o.mem, &r->on.dev) != 0)
       return 1;
-    if ((err = rp_device_set_volume(r->dev, r->vol)) != 0 ||
-        (err = rp_device_set_tf(r->dev, r->tfs[st.tf], r->occ)) != 0)
+    if ((err = rp_device_set_volume(r->on.dev, r->vol)) != 0 ||
+        (err = rp_device_set_tf(r->on.dev, r->tfs[st.tf], r->occ)) != 0)
       return cli_error(r->ctx, "upload", err);
   }
   r->space.space = r->o.space;
@@ -1425,7 +1421,7 @@ static void close_scene(replay *r) {
   free(r->image);
   free(r->tiles);
   rp_device_group_destroy(r->group);
-  rp_device_destroy(r->dev);
+  rp_device_destroy(r->on.dev);
   rp_occupancy_destroy(r->occ);
   for (i = 0; r->tfs != NULL && i < r->tf_count; i++)
     rp_tf_destroy(r->tfs[i]);
