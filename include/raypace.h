@@ -483,6 +483,19 @@ RP_API int rp_device_render(rp_device *dev, const rp_camera *cam,
 RP_API void rp_device_forget_depth(rp_device *dev);
 /** Device time of the last operation in nanoseconds (0 if unknown). */
 RP_API uint64_t rp_device_last_time_ns(const rp_device *dev);
+/** Builds ahead the kernel variants a render with `effects` may use on
+ *  the volume uploaded now (any step and image size), so that the first
+ *  such render does not wait for a build (on PoCL one takes about a
+ *  second cold, tens of milliseconds from its disk cache). 0 when they
+ *  are built, or when the backend builds on first use only (the
+ *  reference device and MPI). RP_ESTATE before a volume was uploaded;
+ *  RP_EBUILD, RP_ENOMEM or RP_EDEVICE when a build fails.
+ *  \threadsafety the exception to the one-thread rule: another thread
+ *  may call it while `dev` renders, uploads or computes AO, provided
+ *  `ctx` (where errors go) is that thread's own and `dev` is not
+ *  destroyed meanwhile. \since 0.2 */
+RP_API int rp_device_prepare(rp_device *dev, rp_context *ctx,
+                             uint32_t effects);
 /** What rendering a region would upload to an out-of-core device first:
  *  the visible bricks its frustum touches (`bricks`), the bricks the
  *  render would load (`loads`: it follows the render's own plan on a copy

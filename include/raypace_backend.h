@@ -21,7 +21,7 @@ extern "C" {
 
 /* Bumped whenever rp_backend_ops, rp_backend_bootstrap or rp_frame_params
  * change layout. */
-#define RP_BACKEND_ABI 5
+#define RP_BACKEND_ABI 6
 
 /* Coarse ERT pre-pass geometry (DESIGN section 3). */
 #define RP_ERT_RAY_STRIDE 4    /* one pre-pass ray per 4x4 pixels */
@@ -153,6 +153,20 @@ typedef struct rp_backend_ops {
                        const void *const *voxels, const uint32_t *table);
   /* Device time of the last operation, nanoseconds. */
   uint64_t (*last_time_ns)(void *impl);
+  /* Optional (NULL: kernels are built on first use only). Builds every
+   * kernel variant a frame with `effects` may use on the volume uploaded
+   * now (depth pass and raycast, for any step and image size), so that
+   * the frame finds them built. The one op that may run on one thread
+   * while another thread runs any other op on the same impl: it reads
+   * only what is fixed at create, and what the volume upload sets under
+   * the backend's lock; it adds what it built to the backend's table
+   * under that lock, and only where the table has a free entry, never
+   * evicting one and never allocating from the impl's context; and it
+   * reports failures to `ctx`, the calling thread's context. Returns 0
+   * when the kernels are built (kept, or dropped for want of room: the
+   * frame then builds them itself), RP_ESTATE before any volume was
+   * uploaded, RP_EBUILD or RP_ENOMEM/RP_EDEVICE when a build fails. */
+  int (*prepare)(void *impl, rp_context *ctx, uint32_t effects);
 } rp_backend_ops;
 
 typedef struct rp_backend_bootstrap {

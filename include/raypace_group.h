@@ -155,6 +155,21 @@ RP_API int rp_device_group_set_volume(rp_device_group *g,
                                       const rp_volume *vol);
 RP_API int rp_device_group_set_tf(rp_device_group *g, const rp_tf *tf,
                                   const rp_occupancy *occ);
+/** Builds the kernels a frame with `effects` will need on every live
+ *  device (rp_device_prepare) on a thread of the group's own, started on
+ *  the first call, and returns at once; rp_device_group_prepared says
+ *  when they are done. Asking again for a set asked for or done is
+ *  free. A new volume (rp_device_group_set_volume) forgets what was
+ *  asked and done: the kernels are built for its voxel type. 0 at once
+ *  when no device builds ahead (the reference and MPI devices build on
+ *  first use). \since 0.2 */
+RP_API int rp_device_group_prepare(rp_device_group *g, uint32_t effects);
+/** 1 once a preparation of `effects` asked for since the last volume
+ *  upload has finished (a failed one included: the frame then builds
+ *  the kernels itself and reports the error), or when no device builds
+ *  ahead; 0 otherwise. \since 0.2 */
+RP_API int rp_device_group_prepared(rp_device_group *g, uint32_t effects);
+
 /** AO on every live device (raypace_ao.h): computed with rp_ao_compute
  *  over the live devices (each already has a context of its own; a
  *  device lost doing it is dropped), and set for RP_EFFECT_AO renders

@@ -135,6 +135,14 @@ typedef struct rp_frame_stats {
   float step, scale;       /* its step (voxels) and image scale */
   uint32_t passes;         /* render passes (2 when two-pass re-rendered) */
   uint32_t effects;        /* RP_EFFECT_* rendered */
+  uint32_t effects_wanted; /* the scene's (rp_runtime_set_effects). The
+                              frame renders fewer while AO is being
+                              computed, and the last frame's while the
+                              kernels of a set not rendered before on
+                              this volume are built on the device
+                              group's builder thread (rp_device_group_
+                              prepare); the first frame on a volume
+                              builds its own. \since 0.2 */
   uint64_t samples;        /* samples the raycast took (tile sums) */
   /* Per stage. Zero when the stage did not run for this frame. */
   double histograms_ms;    /* H build */
@@ -275,7 +283,10 @@ RP_API int rp_runtime_set_viewport(rp_runtime *rt, uint32_t width,
  *  RP_ERANGE). In timer pacing it is also the frame period. \since 0.1 */
 RP_API int rp_runtime_set_target(rp_runtime *rt, double target_ms);
 /** RP_EFFECT_* bits (RP_EINVAL for unknown bits; a device that lacks
- *  one fails the frames that use it, with the reason). \since 0.1 */
+ *  one fails the frames that use it, with the reason). A set not yet
+ *  rendered on the volume shows once its kernels are built, frames
+ *  rendering the last set meanwhile (rp_frame_stats.effects_wanted).
+ *  \since 0.1 */
 RP_API int rp_runtime_set_effects(rp_runtime *rt, uint32_t effects);
 /** Changes the controller; its history starts afresh, the cost model
  *  keeps what it learned. RP_EINVAL for an unknown kind. \since 0.1 */

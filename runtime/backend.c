@@ -369,6 +369,26 @@ uint64_t rp_device_last_time_ns(const rp_device *dev) {
   return dev != NULL ? dev->last_ns : 0;
 }
 
+/* Reads only what is fixed at create (ops, impl): another thread may be
+ * running the device meanwhile, so the front end's scene fields are not
+ * this call's to look at; the backend checks its own state under its
+ * lock. */
+int rp__device_builds_ahead(const rp_device *dev) {
+  return dev->ops != NULL && dev->ops->prepare != NULL;
+}
+
+int rp_device_prepare(rp_device *dev, rp_context *ctx, uint32_t effects) {
+  if (dev == NULL || ctx == NULL)
+    return rp__fail(ctx, RP_EINVAL, "rp_device_prepare: NULL %s",
+                    dev == NULL ? "device" : "context");
+  if (effects & ~(uint32_t)RP__KNOWN_EFFECTS)
+    return rp__fail(ctx, RP_EINVAL, "rp_device_prepare: unknown effect "
+                    "bits 0x%x", effects);
+  if (dev->ops == NULL || dev->ops->prepare == NULL)
+    return 0;
+  return dev->ops->prepare(dev->impl, ctx, effects);
+}
+
 static void sleep_ns(uint64_t ns) {
   struct timespec ts;
   ts.tv_sec = (time_t)(ns / 1000000000u);

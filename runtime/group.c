@@ -14,7 +14,19 @@
  * each finished region across, which costs one image copy per frame.
  *
  * Dropped devices stay dropped: their worker may still be busy with the
- * job they were late on, and only destroy waits for it. */
+ * job they were late on, and only destroy waits for it.
+ *
+ * Kernels a coming frame needs can be built ahead (rp_device_group_
+ * prepare) on one more thread, the builder, started on the first request:
+ * it calls rp_device_prepare, the one device call made for any thread,
+ * on the devices live when it was asked, which stay open until destroy
+ * has joined it. */
+#ifdef __linux__
+#define _GNU_SOURCE /* syscall(SYS_gettid): see builder_main */
+#include <sys/resource.h>
+#include <sys/syscall.h>
+#include <unistd.h>
+#endif
 #include <math.h>
 #include <stdio.h>
 #include <string.h>
@@ -179,6 +191,21 @@ struct rp_device_group {
   int can_train;
   double last_render_ms;
   uint64_t last_samples;
+  /* The builder (rp_device_group_prepare). `can_prepare`: a device
+   * builds ahead (else preparing is a no-op). Under build_lock: the
+   * effect sets asked for (bit 1 << set) and not yet taken, those done
+   * for volume generation build_gen (tried: one that failed is the
+   * frame's to build and report), and the devices of the last request. */
+  int can_prepare;
+  uv_mutex_t build_lock;
+  uv_cond_t build_cv;
+  uv_thread_t builder;
+  int builder_started, build_quit;
+  rp_context *build_ctx; /* the builder's, for its errors */
+  uint32_t build_want, build_done;
+  uint64_t build_gen;
+  rp_device *build_devs[RP_GROUP_MAX_DEVICES];
+  uint32_t build_ndev;
 };
 
 static double now_ms(void) { return (double)uv_hrtime() * 1e-6; }
@@ -551,12 +578,25 @@ static void stop_workers(rp_device_group *g) {
       uv_thread_join(&g->m[i].thread);
 }
 
+static void stop_builder(rp_device_group *g) {
+  if (!g->builder_started)
+    return;
+  uv_mutex_lock(&g->build_lock);
+  g->build_quit = 1;
+  uv_cond_signal(&g->build_cv);
+  uv_mutex_unlock(&g->build_lock);
+  uv_thread_join(&g->builder);
+  g->builder_started = 0;
+}
+
 void rp_device_group_destroy(rp_device_group *g) {
   uint32_t i;
   rp_context *ctx;
   if (g == NULL)
     return;
   ctx = g->ctx;
+  stop_builder(g);
+  rp_context_destroy(g->build_ctx);
   if (g->threads)
     stop_workers(g);
   for (i = 0; i < g->count; i++) {
@@ -574,6 +614,8 @@ void rp_device_group_destroy(rp_device_group *g) {
   rp_balancer_destroy(g->balancer);
   rp__free(ctx, g->cost);
   rp__free(ctx, g->sub_cost);
+  uv_mutex_destroy(&g->build_lock);
+  uv_cond_destroy(&g->build_cv);
   uv_mutex_destroy(&g->lock);
   uv_cond_destroy(&g->done);
   rp__free(ctx, g);
@@ -674,6 +716,19 @@ int rp_device_group_create(rp_context *ctx, const rp_group_desc *desc,
     rp__free(ctx, g);
     return rp__fail(ctx, RP_EDEVICE, "%s: uv_cond_init failed", fn);
   }
+  if (uv_mutex_init(&g->build_lock) != 0) {
+    uv_cond_destroy(&g->done);
+    uv_mutex_destroy(&g->lock);
+    rp__free(ctx, g);
+    return rp__fail(ctx, RP_EDEVICE, "%s: uv_mutex_init failed", fn);
+  }
+  if (uv_cond_init(&g->build_cv) != 0) {
+    uv_mutex_destroy(&g->build_lock);
+    uv_cond_destroy(&g->done);
+    uv_mutex_destroy(&g->lock);
+    rp__free(ctx, g);
+    return rp__fail(ctx, RP_EDEVICE, "%s: uv_cond_init failed", fn);
+  }
   /* From here on rp_device_group_destroy frees whatever was made. */
   for (i = 0; i < g->count; i++) {
     member *w = &g->m[i];
@@ -699,6 +754,7 @@ int rp_device_group_create(rp_context *ctx, const rp_group_desc *desc,
       return err;
     }
     rp_device_get_caps(w->dev, &w->caps);
+    g->can_prepare |= rp__device_builds_ahead(w->dev);
     {
       char name[sizeof w->name];
       snprintf(name, sizeof name, "%s:%s", w->caps.backend, w->caps.device);
@@ -801,7 +857,96 @@ int rp_device_group_set_volume(rp_device_group *g, const rp_volume *vol) {
     g->m[i].vol = vol;
     g->m[i].vol_gen = g->vol_gen;
   }
+  /* What was built or asked for was for the old volume (its voxel type
+   * is in the kernels' keys). */
+  uv_mutex_lock(&g->build_lock);
+  g->build_gen = g->vol_gen;
+  g->build_want = g->build_done = 0;
+  uv_mutex_unlock(&g->build_lock);
   return upload(g, JOB_VOLUME, "rp_device_group_set_volume");
+}
+
+/* ---- Kernels built ahead --------------------------------------------------- */
+
+static void builder_main(void *arg) {
+  rp_device_group *g = arg;
+#ifdef __linux__
+  /* A build is compiler work on the host's cores, which a CPU device
+   * renders on too: at the lowest priority it takes what frames leave.
+   * Linux keeps a nice value per thread. */
+  (void)setpriority(PRIO_PROCESS, (id_t)syscall(SYS_gettid), 5);
+#endif
+  uv_mutex_lock(&g->build_lock);
+  for (;;) {
+    rp_device *devs[RP_GROUP_MAX_DEVICES];
+    uint32_t set = 0, n, i;
+    uint64_t gen;
+    while (!g->build_quit && g->build_want == 0)
+      uv_cond_wait(&g->build_cv, &g->build_lock);
+    if (g->build_quit)
+      break;
+    while (!((g->build_want >> set) & 1u))
+      set++;
+    g->build_want &= ~(1u << set);
+    gen = g->build_gen;
+    n = g->build_ndev;
+    memcpy(devs, g->build_devs, n * sizeof *devs);
+    uv_mutex_unlock(&g->build_lock);
+    /* A failure is left to the frame: it builds the kernels itself and
+     * reports what went wrong where the app looks, in its status. */
+    for (i = 0; i < n; i++)
+      (void)rp_device_prepare(devs[i], g->build_ctx, set);
+    uv_mutex_lock(&g->build_lock);
+    if (gen == g->build_gen)
+      g->build_done |= 1u << set;
+  }
+  uv_mutex_unlock(&g->build_lock);
+}
+
+int rp_device_group_prepare(rp_device_group *g, uint32_t effects) {
+  static const char fn[] = "rp_device_group_prepare";
+  uint32_t set, i;
+  int err;
+  if (g == NULL)
+    return RP_EINVAL;
+  if (effects & ~(uint32_t)RP__KNOWN_EFFECTS)
+    return rp__fail(g->ctx, RP_EINVAL, "%s: unknown effect bits 0x%x", fn,
+                    effects);
+  if (!g->can_prepare)
+    return 0;
+  if (!g->builder_started) {
+    if (g->build_ctx == NULL &&
+        (err = rp_context_create(&g->ctx->desc, &g->build_ctx)) != 0)
+      return rp__fail(g->ctx, err, "%s: a context for the builder", fn);
+    if (uv_thread_create(&g->builder, builder_main, g) != 0)
+      return rp__fail(g->ctx, RP_EDEVICE, "%s: uv_thread_create failed",
+                      fn);
+    g->builder_started = 1;
+  }
+  set = effects;
+  uv_mutex_lock(&g->build_lock);
+  if (!((g->build_done >> set) & 1u)) {
+    g->build_want |= 1u << set;
+    g->build_ndev = 0;
+    for (i = 0; i < g->count; i++)
+      if (!g->m[i].dropped)
+        g->build_devs[g->build_ndev++] = g->m[i].dev;
+    uv_cond_signal(&g->build_cv);
+  }
+  uv_mutex_unlock(&g->build_lock);
+  return 0;
+}
+
+int rp_device_group_prepared(rp_device_group *g, uint32_t effects) {
+  int done;
+  if (g == NULL || (effects & ~(uint32_t)RP__KNOWN_EFFECTS))
+    return 0;
+  if (!g->can_prepare)
+    return 1;
+  uv_mutex_lock(&g->build_lock);
+  done = (g->build_done >> effects) & 1u;
+  uv_mutex_unlock(&g->build_lock);
+  return done;
 }
 
 int rp_device_group_set_tf(rp_device_group *g, const rp_tf *tf,

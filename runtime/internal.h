@@ -232,4 +232,7 @@ int rp__backend_open(rp_context *ctx, const char *name, uint32_t index,
 int rp__png_write_rgb(rp_context *ctx, const char *path, const uint8_t *rgb,
                       uint32_t width, uint32_t height);
 
+/* Whether the device builds kernels ahead (its backend has `prepare`). */
+int rp__device_builds_ahead(const rp_device *dev);
+
 #endif /* RP_INTERNAL_H */

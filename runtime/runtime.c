@@ -48,9 +48,6 @@ enum {
   STALE_AO = 1u << 6 /* the AO volume, or (AO off) its memory */
 };
 
-/* The effects the probe depends on: ERT cuts the span, skipping moves
- * D_front and D_back. Shading and AO only scale k. */
-#define PROBE_EFFECTS (RP_EFFECT_ERT | RP_EFFECT_SKIP)
 #define MAX_VIEWPORT 16384u /* per axis, as the header states */
 
 /* The latest value of each kind of event. */
@@ -82,6 +79,9 @@ typedef struct scene {
    * a set's first frame builds its kernel variant and allocates, a cost
    * the model must not learn as if every frame paid it. */
   uint32_t warm_sets;
+  /* What this frame renders (choose_effects), and what the last frame
+   * rendered, valid while warm_sets != 0. */
+  uint32_t render_effects, shown_effects;
   /* AO being computed in steps (RP_EFFECT_AO on and not yet ready):
    * frames render without AO until the run finishes. */
   rp_ao_plan *ao_plan;
@@ -217,8 +217,7 @@ static void take_events(rp_runtime *rt) {
     s->stale |= STALE_PROBE;
   }
   if (in->marks & POSTED_EFFECTS) {
-    if ((s->effects ^ in->effects) & PROBE_EFFECTS)
-      s->stale |= STALE_PROBE;
+    /* The probe follows in choose_effects, which knows what renders. */
     if ((s->effects ^ in->effects) & RP_EFFECT_AO)
       s->stale |= STALE_AO;
     s->effects = in->effects;
@@ -233,10 +232,32 @@ static void take_events(rp_runtime *rt) {
   in->marks = 0;
 }
 
-/* The effects a frame renders: the scene's, without AO while it is
- * being computed. */
-static uint32_t frame_effects(const scene *s) {
+/* The effects a frame should render: the scene's, without AO while it
+ * is being computed. */
+static uint32_t wanted_effects(const scene *s) {
   return s->ao_ready ? s->effects : s->effects & ~(uint32_t)RP_EFFECT_AO;
+}
+
+/* The effects this frame renders: those wanted, unless their kernels are
+ * still being built ahead (a build takes from tens of milliseconds to
+ * over a second): then what the last frame rendered, so that no frame
+ * waits for a build. The first frame on a volume builds its own, and so
+ * does a frame that has nothing to fall back on (the last set used AO,
+ * which is off or being computed now). */
+static void choose_effects(rp_runtime *rt) {
+  scene *s = &rt->s;
+  uint32_t want = wanted_effects(s), eff = want;
+  int can_wait = s->warm_sets != 0 &&
+                 (!(s->shown_effects & RP_EFFECT_AO) || s->ao_ready);
+  if (can_wait && !((s->warm_sets >> want) & 1u) &&
+      !rp_device_group_prepared(rt->group, want) &&
+      rp_device_group_prepare(rt->group, want) == 0)
+    eff = s->shown_effects;
+  /* Every effect is in the probe: ERT cuts the spans, skipping moves
+   * D_front and D_back, shading and AO set k and the visible blocks. */
+  if (eff != s->render_effects)
+    s->stale |= STALE_PROBE;
+  s->render_effects = eff;
 }
 
 static void drop_ao_run(scene *s) {
@@ -262,13 +283,14 @@ static int update_ao(rp_runtime *rt) {
   scene *s = &rt->s;
   int err = 0;
   drop_ao_run(s);
-  if (s->ao_ready)
-    s->stale |= STALE_PROBE; /* the effects the probe prices change */
   s->ao_ready = 0;
   if (!(s->effects & RP_EFFECT_AO)) {
     if (rp_device_group_ao_bytes(rt->group) != 0)
       err = rp_device_group_set_ao(rt->group, NULL);
   } else {
+    /* The AO variant's kernels, built while AO is computed, so that the
+     * frame AO is ready in does not wait for them. */
+    (void)rp_device_group_prepare(rt->group, s->effects);
     err = rp_ao_plan_create(rt->ctx, s->vol, s->tf, &rt->desc.ao,
                             &s->ao_plan);
     if (err == 0)
@@ -310,7 +332,6 @@ static int advance_ao(rp_runtime *rt) {
     return err;
   }
   s->ao_ready = 1;
-  s->stale |= STALE_PROBE;
   count(rt, &rt->counters.ao_computes);
   return 0;
 }
@@ -368,11 +389,12 @@ static int recompute(rp_runtime *rt) {
       return err;
     st->ao_ms = rp__now_ms() - t0;
   }
+  choose_effects(rt);
   if (s->stale & STALE_PROBE) {
     rp_render_desc d = {0};
     d.width = s->width;
     d.height = s->height;
-    d.effects = frame_effects(s);
+    d.effects = s->render_effects;
     if ((err = rp_frame_probe_compute(rt->ctx, s->vol, s->tf, s->occ,
                                       &s->cam, &d, rt->desc.ert_seed,
                                       (uint32_t)rt->frame_no,
@@ -439,7 +461,7 @@ static int render_pass(rp_runtime *rt, double rho, double *pass_ms) {
   d.height = s->height;
   d.step = st->step;
   d.image_scale = st->scale;
-  d.effects = frame_effects(s);
+  d.effects = s->render_effects;
   rp_scaled_size(&d, &sw, &sh);
   rp_tile_grid(sw, sh, &tx, &ty);
   if ((err = reserve(rt, (void **)&rt->scaled, &rt->scaled_cap,
@@ -500,8 +522,9 @@ static int render_pass(rp_runtime *rt, double rho, double *pass_ms) {
   }
   rt->out_w = s->width;
   rt->out_h = s->height;
-  rt->job_train.valid = (s->warm_sets >> (frame_effects(s) & 15u)) & 1u;
-  s->warm_sets |= 1u << (frame_effects(s) & 15u);
+  rt->job_train.valid = (s->warm_sets >> s->render_effects) & 1u;
+  s->warm_sets |= 1u << s->render_effects;
+  s->shown_effects = s->render_effects;
   rt->job_train.probe = s->probe;
   rt->job_train.step = st->step;
   rt->job_train.scale = st->scale;
@@ -521,7 +544,7 @@ static double predicted_upload_ms(rp_runtime *rt) {
   double ms = 0.0;
   d.width = s->width;
   d.height = s->height;
-  d.effects = frame_effects(s);
+  d.effects = s->render_effects;
   if (rp_device_group_upload_ms(rt->group, &s->cam, &d, &ms) != 0)
     return 0.0;
   return ms;
@@ -607,7 +630,8 @@ static void run_frame(rp_runtime *rt) {
   st->target_ms = rt->s.target_ms;
   if ((err = recompute(rt)) == 0)
     err = render_frame(rt);
-  st->effects = frame_effects(&rt->s);
+  st->effects = rt->s.render_effects;
+  st->effects_wanted = rt->s.effects;
   if (err != 0) {
     st->status = err;
     snprintf(st->error, sizeof st->error, "%s", rp_last_error(rt->ctx));

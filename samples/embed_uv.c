@@ -110,13 +110,16 @@ static void on_frame(rp_runtime *rt, const rp_frame *f, void *user) {
     stop(a, 1);
     return;
   }
+  /* eff/want: the effects rendered and wanted (RP_EFFECT_* bits); they
+   * differ while AO is computed or a new set's kernels are built. */
   printf("%5llu %6.1f %6.2f %6.2f %+6.1f%% %5.3f %5.2f %5.3f "
-         "%6.2f %7.3f %6.3f %6.3f %6llu %4llu\n",
+         "%6.2f %7.3f %6.3f %6.3f %6llu %4llu %3x %4x\n",
          (unsigned long long)s->frame, s->target_ms, s->predicted_ms,
          s->measured_ms, 100 * s->delta, s->rho, s->step, s->scale,
          s->probe_ms, s->predict_ms, s->train_ms, s->dispatch_ms,
          (unsigned long long)s->counters.probes,
-         (unsigned long long)s->counters.occupancies);
+         (unsigned long long)s->counters.occupancies, s->effects,
+         s->effects_wanted);
   if (a->max_frames > 0 && s->frame + 1 >= a->max_frames)
     stop(a, 0);
   else if (s->frame == 0) /* the sequence plays on from here */
@@ -205,9 +208,10 @@ static int run(app *a, rp_context *ctx, rp_runtime_desc *d,
       (err = check(NULL, rp_runtime_set_volume(a->rt, *vol), "volume")) == 0)
     *vol = NULL; /* the runtime's now */
   if (err == 0) {
-    printf("%5s %6s %6s %6s %7s %5s %5s %5s %6s %7s %6s %6s %6s %4s\n",
-           "frame", "target", "pred", "meas", "delta", "rho", "step",
-           "scale", "probe", "predict", "train", "disp", "probes", "occ");
+    printf("%5s %6s %6s %6s %7s %5s %5s %5s %6s %7s %6s %6s %6s %4s %3s "
+           "%4s\n", "frame", "target", "pred", "meas", "delta", "rho",
+           "step", "scale", "probe", "predict", "train", "disp", "probes",
+           "occ", "eff", "want");
     /* The first frame builds the device's kernels, which can take
      * seconds: the first tick posts state 0 and the rest wait for it. */
     uv_timer_start(&a->tick, on_tick, 0, 0);

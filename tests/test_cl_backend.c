@@ -11,6 +11,7 @@
  * once per option set; with POCL_CACHE_DIR kept between runs (ctest sets
  * it under the build tree) later runs take a few seconds. */
 #include <math.h>
+#include <pthread.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -332,6 +333,82 @@ static void build_cache(void **state) {
   rp_cl__cache_stats(dev.impl, &b1, &h1);
   assert_int_equal(b1, 4);
   close_device(&dev);
+}
+
+/* (2b) prepare builds a frame's kernels on another thread while this
+ * one renders other frames on the same device: afterwards that frame
+ * builds nothing and renders what a fresh device renders. */
+typedef struct prepare_job {
+  device *dev;
+  rp_context *ctx;
+  uint32_t effects;
+  int rc;
+} prepare_job;
+
+static void *prepare_thread(void *arg) {
+  prepare_job *j = arg;
+  j->rc = j->dev->ops->prepare(j->dev->impl, j->ctx, j->effects);
+  return NULL;
+}
+
+static void prepare_ahead(void **state) {
+  const uint32_t want = RP_EFFECT_SHADING | RP_EFFECT_ERT | RP_EFFECT_SKIP;
+  scene s = make_scene(RP_GEN_PHANTOM, 24, 20, 22, RP_U16, "ct-bone");
+  rp_camera cam = camera(s.vol, 0);
+  rp_render_desc d = {0};
+  rp__raygen rg;
+  rp_frame_params p;
+  device dev, fresh;
+  image im, again;
+  prepare_job job;
+  pthread_t th;
+  uint32_t b0, h0, b1, h1;
+  int i;
+  rp_context *ctx2 = rp_test_context();
+  (void)state;
+  open_device(0, &dev);
+  /* No volume yet: nothing to build for, and the error is the caller's,
+   * not the device's context's. */
+  rp__clear_error(ctx);
+  assert_int_equal(dev.ops->prepare(dev.impl, ctx2, want), RP_ESTATE);
+  assert_non_null(strstr(rp_last_error(ctx2), "volume"));
+  assert_string_equal(rp_last_error(ctx), "");
+  upload(&dev, &s);
+  d.width = 64, d.height = 48, d.effects = RP_EFFECT_ERT;
+  frame_params(&s, &cam, &d, &rg, &p);
+  image_alloc(&im, p.width, p.height);
+  image_alloc(&again, p.width, p.height);
+  job.dev = &dev, job.ctx = ctx2, job.effects = want, job.rc = -1;
+  assert_int_equal(pthread_create(&th, NULL, prepare_thread, &job), 0);
+  for (i = 0; i < 4; i++)
+    render(&dev, &p, &im, 0);
+  assert_int_equal(pthread_join(th, NULL), 0);
+  assert_int_equal(job.rc, 0);
+  /* Both kernels of the prepared set are there: the frame builds none,
+   * and a second prepare finds them. */
+  d.effects = want;
+  frame_params(&s, &cam, &d, &rg, &p);
+  rp_cl__cache_stats(dev.impl, &b0, &h0);
+  render(&dev, &p, &im, 0);
+  rp_cl__cache_stats(dev.impl, &b1, &h1);
+  assert_int_equal(b1, b0);
+  assert_int_equal(h1, h0 + 2);
+  assert_int_equal(dev.ops->prepare(dev.impl, ctx2, want), 0);
+  rp_cl__cache_stats(dev.impl, &b1, &h1);
+  assert_int_equal(b1, b0);
+  /* The same kernel a frame builds for itself. */
+  open_device(0, &fresh);
+  upload(&fresh, &s);
+  render(&fresh, &p, &again, 0);
+  assert_memory_equal(im.rgba, again.rgba, (size_t)p.width * p.height * 4);
+  assert_memory_equal(im.tiles, again.tiles,
+                      (size_t)im.tx * im.ty * sizeof *im.tiles);
+  image_free(&im);
+  image_free(&again);
+  close_device(&fresh);
+  close_device(&dev);
+  rp_context_destroy(ctx2);
+  drop_scene(&s);
 }
 
 /* (3) A program that does not compile: RP_EBUILD, naming what was built
@@ -1131,6 +1208,7 @@ int main(void) {
   const struct CMUnitTest tests[] = {
       cmocka_unit_test(probe_and_caps),
       cmocka_unit_test(build_cache),
+      cmocka_unit_test(prepare_ahead),
       cmocka_unit_test(build_failure),
       cmocka_unit_test(shading_fetch_counts),
       cmocka_unit_test(opacity_correction),

@@ -10,6 +10,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <uv.h>
 
 #include "raypace_ao.h"
 #include "raypace_group.h"
@@ -839,6 +840,62 @@ static void test_opencl_pair(void **state) {
   free(img);
 }
 
+/* Kernels built ahead (rp_device_group_prepare): with devices that do
+ * not build ahead it is a no-op and everything counts as prepared; on
+ * OpenCL devices a request is done on the builder thread, a frame then
+ * renders what one device alone renders, and a new volume forgets it.
+ * That the prepared frame builds nothing is test_cl_backend's. */
+static void test_prepare(void **state) {
+  const uint32_t lit = EFFECTS | RP_EFFECT_SHADING;
+  uint8_t *one = malloc(W * H * 4), *img = malloc(W * H * 4);
+  rp_device_desc dd[2];
+  rp_group_desc gd = {0};
+  rp_group_report rep;
+  rp_device_group *g;
+  uint32_t n = 0;
+  uint64_t t0;
+  scene s;
+  (void)state;
+  scene_make(&s, W, H);
+  memset(dd, 0, sizeof dd);
+  dd[0].backend = dd[1].backend = "reference";
+  gd.devices = dd;
+  gd.count = 2;
+  g = make_group(&s, &gd);
+  assert_int_equal(rp_device_group_prepared(g, lit), 1);
+  assert_int_equal(rp_device_group_prepare(g, lit), 0);
+  assert_int_equal(rp_device_group_prepare(g, 1u << 7), RP_EINVAL);
+  assert_int_equal(rp_device_group_prepared(g, 1u << 7), 0);
+  assert_int_equal(rp_device_prepare(NULL, s.ctx, lit), RP_EINVAL);
+  rp_device_group_destroy(g);
+  if (rp_device_count(s.ctx, "opencl", &n) != 0 || n == 0) {
+    scene_free(&s);
+    free(one);
+    free(img);
+    skip();
+  }
+  s.desc.effects = lit;
+  render_alone(&s, "opencl", one, NULL);
+  dd[0].backend = dd[1].backend = "opencl";
+  g = make_group(&s, &gd);
+  assert_int_equal(rp_device_group_prepared(g, lit), 0);
+  assert_int_equal(rp_device_group_prepare(g, lit), 0);
+  t0 = uv_hrtime();
+  while (!rp_device_group_prepared(g, lit) && uv_hrtime() - t0 < 60e9)
+    uv_sleep(1);
+  assert_int_equal(rp_device_group_prepared(g, lit), 1);
+  assert_int_equal(frame(g, &s, img, NULL, &rep), 0);
+  assert_memory_equal(one, img, W * H * 4);
+  assert_int_equal(rp_device_group_set_volume(g, s.vol), 0);
+  assert_int_equal(rp_device_group_prepared(g, lit), 0);
+  /* Destroyed with a request in flight: destroy joins the builder. */
+  assert_int_equal(rp_device_group_prepare(g, EFFECTS), 0);
+  rp_device_group_destroy(g);
+  scene_free(&s);
+  free(one);
+  free(img);
+}
+
 int main(void) {
   const struct CMUnitTest tests[] = {
       cmocka_unit_test(test_matches_one_device),
@@ -857,6 +914,7 @@ int main(void) {
       cmocka_unit_test(test_tile_costs),
       cmocka_unit_test(test_bad_input),
       cmocka_unit_test(test_opencl_pair),
+      cmocka_unit_test(test_prepare),
   };
   return cmocka_run_group_tests(tests, NULL, NULL);
 }

@@ -266,13 +266,17 @@ static void test_passes_per_event(void **state) {
   assert_int_equal(d.device_depth, 1);
   expect_reference(a.ctx, vol2, soft, &cam, a.s.image);
 
-  /* Target and shading change no derived data; ERT does the probe. */
+  /* The target changes no derived data. Every effect does the probe:
+   * shading sets its fetches per sample (k), so a probe left from
+   * before priced a shaded frame as an unshaded one. */
   assert_int_equal(rp_runtime_set_target(a.rt, 500.0), 0);
-  assert_int_equal(rp_runtime_set_effects(a.rt, EFFECTS |
-                                          RP_EFFECT_SHADING), 0);
   d = frame(&a);
   expect_passes(d, 0, 0, 0);
   assert_int_equal(a.s.last.target_ms, 500.0);
+  assert_int_equal(rp_runtime_set_effects(a.rt, EFFECTS |
+                                          RP_EFFECT_SHADING), 0);
+  d = frame(&a);
+  expect_passes(d, 0, 0, 1);
   assert_int_equal(a.s.last.effects, EFFECTS | RP_EFFECT_SHADING);
   assert_int_equal(rp_runtime_set_effects(a.rt, RP_EFFECT_SKIP), 0);
   d = frame(&a);
@@ -614,6 +618,16 @@ static void test_several_devices(void **state) {
   rp_context_destroy(a.ctx);
 }
 
+/* Whether an OpenCL device is here: the tests that need one skip
+ * otherwise. */
+static int have_opencl(void) {
+  rp_context *probe = rp_test_context();
+  uint32_t n = 0;
+  int have = rp_device_count(probe, "opencl", &n) == 0 && n > 0;
+  rp_context_destroy(probe);
+  return have;
+}
+
 /* Out of core (M8): a device with half the volume's memory. Every frame
  * uploads bricks and predicted it would before it started; the upload
  * is reported apart from the raycast. (That the predicted bytes are the
@@ -624,17 +638,11 @@ static void test_out_of_core(void **state) {
   rp_volume *vol;
   rp_tf *tf;
   rp_camera cam, back;
-  uint32_t n = 0;
   int f;
   (void)state;
   memset(&a, 0, sizeof a);
-  {
-    rp_context *probe = rp_test_context();
-    int none = rp_device_count(probe, "opencl", &n) != 0 || n == 0;
-    rp_context_destroy(probe);
-    if (none)
-      skip();
-  }
+  if (!have_opencl())
+    skip();
   dd.backend = "opencl";
   dd.budget_bytes = 64 * 64 * 64 / 2;
   dd.brick_size = 8;
@@ -665,6 +673,71 @@ static void test_out_of_core(void **state) {
   assert_int_equal(a.s.last.status, 0);
   assert_true(a.s.last.upload_predicted_ms > 0.0);
   assert_true(a.s.last.upload_ms > 0.0);
+  app_close(&a);
+  rp_tf_destroy(tf);
+  rp_context_destroy(a.ctx);
+}
+
+/* Kernels built ahead: a frame never waits for a kernel build. On a
+ * device that builds ahead (OpenCL), the frame after an effect set new
+ * on this volume renders the last frame's set while the group's builder
+ * builds the new one, and frames show it once it is built; a set
+ * rendered before on the volume, and the first frame on a volume, render
+ * at once. The images are held to the reference in
+ * tests/conformance; here, what each frame rendered. */
+static void test_effects_wait_for_kernels(void **state) {
+  const uint32_t lit = EFFECTS | RP_EFFECT_SHADING;
+  app a;
+  rp_device_desc dd = {0};
+  rp_volume *vol, *vol2;
+  rp_tf *tf;
+  rp_camera cam;
+  uint64_t t0;
+  int f;
+  (void)state;
+  memset(&a, 0, sizeof a);
+  if (!have_opencl())
+    skip();
+  dd.backend = "opencl";
+  app_open_devices(&a, &dd, 1);
+  vol = make_volume(a.ctx, 24, 5);
+  cam = orbit(vol, 40.0f);
+  tf = post_scene(a.rt, a.ctx, vol, "ct-bone", &cam);
+  (void)frame(&a);
+  assert_int_equal(a.s.last.status, 0);
+  assert_int_equal(a.s.last.effects, EFFECTS); /* built by the frame */
+  assert_int_equal(a.s.last.effects_wanted, EFFECTS);
+
+  assert_int_equal(rp_runtime_set_effects(a.rt, lit), 0);
+  (void)frame(&a);
+  assert_int_equal(a.s.last.status, 0);
+  assert_int_equal(a.s.last.effects_wanted, lit);
+  assert_int_equal(a.s.last.effects, EFFECTS); /* its kernels building */
+  /* Shown once built: a PoCL build takes a second or two cold here
+   * (1576 frames of this size), a minute is plenty under sanitizers. */
+  t0 = uv_hrtime();
+  for (f = 0; a.s.last.effects != lit && uv_hrtime() - t0 < 60e9; f++) {
+    (void)frame(&a);
+    assert_int_equal(a.s.last.status, 0);
+    assert_true(a.s.last.effects == EFFECTS || a.s.last.effects == lit);
+  }
+  assert_int_equal(a.s.last.effects, lit);
+  print_message("shading shown %d frames after the first that wanted "
+                "it\n", f + 1);
+
+  /* Back to a set this volume has rendered: at once. */
+  assert_int_equal(rp_runtime_set_effects(a.rt, EFFECTS), 0);
+  (void)frame(&a);
+  assert_int_equal(a.s.last.effects, EFFECTS);
+
+  /* A new volume: its first frame builds what it needs itself. */
+  vol2 = make_volume(a.ctx, 16, 6);
+  assert_int_equal(rp_runtime_set_volume(a.rt, vol2), 0);
+  assert_int_equal(rp_runtime_set_effects(a.rt, lit), 0);
+  (void)frame(&a);
+  assert_int_equal(a.s.last.status, 0);
+  assert_int_equal(a.s.last.effects, lit);
+  assert_int_equal(a.s.failed, 0);
   app_close(&a);
   rp_tf_destroy(tf);
   rp_context_destroy(a.ctx);
@@ -961,6 +1034,7 @@ int main(void) {
       cmocka_unit_test(test_ao_in_steps),
       cmocka_unit_test(test_several_devices),
       cmocka_unit_test(test_out_of_core),
+      cmocka_unit_test(test_effects_wait_for_kernels),
       cmocka_unit_test(test_volume_other_allocator),
       cmocka_unit_test(test_close_in_flight),
       cmocka_unit_test(test_timer_pacing),

@@ -12,6 +12,8 @@
 #include "test_util.h"
 
 #include <math.h>
+#include <pthread.h>
+#include <stdatomic.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -976,6 +978,234 @@ static void test_regions(void **state) {
   scene_free(&s);
 }
 
+/* ---- tests: prepare ------------------------------------------------------ */
+
+/* A device of its own on `ctx` (g_ctx when NULL), so that its pipeline
+ * table starts empty. */
+static void *fresh_device(rp_context *ctx) {
+  const rp_backend_ops *ops = NULL;
+  void *impl = NULL;
+  rp_caps caps;
+  assert_int_equal(rp_vk_bootstrap.create(ctx != NULL ? ctx : g_ctx, 0, 0,
+                                          &ops, &impl, &caps),
+                   0);
+  assert_ptr_equal(ops, g_ops);
+  return impl;
+}
+
+static uint32_t pipelines_created(void *impl) {
+  rp_vk_stats st;
+  rp_vk_get_stats(impl, &st);
+  return st.pipelines_created;
+}
+
+/* A 32^3 scene and its cameras: with 64x64 frames, the tests below take
+ * a second or two. */
+static void prepare_scene(scene *s, rp_camera cams[3]) {
+  scene_init(s, generate(RP_GEN_PHANTOM, 32, 32, 32, RP_U8),
+             ramp_tf(1.0f));
+  cameras(s->vol, cams);
+}
+
+/* prepare, with errors on a context of its own, builds what the frames
+ * of its effect set bind, at either step kind (opacity corrected or not):
+ * they build nothing, and render what a device without prepare does. */
+static void test_prepare(void **state) {
+  const uint32_t effects = RP_EFFECT_SHADING | RP_EFFECT_ERT |
+                           RP_EFFECT_SKIP;
+  /* ramp_tf(1): step 1 is the reference step, 0.6 needs correcting. */
+  const float steps[2] = {1.0f, 0.6f};
+  rp_context *ctx2 = rp_test_context();
+  void *prep = fresh_device(NULL), *plain = fresh_device(NULL);
+  uint8_t *a = malloc(64 * 64 * 4), *b = malloc(64 * 64 * 4);
+  rp_camera cams[3];
+  scene s;
+  frame f;
+  uint32_t built, plain_built;
+  int i;
+  (void)state;
+  assert_true(a && b);
+  prepare_scene(&s, cams);
+  scene_upload(&s, prep);
+  scene_upload(&s, plain);
+  assert_int_equal(g_ops->prepare(prep, ctx2, effects), 0);
+  built = pipelines_created(prep);
+  assert_true(built > 0);
+  /* What is in the table is not built again. */
+  assert_int_equal(g_ops->prepare(prep, ctx2, effects), 0);
+  assert_int_equal(pipelines_created(prep), built);
+  for (i = 0; i < 2; i++) {
+    frame_desc fd = {64, 64, 1.0f, steps[i], effects};
+    frame_init(&s, &cams[i], &fd, &f);
+    plain_built = pipelines_created(plain);
+    vk_render(prep, &f, NULL, a, NULL, NULL);
+    vk_render(plain, &f, NULL, b, NULL, NULL);
+    assert_int_equal(pipelines_created(prep), built);
+    /* The frame did need a pipeline of its own: the first needs the
+     * depth pass and a raycast, the second another raycast. */
+    assert_true(pipelines_created(plain) > plain_built);
+    assert_memory_equal(a, b, 64 * 64 * 4);
+  }
+  g_ops->destroy(prep);
+  g_ops->destroy(plain);
+  rp_context_destroy(ctx2);
+  scene_free(&s);
+  free(a);
+  free(b);
+}
+
+/* Before any volume: RP_ESTATE, said in the caller's context, not in the
+ * device's; through the ops and through rp_device_prepare. */
+static void test_prepare_no_volume(void **state) {
+  rp_context *dctx = rp_test_context(), *ctx2 = rp_test_context();
+  rp_context *ctx3 = rp_test_context();
+  rp_device_desc dd;
+  rp_device *dev = NULL;
+  rp_volume *vol;
+  char before[512];
+  void *impl;
+  (void)state;
+  impl = fresh_device(dctx);
+  snprintf(before, sizeof before, "%s", rp_last_error(dctx));
+  assert_int_equal(g_ops->prepare(impl, ctx2, RP_EFFECT_SKIP), RP_ESTATE);
+  assert_non_null(strstr(rp_last_error(ctx2), "volume"));
+  assert_string_equal(rp_last_error(dctx), before);
+  assert_int_equal(pipelines_created(impl), 0);
+  g_ops->destroy(impl);
+
+  /* The front end passes the call on, context and all; once a volume is
+   * there, prepare succeeds. */
+  memset(&dd, 0, sizeof dd);
+  dd.backend = "vulkan";
+  assert_int_equal(rp_device_create(dctx, &dd, &dev), 0);
+  snprintf(before, sizeof before, "%s", rp_last_error(dctx));
+  assert_int_equal(rp_device_prepare(dev, ctx3, RP_EFFECT_SKIP), RP_ESTATE);
+  assert_non_null(strstr(rp_last_error(ctx3), "volume"));
+  assert_string_equal(rp_last_error(dctx), before);
+  vol = generate(RP_GEN_PHANTOM, 32, 32, 32, RP_U8);
+  assert_int_equal(rp_device_set_volume(dev, vol), 0);
+  assert_int_equal(rp_device_prepare(dev, ctx3, RP_EFFECT_SKIP), 0);
+  rp_volume_destroy(vol);
+  rp_device_destroy(dev);
+  rp_context_destroy(dctx);
+  rp_context_destroy(ctx2);
+  rp_context_destroy(ctx3);
+}
+
+typedef struct prepare_job {
+  void *impl;
+  rp_context *ctx;
+  uint32_t effects;
+  int rc;
+  atomic_int done;
+} prepare_job;
+
+static void *prepare_main(void *arg) {
+  prepare_job *j = arg;
+  j->rc = g_ops->prepare(j->impl, j->ctx, j->effects);
+  atomic_store(&j->done, 1);
+  return NULL;
+}
+
+/* prepare on a second thread while this one renders another effect set
+ * on the same device (both building pipelines into one table): the
+ * prepared set's frame then builds nothing and gives a fresh device's
+ * image bit for bit. */
+static void test_prepare_concurrent(void **state) {
+  const uint32_t effects = RP_EFFECT_SHADING | RP_EFFECT_ERT |
+                           RP_EFFECT_SKIP;
+  rp_context *ctx2 = rp_test_context();
+  void *impl = fresh_device(NULL), *fresh;
+  uint8_t *a = malloc(64 * 64 * 4), *b = malloc(64 * 64 * 4);
+  frame_desc other = {64, 64, 1.0f, 1.0f, RP_EFFECT_ERT};
+  frame_desc fd = {64, 64, 1.0f, 0.6f, effects};
+  prepare_job job;
+  pthread_t thread;
+  rp_camera cams[3];
+  scene s;
+  frame f;
+  uint32_t built;
+  int renders;
+  (void)state;
+  assert_true(a && b);
+  prepare_scene(&s, cams);
+  scene_upload(&s, impl);
+  job.impl = impl;
+  job.ctx = ctx2;
+  job.effects = effects;
+  job.rc = -1;
+  atomic_init(&job.done, 0);
+  assert_int_equal(pthread_create(&thread, NULL, prepare_main, &job), 0);
+  /* A few frames at least, and on for as long as prepare builds; each
+   * camera change runs a depth pass too. */
+  for (renders = 0; renders < 4 || (!atomic_load(&job.done) &&
+                                    renders < 200);
+       renders++) {
+    other.step = renders % 2 ? 0.6f : 1.0f;
+    frame_init(&s, &cams[renders % 3], &other, &f);
+    vk_render(impl, &f, NULL, a, NULL, NULL);
+  }
+  assert_int_equal(pthread_join(thread, NULL), 0);
+  assert_int_equal(job.rc, 0);
+  built = pipelines_created(impl);
+  frame_init(&s, &cams[0], &fd, &f);
+  vk_render(impl, &f, NULL, a, NULL, NULL);
+  assert_int_equal(pipelines_created(impl), built);
+  fresh = fresh_device(NULL);
+  scene_upload(&s, fresh);
+  vk_render(fresh, &f, NULL, b, NULL, NULL);
+  assert_memory_equal(a, b, 64 * 64 * 4);
+  g_ops->destroy(fresh);
+  g_ops->destroy(impl);
+  rp_context_destroy(ctx2);
+  scene_free(&s);
+  free(a);
+  free(b);
+}
+
+/* A full table: prepare builds, keeps nothing (it never grows the table,
+ * which is the render thread's to do from its context) and still
+ * succeeds; the frame then builds for itself. */
+static void test_prepare_full_table(void **state) {
+  const uint32_t effects = RP_EFFECT_SHADING | RP_EFFECT_SKIP;
+  rp_context *ctx2 = rp_test_context();
+  void *impl = fresh_device(NULL);
+  rp_vk_impl *vk = impl;
+  uint8_t *a = malloc(64 * 64 * 4);
+  frame_desc fd = {64, 64, 1.0f, 1.0f, effects};
+  rp_camera cams[3];
+  scene s;
+  frame f;
+  uint32_t count, built;
+  (void)state;
+  assert_non_null(a);
+  prepare_scene(&s, cams);
+  scene_upload(&s, impl);
+  /* Another set's frame first: the table filled is not an empty one. */
+  fd.effects = 0;
+  frame_init(&s, &cams[1], &fd, &f);
+  vk_render(impl, &f, NULL, a, NULL, NULL);
+  fd.effects = effects;
+  /* No prepare runs now: the table's fields are this thread's. */
+  count = vk->pipeline_count;
+  assert_true(count > 0);
+  vk->pipeline_cap = count;
+  built = pipelines_created(impl);
+  assert_int_equal(g_ops->prepare(impl, ctx2, effects), 0);
+  assert_true(pipelines_created(impl) > built);
+  assert_int_equal(vk->pipeline_count, count);
+  assert_int_equal(vk->pipeline_cap, count);
+  built = pipelines_created(impl);
+  frame_init(&s, &cams[0], &fd, &f);
+  vk_render(impl, &f, NULL, a, NULL, NULL);
+  assert_true(pipelines_created(impl) > built);
+  assert_true(vk->pipeline_count > count);
+  g_ops->destroy(impl);
+  rp_context_destroy(ctx2);
+  scene_free(&s);
+  free(a);
+}
+
 /* The depth pass against runtime/depth.c, ray by ray. */
 static void test_depth_pass(void **state) {
   rp_camera cams[3];
@@ -1357,6 +1587,10 @@ int main(void) {
       cmocka_unit_test(test_ao_state),
       cmocka_unit_test(test_fetch_counts),
       cmocka_unit_test(test_regions),
+      cmocka_unit_test(test_prepare),
+      cmocka_unit_test(test_prepare_no_volume),
+      cmocka_unit_test(test_prepare_concurrent),
+      cmocka_unit_test(test_prepare_full_table),
       cmocka_unit_test(test_depth_pass),
       cmocka_unit_test(test_ert_prepass),
       cmocka_unit_test(test_pipeline_cache),

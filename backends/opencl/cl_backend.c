@@ -94,29 +94,27 @@ static void release_program(rp_cl_program *p) {
   p->program = NULL;
 }
 
-int rp_cl__kernel(rp_cl_impl *impl, rp_cl_kind kind, uint32_t key,
-                  cl_kernel *out) {
+/* The cached entry for (kind, key), or NULL; under impl->lock. */
+static rp_cl_program *cached(rp_cl_impl *impl, rp_cl_kind kind,
+                             uint32_t key) {
+  int i;
+  for (i = 0; i < RP_CL_CACHE_SIZE; i++) {
+    rp_cl_program *p = &impl->cache[i];
+    if (p->program != NULL && p->kind == kind && p->key == key)
+      return p;
+  }
+  return NULL;
+}
+
+/* Builds the program of (kind, key) and its kernel; errors to `ctx`. Any
+ * thread: it reads only what rp_cl__open fixed. */
+static int build_kernel(rp_cl_impl *impl, rp_context *ctx, rp_cl_kind kind,
+                        uint32_t key, cl_program *prog, cl_kernel *kernel) {
   const char *sources[3];
   cl_uint count = 0;
   char options[192];
-  rp_cl_program *slot = &impl->cache[0];
-  cl_program prog;
-  cl_kernel kernel;
   cl_int err;
-  int i, rc;
-  for (i = 0; i < RP_CL_CACHE_SIZE; i++) {
-    rp_cl_program *p = &impl->cache[i];
-    if (p->program != NULL && p->kind == kind && p->key == key) {
-      p->last_use = ++impl->use_clock;
-      impl->hits++;
-      *out = p->kernel;
-      return 0;
-    }
-  }
-  /* A free slot (last_use 0), else the least recently used program. */
-  for (i = 1; i < RP_CL_CACHE_SIZE; i++)
-    if (impl->cache[i].last_use < slot->last_use)
-      slot = &impl->cache[i];
+  int rc;
   sources[count++] = rp_cl_src_common;
   if (kind == RP_CL_RAYCAST || kind == RP_CL_AO)
     sources[count++] = rp_cl_src_sample;
@@ -125,16 +123,57 @@ int rp_cl__kernel(rp_cl_impl *impl, rp_cl_kind kind, uint32_t key,
                      : kind == RP_CL_ERT   ? rp_cl_src_ert
                                            : rp_cl_src_ao;
   key_options(kind, key, options, sizeof options);
-  if ((rc = rp_cl__build(impl, kind_names[kind], sources, count, options,
-                         &prog)) != 0)
+  if ((rc = rp_cl__build(impl, ctx, kind_names[kind], sources, count,
+                         options, prog)) != 0)
     return rc;
-  kernel = clCreateKernel(prog, kind_kernels[kind], &err);
-  if (kernel == NULL) {
+  *kernel = clCreateKernel(*prog, kind_kernels[kind], &err);
+  if (*kernel == NULL) {
     char op[64];
-    clReleaseProgram(prog);
+    clReleaseProgram(*prog);
+    *prog = NULL;
     snprintf(op, sizeof op, "clCreateKernel(%s)", kind_kernels[kind]);
-    return rp_cl__fail(impl->ctx, err, op);
+    return rp_cl__fail(ctx, err, op);
   }
+  return 0;
+}
+
+/* The calling (render) thread is the only one that uses kernels from the
+ * cache or evicts them; prepare only fills free entries. So a kernel
+ * handed out here stays valid while this thread uses it, and the lock is
+ * held only to look up and to insert, never across a build. */
+int rp_cl__kernel(rp_cl_impl *impl, rp_cl_kind kind, uint32_t key,
+                  cl_kernel *out) {
+  rp_cl_program *slot, *p;
+  cl_program prog;
+  cl_kernel kernel;
+  int i, rc;
+  pthread_mutex_lock(&impl->lock);
+  if ((p = cached(impl, kind, key)) != NULL) {
+    p->last_use = ++impl->use_clock;
+    impl->hits++;
+    *out = p->kernel;
+    pthread_mutex_unlock(&impl->lock);
+    return 0;
+  }
+  pthread_mutex_unlock(&impl->lock);
+  if ((rc = build_kernel(impl, impl->ctx, kind, key, &prog, &kernel)) != 0)
+    return rc;
+  pthread_mutex_lock(&impl->lock);
+  if ((p = cached(impl, kind, key)) != NULL) {
+    /* prepare added it while this thread was building: keep one. */
+    clReleaseKernel(kernel);
+    clReleaseProgram(prog);
+    p->last_use = ++impl->use_clock;
+    impl->hits++;
+    *out = p->kernel;
+    pthread_mutex_unlock(&impl->lock);
+    return 0;
+  }
+  /* A free slot (last_use 0), else the least recently used program. */
+  slot = &impl->cache[0];
+  for (i = 1; i < RP_CL_CACHE_SIZE; i++)
+    if (impl->cache[i].last_use < slot->last_use)
+      slot = &impl->cache[i];
   release_program(slot);
   slot->kind = kind;
   slot->key = key;
@@ -143,6 +182,7 @@ int rp_cl__kernel(rp_cl_impl *impl, rp_cl_kind kind, uint32_t key,
   slot->last_use = ++impl->use_clock;
   impl->builds++;
   *out = kernel;
+  pthread_mutex_unlock(&impl->lock);
   return 0;
 }
 
@@ -334,6 +374,7 @@ static void cl_destroy(void *p) {
   rp__free(impl->ctx, impl->brick_staging);
   rp__free(impl->ctx, impl->brick_order);
   rp_cl__close(impl);
+  pthread_mutex_destroy(&impl->lock);
   rp__free(impl->ctx, impl);
 }
 
@@ -344,13 +385,15 @@ static int cl_upload_volume(void *p, const rp_volume *vol) {
                   "the volume");
   if (rc == 0) {
     release_buffer(&impl->brick_table);
-    impl->bricked = 0;
     memcpy(impl->dims, vol->dims, sizeof impl->dims);
     impl->voxels = vol->voxel_count;
+    pthread_mutex_lock(&impl->lock);
+    impl->bricked = 0;
     impl->voxel_type = vol->type;
     /* Kernels index voxels with signed 32-bit integers (that is what
      * lets gathers use 32-bit offsets) unless the volume is too big. */
     impl->big_volume = vol->voxel_count + RP_CL_VOLUME_PAD >= 0x7fffffffu;
+    pthread_mutex_unlock(&impl->lock);
   }
   return rc;
 }
@@ -676,8 +719,10 @@ static int cl_set_brick_pool(void *p, const rp_brick_pool *pool) {
   release_buffer(&impl->brick_table);
   release_buffer(&impl->ao);
   impl->ao_voxels = 0;
-  impl->bricked = 0;
   impl->voxels = 0;
+  pthread_mutex_lock(&impl->lock);
+  impl->bricked = 0;
+  pthread_mutex_unlock(&impl->lock);
   if (pool == NULL)
     return 0;
   s = (size_t)pool->brick_size + 1;
@@ -705,11 +750,13 @@ static int cl_set_brick_pool(void *p, const rp_brick_pool *pool) {
   if (err != CL_SUCCESS)
     return rp_cl__fail(impl->ctx, err, "clearing the brick pool");
   memcpy(impl->dims, pool->dims, sizeof impl->dims);
-  impl->voxel_type = pool->type;
   impl->brick_count = count;
+  pthread_mutex_lock(&impl->lock);
+  impl->voxel_type = pool->type;
   impl->bricked = 1;
   impl->big_volume =
       bytes / rp__voxel_size(pool->type) + RP_CL_VOLUME_PAD >= 0x7fffffffu;
+  pthread_mutex_unlock(&impl->lock);
   return 0;
 }
 
@@ -839,6 +886,62 @@ static uint64_t cl_last_time_ns(void *p) {
   return ((const rp_cl_impl *)p)->last_ns;
 }
 
+/* The frame's kernels ahead of it, on the calling thread (rp_backend_ops
+ * says what may run meanwhile). PoCL still compiles a kernel's
+ * work-group function at its first launch: from its disk cache that is
+ * quick, but cold it cost the first frame 460-480 ms here. Launching
+ * from here instead stalled a frame just as long (PoCL's device holds
+ * its queues while it compiles), so the frame is left to do it. The keys come from the volume's fields,
+ * read under the lock; a volume uploaded while this builds makes them
+ * stale, which costs the frame a build of its own, never a wrong kernel:
+ * the key says what a program was built for. */
+static int cl_prepare(void *p, rp_context *ctx, uint32_t effects) {
+  rp_cl_impl *impl = p;
+  rp_cl_kind kinds[2] = {RP_CL_DEPTH, RP_CL_RAYCAST};
+  uint32_t keys[2];
+  int i, j, have, rc;
+  pthread_mutex_lock(&impl->lock);
+  have = impl->voxel_type != 0;
+  keys[0] = effects & RP_EFFECT_SKIP;
+  keys[1] = raycast_key(impl, effects, 0);
+  pthread_mutex_unlock(&impl->lock);
+  if (!have)
+    return rp__fail(ctx, RP_ESTATE, "opencl: prepare before a volume was "
+                    "uploaded (the raycast is built for its voxel type)");
+  for (i = 0; i < 2; i++) {
+    cl_program prog;
+    cl_kernel kernel;
+    pthread_mutex_lock(&impl->lock);
+    have = cached(impl, kinds[i], keys[i]) != NULL;
+    pthread_mutex_unlock(&impl->lock);
+    if (have)
+      continue;
+    if ((rc = build_kernel(impl, ctx, kinds[i], keys[i], &prog,
+                           &kernel)) != 0)
+      return rc;
+    pthread_mutex_lock(&impl->lock);
+    have = cached(impl, kinds[i], keys[i]) != NULL;
+    for (j = 0; !have && j < RP_CL_CACHE_SIZE; j++) {
+      rp_cl_program *slot = &impl->cache[j];
+      if (slot->program != NULL)
+        continue;
+      slot->kind = kinds[i];
+      slot->key = keys[i];
+      slot->program = prog;
+      slot->kernel = kernel;
+      slot->last_use = ++impl->use_clock;
+      impl->builds++;
+      have = 2;
+    }
+    pthread_mutex_unlock(&impl->lock);
+    if (have != 2) { /* there already, or no free entry: see the op */
+      clReleaseKernel(kernel);
+      clReleaseProgram(prog);
+    }
+  }
+  return 0;
+}
+
 static const rp_backend_ops cl_ops = {
     .destroy = cl_destroy,
     .upload_volume = cl_upload_volume,
@@ -851,7 +954,8 @@ static const rp_backend_ops cl_ops = {
     .upload_ao = cl_upload_ao,
     .set_brick_pool = cl_set_brick_pool,
     .upload_bricks = cl_upload_bricks,
-    .last_time_ns = cl_last_time_ns};
+    .last_time_ns = cl_last_time_ns,
+    .prepare = cl_prepare};
 
 /* ---- bootstrap ----------------------------------------------------------- */
 
@@ -868,7 +972,13 @@ static int cl_create(rp_context *ctx, uint32_t index, uint32_t units,
     return rp__fail(ctx, RP_ENOMEM, "opencl: out of memory for device %u",
                     (unsigned)index);
   impl->ctx = ctx;
+  if (pthread_mutex_init(&impl->lock, NULL) != 0) {
+    rp__free(ctx, impl);
+    return rp__fail(ctx, RP_ENOMEM, "opencl: no mutex for device %u",
+                    (unsigned)index);
+  }
   if ((rc = rp_cl__open(impl, index, units, caps)) != 0) {
+    pthread_mutex_destroy(&impl->lock);
     rp__free(ctx, impl);
     return rc;
   }
@@ -886,16 +996,19 @@ int rp_cl__build_program_for_test(void *p, const char *source,
                                   const char *options) {
   rp_cl_impl *impl = p;
   cl_program prog;
-  int rc = rp_cl__build(impl, "test", &source, 1, options, &prog);
+  int rc = rp_cl__build(impl, impl->ctx, "test", &source, 1, options,
+                        &prog);
   if (rc == 0)
     clReleaseProgram(prog);
   return rc;
 }
 
 void rp_cl__cache_stats(void *p, uint32_t *builds, uint32_t *hits) {
-  const rp_cl_impl *impl = p;
+  rp_cl_impl *impl = p;
+  pthread_mutex_lock(&impl->lock);
   *builds = impl->builds;
   *hits = impl->hits;
+  pthread_mutex_unlock(&impl->lock);
 }
 
 int rp_cl__prepare_raycast(void *p, uint32_t effects, int count_fetches) {
@@ -931,8 +1044,8 @@ int rp_cl__correct_for_test(void *p, const float *alpha, size_t n,
   cl_int err;
   int rc;
   key_options(RP_CL_RAYCAST, 0, options, sizeof options);
-  if ((rc = rp_cl__build(impl, "correction test", sources, 3, options,
-                         &prog)) != 0)
+  if ((rc = rp_cl__build(impl, impl->ctx, "correction test", sources, 3,
+                         options, &prog)) != 0)
     return rc;
   k = clCreateKernel(prog, "rp_cl_correct_test", &err);
   if (k == NULL)

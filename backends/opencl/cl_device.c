@@ -340,9 +340,9 @@ static void quote_log(const char *log, char *out, size_t n) {
   out[len] = '\0';
 }
 
-int rp_cl__build(rp_cl_impl *impl, const char *what, const char **sources,
-                 cl_uint count, const char *options, cl_program *out) {
-  rp_context *ctx = impl->ctx;
+int rp_cl__build(rp_cl_impl *impl, rp_context *ctx, const char *what,
+                 const char **sources, cl_uint count, const char *options,
+                 cl_program *out) {
   cl_program prog;
   cl_int err;
   size_t log_size = 0;

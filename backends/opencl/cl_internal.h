@@ -3,6 +3,7 @@
 #ifndef RP_CL_INTERNAL_H
 #define RP_CL_INTERNAL_H
 
+#include <pthread.h>
 #include <stddef.h>
 #include <stdint.h>
 
@@ -66,16 +67,21 @@ typedef struct rp_cl_impl {
   cl_device_id root;   /* its parent when a sub-device, else NULL */
   cl_context context;
   cl_command_queue queue;
+  /* Guards the program cache, its counters and the three fields after
+   * them: the ops' one exception to one thread per impl is `prepare`,
+   * which builds on another thread and adds what it built here. */
+  pthread_mutex_t lock;
   rp_cl_program cache[RP_CL_CACHE_SIZE];
   uint64_t use_clock;
   uint32_t builds, hits; /* program cache counters (tests read them) */
   rp_voxel_type voxel_type; /* 0 until a volume is uploaded */
   int big_volume;           /* see RP_CL_KEY_BIG */
+  int bricked;              /* the volume is a brick pool (below) */
   uint32_t dims[3];         /* of the uploaded volume */
   size_t voxels;            /* its voxel count */
   size_t ao_voxels;         /* the AO volume's, when one is uploaded */
-  /* Out-of-core: `volume` holds the pool, brick_table its table. */
-  int bricked;
+  /* Out-of-core (`bricked`): `volume` holds the pool, brick_table its
+   * table. */
   size_t brick_bytes;       /* one stored brick */
   size_t brick_count;       /* entries of the table */
   rp_cl_buffer brick_table;
@@ -115,10 +121,12 @@ int rp_cl__partition_units(rp_context *ctx, uint32_t index,
 int rp_cl__open(rp_cl_impl *impl, uint32_t index, uint32_t compute_units,
                 rp_caps *caps);
 void rp_cl__close(rp_cl_impl *impl);
-/* Builds `sources` for impl's device. On failure the RP_EBUILD message
- * names `what` and quotes the start of the build log. */
-int rp_cl__build(rp_cl_impl *impl, const char *what, const char **sources,
-                 cl_uint count, const char *options, cl_program *out);
+/* Builds `sources` for impl's device. On failure the RP_EBUILD message,
+ * to `ctx`, names `what` and quotes the start of the build log. Touches
+ * nothing in impl but its device and context: any thread may call it. */
+int rp_cl__build(rp_cl_impl *impl, rp_context *ctx, const char *what,
+                 const char **sources, cl_uint count, const char *options,
+                 cl_program *out);
 
 /* ---- cl_backend.c -------------------------------------------------------- */
 

@@ -68,6 +68,11 @@ _Static_assert(sizeof(rp_vk_params) == 320,
 
 static const rp_backend_ops vk_ops;
 
+/* Pipeline table entries allocated at create: a frame binds a depth and
+ * a raycast pipeline, so a dozen effect sets and step kinds fit before
+ * the table first grows. */
+#define RP_VK_PIPELINES_AT_CREATE 32
+
 /* Texel formats of the volume per rp_voxel_type: one voxel per texel
  * (plain), or the 2x2 footprint of the quad layout. */
 static const VkFormat plain_fmt[4] = {VK_FORMAT_UNDEFINED, VK_FORMAT_R8_UINT,
@@ -319,6 +324,7 @@ static void vk_destroy(void *p) {
       vkDestroyDescriptorSetLayout(impl->dev, impl->set_layout, NULL);
   }
   rp_vk__close(impl);
+  pthread_mutex_destroy(&impl->lock);
   rp__free(impl->ctx, impl->pipelines);
   rp__free(impl->ctx, impl);
 }
@@ -350,6 +356,18 @@ static int vk_create(rp_context *ctx, uint32_t index, uint32_t units,
     return rp__fail(ctx, RP_ENOMEM, "vulkan: out of memory for the device "
                     "(%zu bytes)", sizeof *impl);
   impl->ctx = ctx;
+  pthread_mutex_init(&impl->lock, NULL);
+  /* Room from the start: prepare only fills free entries (growing is
+   * the render thread's, from its context), and a device's first frames
+   * are what it would prepare for. */
+  impl->pipelines = rp__malloc(ctx, RP_VK_PIPELINES_AT_CREATE *
+                                        sizeof *impl->pipelines);
+  if (impl->pipelines == NULL) {
+    vk_destroy(impl);
+    return rp__fail(ctx, RP_ENOMEM, "vulkan: out of memory for the "
+                    "pipeline table");
+  }
+  impl->pipeline_cap = RP_VK_PIPELINES_AT_CREATE;
   if ((err = rp_vk__open(impl, index, caps)) != 0 ||
       (err = make_modules(impl)) != 0 || (err = make_layout(impl)) != 0 ||
       (err = make_buffers(impl)) != 0) {
@@ -382,7 +400,33 @@ static uint32_t pipeline_key(rp_vk_kernel k, const rp_frame_params *p,
   return key;
 }
 
-static int get_pipeline(rp_vk_impl *impl, uint32_t key, VkPipeline *out) {
+/* The table's entry for `key`, or VK_NULL_HANDLE. The caller holds the
+ * lock. */
+static VkPipeline find_pipeline(const rp_vk_impl *impl, uint32_t key) {
+  uint32_t i;
+  for (i = 0; i < impl->pipeline_count; i++)
+    if (impl->pipelines[i].key == key)
+      return impl->pipelines[i].pipe;
+  return VK_NULL_HANDLE;
+}
+
+static VkPipeline lookup(rp_vk_impl *impl, uint32_t key) {
+  VkPipeline pipe;
+  pthread_mutex_lock(&impl->lock);
+  pipe = find_pipeline(impl, key);
+  pthread_mutex_unlock(&impl->lock);
+  return pipe;
+}
+
+/* Makes the pipeline for `key`, not in the table; failures go to `ctx`,
+ * the calling thread's. Runs without the lock, so two threads may build
+ * at once: the spec (vkCreatePipelineCache) has a cache's use by
+ * vkCreate*Pipelines "internally synchronized, and the same pipeline
+ * cache object can be used in multiple threads simultaneously" unless
+ * it was created with VK_PIPELINE_CACHE_CREATE_EXTERNALLY_SYNCHRONIZED_BIT,
+ * which rp_vk__cache_load does not set. */
+static int build_pipeline(rp_vk_impl *impl, rp_context *ctx, uint32_t key,
+                          VkPipeline *out) {
   rp_vk_kernel k = (rp_vk_kernel)(key >> RP_VK_KEY_KERNEL_SHIFT);
   uint32_t values[RP_VK_SPEC_TOTAL], i;
   VkSpecializationMapEntry map[RP_VK_SPEC_TOTAL];
@@ -390,28 +434,9 @@ static int get_pipeline(rp_vk_impl *impl, uint32_t key, VkPipeline *out) {
   VkComputePipelineCreateInfo info = {0};
   VkPipelineCreationFeedback fb = {0};
   VkPipelineCreationFeedbackCreateInfo fbinfo = {0};
-  VkPipeline pipe;
   VkResult r;
-  uint64_t t0;
+  uint64_t t0, ns;
 
-  for (i = 0; i < impl->pipeline_count; i++)
-    if (impl->pipelines[i].key == key) {
-      *out = impl->pipelines[i].pipe;
-      return 0;
-    }
-  if (impl->pipeline_count == impl->pipeline_cap) {
-    uint32_t cap = impl->pipeline_cap ? 2 * impl->pipeline_cap : 8;
-    rp_vk_pipeline *grown = rp__malloc(impl->ctx, cap * sizeof *grown);
-    if (grown == NULL)
-      return rp__fail(impl->ctx, RP_ENOMEM, "vulkan: out of memory for "
-                      "the pipeline table");
-    if (impl->pipeline_count > 0)
-      memcpy(grown, impl->pipelines,
-             impl->pipeline_count * sizeof *grown);
-    rp__free(impl->ctx, impl->pipelines);
-    impl->pipelines = grown;
-    impl->pipeline_cap = cap;
-  }
   /* Booleans are VkBool32, the voxel type a uint: all four bytes. */
   values[RP_VK_SPEC_SHADING] = (key & RP_EFFECT_SHADING) != 0;
   values[RP_VK_SPEC_ERT] = (key & RP_EFFECT_ERT) != 0;
@@ -446,26 +471,140 @@ static int get_pipeline(rp_vk_impl *impl, uint32_t key, VkPipeline *out) {
     info.pNext = &fbinfo;
   }
   t0 = rp__now_ns();
-  r = vkCreateComputePipelines(impl->dev, impl->cache, 1, &info, NULL,
-                               &pipe);
-  impl->stats.pipeline_create_ns += rp__now_ns() - t0;
+  r = vkCreateComputePipelines(impl->dev, impl->cache, 1, &info, NULL, out);
+  ns = rp__now_ns() - t0;
+  pthread_mutex_lock(&impl->lock);
+  impl->stats.pipeline_create_ns += ns;
+  if (r == VK_SUCCESS) {
+    impl->stats.pipelines_created++;
+    if ((fb.flags & VK_PIPELINE_CREATION_FEEDBACK_VALID_BIT) &&
+        (fb.flags &
+         VK_PIPELINE_CREATION_FEEDBACK_APPLICATION_PIPELINE_CACHE_HIT_BIT))
+      impl->stats.pipeline_cache_hits++;
+  }
+  pthread_mutex_unlock(&impl->lock);
   if (r != VK_SUCCESS) {
+    *out = VK_NULL_HANDLE;
     if (r == VK_ERROR_OUT_OF_HOST_MEMORY ||
         r == VK_ERROR_OUT_OF_DEVICE_MEMORY)
-      return rp_vk__fail(impl->ctx, r, "vkCreateComputePipelines");
-    return rp__fail(impl->ctx, RP_EBUILD, "vulkan: kernel '%s' (variant "
+      return rp_vk__fail(ctx, r, "vkCreateComputePipelines");
+    return rp__fail(ctx, RP_EBUILD, "vulkan: kernel '%s' (variant "
                     "0x%x): vkCreateComputePipelines: %s", kernels[k].name,
                     (unsigned)key, rp_vk__result_name(r));
   }
-  impl->stats.pipelines_created++;
-  if ((fb.flags & VK_PIPELINE_CREATION_FEEDBACK_VALID_BIT) &&
-      (fb.flags &
-       VK_PIPELINE_CREATION_FEEDBACK_APPLICATION_PIPELINE_CACHE_HIT_BIT))
-    impl->stats.pipeline_cache_hits++;
-  impl->pipelines[impl->pipeline_count].key = key;
-  impl->pipelines[impl->pipeline_count].pipe = pipe;
-  impl->pipeline_count++;
-  *out = pipe;
+  return 0;
+}
+
+/* Adds `pipe` for `key` unless the table has it already (the other
+ * thread built it meanwhile: `pipe` is then destroyed and *out is the
+ * table's). Only the thread that owns the impl grows the table
+ * (`grow`), from its context; prepare keeps a pipeline only where there
+ * is a free entry, and otherwise leaves it to the frame to build. The
+ * caller holds nothing; returns RP_ENOMEM (not yet recorded) when the
+ * table could not grow, 1 when `pipe` was dropped for want of room. */
+static int keep_pipeline(rp_vk_impl *impl, uint32_t key, VkPipeline pipe,
+                         int grow, VkPipeline *out) {
+  VkPipeline had;
+  int rc = 0;
+  pthread_mutex_lock(&impl->lock);
+  had = find_pipeline(impl, key);
+  if (had == VK_NULL_HANDLE && grow &&
+      impl->pipeline_count == impl->pipeline_cap) {
+    uint32_t cap = impl->pipeline_cap ? 2 * impl->pipeline_cap : 8;
+    rp_vk_pipeline *grown = rp__malloc(impl->ctx, cap * sizeof *grown);
+    if (grown != NULL) {
+      if (impl->pipeline_count > 0)
+        memcpy(grown, impl->pipelines,
+               impl->pipeline_count * sizeof *grown);
+      rp__free(impl->ctx, impl->pipelines);
+      impl->pipelines = grown;
+      impl->pipeline_cap = cap;
+    }
+  }
+  if (had == VK_NULL_HANDLE) {
+    if (impl->pipeline_count < impl->pipeline_cap) {
+      impl->pipelines[impl->pipeline_count].key = key;
+      impl->pipelines[impl->pipeline_count].pipe = pipe;
+      impl->pipeline_count++;
+      had = pipe;
+    } else {
+      rc = grow ? RP_ENOMEM : 1;
+    }
+  }
+  pthread_mutex_unlock(&impl->lock);
+  if (had != pipe)
+    vkDestroyPipeline(impl->dev, pipe, NULL);
+  *out = had;
+  return rc;
+}
+
+/* The pipeline for `key`, made on first use: the ops' path, on the
+ * thread that owns the impl. */
+static int get_pipeline(rp_vk_impl *impl, uint32_t key, VkPipeline *out) {
+  VkPipeline pipe;
+  int err;
+  if ((*out = lookup(impl, key)) != VK_NULL_HANDLE)
+    return 0;
+  if ((err = build_pipeline(impl, impl->ctx, key, &pipe)) != 0)
+    return err;
+  if (keep_pipeline(impl, key, pipe, 1, out) != 0)
+    return rp__fail(impl->ctx, RP_ENOMEM, "vulkan: out of memory for "
+                    "the pipeline table");
+  return 0;
+}
+
+/* The pipelines a frame with `effects` binds, built ahead on the calling
+ * thread (rp_backend_ops says what may run meanwhile): the depth pass,
+ * keyed by RP_EFFECT_SKIP (the front end runs one for every new camera,
+ * skipping or not), and the raycast with and without the opacity
+ * correction (the frame's step decides), for the layout, voxel type and
+ * brick pool the device holds now. Not the fetch-counting raycast (tests
+ * and cost models ask for it), the ERT pre-pass (a call of its own, not
+ * part of a render) nor compute_ao. The volume's fields are read under
+ * the lock; a volume uploaded while this builds makes the keys stale,
+ * which costs the frame a build of its own, never a wrong pipeline: the
+ * key says what a pipeline was specialised for. */
+static int vk_prepare(void *ip, rp_context *ctx, uint32_t effects) {
+  rp_vk_impl *impl = ip;
+  rp_frame_params p;
+  uint32_t keys[3];
+  rp_voxel_type type;
+  const char *lost;
+  VkPipeline pipe;
+  int quad, bricked, n = 0, i, err;
+  pthread_mutex_lock(&impl->lock);
+  type = impl->voxel_type;
+  quad = impl->quad;
+  bricked = impl->bricked;
+  lost = impl->lost;
+  pthread_mutex_unlock(&impl->lock);
+  if (lost != NULL)
+    return rp__fail(ctx, RP_EDEVICE, "vulkan: the device was lost during "
+                    "%s; destroy it and create a new one", lost);
+  if (type == 0)
+    return rp__fail(ctx, RP_ESTATE, "vulkan: prepare before a volume was "
+                    "uploaded (the raycast is specialised for its voxel "
+                    "type)");
+  /* The keys as the ops make them, from the frame fields they read. */
+  memset(&p, 0, sizeof p);
+  p.effects = effects;
+  p.brick_shift = bricked ? 1 : 0; /* only whether it is 0 counts */
+  keys[n++] = pipeline_key(RP_VK_DEPTH, &p, 0, 0, 0);
+  /* A brick pool holds no AO volume (set_brick_pool drops it, upload_ao
+   * refuses): no frame on it can use the AO raycast. */
+  for (i = 0; i < 2 && !(bricked && (effects & RP_EFFECT_AO)); i++) {
+    p.step = 1.0f;
+    p.ref_step = i == 0 ? 1.0f : 2.0f; /* RP_VK_KEY_CORRECT off, on */
+    keys[n++] = pipeline_key(RP_VK_RAYCAST, &p, 0, type, quad);
+  }
+  for (i = 0; i < n; i++) {
+    if (lookup(impl, keys[i]) != VK_NULL_HANDLE)
+      continue;
+    if ((err = build_pipeline(impl, ctx, keys[i], &pipe)) != 0)
+      return err;
+    /* Kept, there already, or dropped for want of room: 0 either way. */
+    keep_pipeline(impl, keys[i], pipe, 0, &pipe);
+  }
   return 0;
 }
 
@@ -570,8 +709,11 @@ static int finish(rp_vk_impl *impl, const char *op) {
     snprintf(what, sizeof what, "%s (vkQueueSubmit)", op);
   }
   if (r != VK_SUCCESS) {
-    if (r == VK_ERROR_DEVICE_LOST)
+    if (r == VK_ERROR_DEVICE_LOST) {
+      pthread_mutex_lock(&impl->lock);
       impl->lost = op;
+      pthread_mutex_unlock(&impl->lock);
+    }
     return rp_vk__fail(impl->ctx, r, what);
   }
   impl->last_ns = rp__now_ns() - t0;
@@ -701,6 +843,17 @@ static void drop_ao(rp_vk_impl *impl) {
   bind_all(impl);
 }
 
+/* What the volume is, as prepare reads it: under the lock. */
+static void set_volume_state(rp_vk_impl *impl, rp_voxel_type type,
+                             int quad, int bricked) {
+  pthread_mutex_lock(&impl->lock);
+  impl->voxel_type = type;
+  impl->quad = quad;
+  impl->bricked = bricked;
+  impl->stats.quad_layout = quad;
+  pthread_mutex_unlock(&impl->lock);
+}
+
 /* Releases the volume, whole or a brick pool, and its table. The caller
  * rebinds. */
 static void drop_volume(rp_vk_impl *impl) {
@@ -708,10 +861,9 @@ static void drop_volume(rp_vk_impl *impl) {
   rp_vk__buffer_free(impl, &impl->volume);
   free_view(impl, &impl->brick_table_view);
   rp_vk__buffer_free(impl, &impl->brick_table);
-  impl->bricked = 0;
+  set_volume_state(impl, 0, impl->quad, 0);
   impl->brick_slots = impl->brick_count = 0;
   impl->brick_bytes = 0;
-  impl->voxel_type = 0;
   impl->depth_ok = 0;
 }
 
@@ -765,10 +917,8 @@ static int vk_upload_volume(void *p, const rp_volume *vol) {
     return err;
   }
   bind_all(impl);
-  impl->voxel_type = vol->type;
   memcpy(impl->dims, vol->dims, sizeof impl->dims);
-  impl->quad = quad;
-  impl->stats.quad_layout = quad;
+  set_volume_state(impl, vol->type, quad, 0);
   return 0;
 }
 
@@ -1464,16 +1614,13 @@ static int vk_set_brick_pool(void *p, const rp_brick_pool *pool) {
     return err;
   }
   bind_all(impl);
-  impl->bricked = 1;
   impl->brick_slots = pool->slots;
   impl->brick_count = (uint32_t)count;
   impl->brick_bytes = (VkDeviceSize)(stored * stored * stored * es);
-  impl->voxel_type = pool->type;
   memcpy(impl->dims, pool->dims, sizeof impl->dims);
   /* One voxel per texel: the quad layout would take four times the
    * memory the front end sized the pool to. */
-  impl->quad = 0;
-  impl->stats.quad_layout = 0;
+  set_volume_state(impl, pool->type, 0, 1);
   return 0;
 }
 
@@ -1576,7 +1723,10 @@ static uint64_t vk_last_time_ns(void *ip) {
 }
 
 void rp_vk_get_stats(void *ip, rp_vk_stats *out) {
-  *out = ((rp_vk_impl *)ip)->stats;
+  rp_vk_impl *impl = ip;
+  pthread_mutex_lock(&impl->lock);
+  *out = impl->stats;
+  pthread_mutex_unlock(&impl->lock);
 }
 
 static const rp_backend_ops vk_ops = {
@@ -1591,7 +1741,8 @@ static const rp_backend_ops vk_ops = {
     .upload_ao = vk_upload_ao,
     .set_brick_pool = vk_set_brick_pool,
     .upload_bricks = vk_upload_bricks,
-    .last_time_ns = vk_last_time_ns};
+    .last_time_ns = vk_last_time_ns,
+    .prepare = vk_prepare};
 
 const rp_backend_bootstrap rp_vk_bootstrap = {"vulkan", vk_probe, vk_create,
                                               NULL};

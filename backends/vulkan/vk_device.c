@@ -533,6 +533,9 @@ void rp_vk__cache_load(rp_vk_impl *impl) {
              (unsigned)impl->props.vendorID, (unsigned)impl->props.deviceID);
   if (st->cache_path[0] != '\0')
     data = read_cache(impl, &len);
+  /* No VK_PIPELINE_CACHE_CREATE_EXTERNALLY_SYNCHRONIZED_BIT: prepare
+   * builds pipelines through the cache on another thread (vk_backend.c,
+   * build_pipeline). */
   info.sType = VK_STRUCTURE_TYPE_PIPELINE_CACHE_CREATE_INFO;
   info.initialDataSize = len;
   info.pInitialData = data;

@@ -3,6 +3,7 @@
 #ifndef RP_VK_INTERNAL_H
 #define RP_VK_INTERNAL_H
 
+#include <pthread.h>
 #include <stddef.h>
 #include <stdint.h>
 
@@ -144,6 +145,15 @@ typedef struct rp_vk_impl {
   VkDescriptorSet set;
   VkShaderModule modules[RP_VK_KERNEL_COUNT];
   VkPipelineCache cache;
+  /* Guards the pipeline table, the stats' pipeline figures and the
+   * writes of the fields marked "lock" below (prepare reads them under
+   * it; the other ops, their only writers, read them without): the ops'
+   * one exception to one thread per impl is `prepare`, which builds on
+   * another thread and adds what it built here. Held to look up, insert
+   * or copy, never across a build. */
+  pthread_mutex_t lock;
+  /* Entries are never removed before destroy: a pipeline handed out
+   * stays valid without the lock. */
   rp_vk_pipeline *pipelines;
   uint32_t pipeline_count, pipeline_cap;
   /* Inputs: the parameters in host-visible memory (written by every
@@ -159,7 +169,7 @@ typedef struct rp_vk_impl {
   /* Out-of-core (set_brick_pool): `volume` holds the pool, `brick_slots`
    * bricks of brick_bytes in the plain layout, and brick_table the slot
    * of each of the volume's brick_count bricks (an R32 texel each). */
-  int bricked;
+  int bricked;               /* lock */
   uint32_t brick_slots, brick_count;
   VkDeviceSize brick_bytes;
   rp_vk_buffer brick_table;
@@ -172,15 +182,16 @@ typedef struct rp_vk_impl {
    * of the set is always valid. */
   rp_vk_buffer dummy;
   VkBufferView dummy_u_view, dummy_f_view;
-  rp_voxel_type voxel_type;  /* 0 until a volume is uploaded */
+  rp_voxel_type voxel_type;  /* 0 until a volume is uploaded; lock */
   uint32_t dims[3];          /* the uploaded volume's */
   int have_lut;              /* a transfer function was uploaded */
-  int quad;                  /* the uploaded volume's layout */
+  int quad;                  /* the uploaded volume's layout; lock */
   /* The frame the device's depth buffer holds (valid when depth_ok). */
   rp_frame_params depth_frame;
   int depth_ok;
   uint64_t occupancy_gen, depth_gen;
-  const char *lost;          /* the operation the device was lost in */
+  const char *lost;          /* the operation the device was lost in;
+                                lock */
   uint64_t last_ns;
   rp_vk_stats stats;
 } rp_vk_impl;
@@ -241,7 +252,8 @@ int rp_vk__check_spirv(rp_context *ctx, const char *what,
 
 /* ---- vk_backend.c -------------------------------------------------------- */
 
-/* Figures for tests (impl is the pointer create returned). */
+/* Figures for tests (impl is the pointer create returned); the pipeline
+ * figures are read under the lock, so a prepare may be running. */
 void rp_vk_get_stats(void *impl, rp_vk_stats *out);
 
 #endif /* RP_VK_INTERNAL_H */
