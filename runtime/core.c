@@ -212,3 +212,20 @@ int rp__parallel_for(const rp_context *ctx, uint32_t n,
     pthread_join(ws[t].thread, NULL);
   return err;
 }
+
+#if defined(__SANITIZE_ADDRESS__)
+#define RP_UNDER_ASAN 1
+#elif defined(__has_feature)
+#if __has_feature(address_sanitizer)
+#define RP_UNDER_ASAN 1
+#endif
+#endif
+
+#ifdef RP_UNDER_ASAN
+#include <sanitizer/lsan_interface.h>
+void rp__driver_setup_begin(void) { __lsan_disable(); }
+void rp__driver_setup_end(void) { __lsan_enable(); }
+#else
+void rp__driver_setup_begin(void) {}
+void rp__driver_setup_end(void) {}
+#endif

@@ -235,4 +235,14 @@ int rp__png_write_rgb(rp_context *ctx, const char *path, const uint8_t *rgb,
 /* Whether the device builds kernels ahead (its backend has `prepare`). */
 int rp__device_builds_ahead(const rp_device *dev);
 
+/* Around a driver's set-up calls (OpenCL's first device query, Vulkan's
+ * instance and device creation). Drivers keep what they allocate there
+ * for the life of the process, some in libraries built without frame
+ * pointers (hwloc under PoCL, Mesa's lavapipe), whose stacks LSan's fast
+ * unwinder cannot walk: the report names no library, so no suppression
+ * can match it. Under AddressSanitizer this thread's allocations in
+ * between are not leak-checked; otherwise these do nothing. */
+void rp__driver_setup_begin(void);
+void rp__driver_setup_end(void);
+
 #endif /* RP_INTERNAL_H */

@@ -15,6 +15,24 @@
 
 #include "cl_internal.h"
 
+/* PoCL sets its devices up on the first query (rp__driver_setup_*). */
+static cl_int platform_ids(cl_uint max, cl_platform_id *plats, cl_uint *n) {
+  cl_int err;
+  rp__driver_setup_begin();
+  err = clGetPlatformIDs(max, plats, n);
+  rp__driver_setup_end();
+  return err;
+}
+
+static cl_int device_ids(cl_platform_id plat, cl_uint max, cl_device_id *devs,
+                         cl_uint *n) {
+  cl_int err;
+  rp__driver_setup_begin();
+  err = clGetDeviceIDs(plat, CL_DEVICE_TYPE_ALL, max, devs, n);
+  rp__driver_setup_end();
+  return err;
+}
+
 #define RP_CL_MAX_PLATFORMS 16
 #define RP_CL_MAX_DEVICES 64
 /* The part of a build log quoted in rp_last_error; the full log is too
@@ -117,15 +135,14 @@ static int locate(uint32_t index, uint32_t *count, cl_device_id *root,
   cl_uint np = 0, p;
   uint32_t seen = 0;
   /* No ICD, or one with no platform: both are "no device", not errors. */
-  if (clGetPlatformIDs(RP_CL_MAX_PLATFORMS, plats, &np) != CL_SUCCESS)
+  if (platform_ids(RP_CL_MAX_PLATFORMS, plats, &np) != CL_SUCCESS)
     np = 0;
   if (np > RP_CL_MAX_PLATFORMS)
     np = RP_CL_MAX_PLATFORMS;
   for (p = 0; p < np; p++) {
     cl_device_id devs[RP_CL_MAX_DEVICES];
     cl_uint nd = 0, d;
-    if (clGetDeviceIDs(plats[p], CL_DEVICE_TYPE_ALL, RP_CL_MAX_DEVICES, devs,
-                       &nd) != CL_SUCCESS)
+    if (device_ids(plats[p], RP_CL_MAX_DEVICES, devs, &nd) != CL_SUCCESS)
       continue;
     if (nd > RP_CL_MAX_DEVICES)
       nd = RP_CL_MAX_DEVICES;

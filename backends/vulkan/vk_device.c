@@ -90,7 +90,9 @@ int rp_vk__instance(rp_context *ctx, VkInstance *out) {
   app.apiVersion = version < VK_API_VERSION_1_3 ? version : VK_API_VERSION_1_3;
   info.sType = VK_STRUCTURE_TYPE_INSTANCE_CREATE_INFO;
   info.pApplicationInfo = &app;
+  rp__driver_setup_begin();
   r = vkCreateInstance(&info, NULL, out);
+  rp__driver_setup_end();
   if (r != VK_SUCCESS) {
     *out = VK_NULL_HANDLE;
     if (r == VK_ERROR_INCOMPATIBLE_DRIVER)
@@ -124,7 +126,10 @@ int rp_vk__compute_devices(VkInstance inst, VkPhysicalDevice *list,
                            uint32_t cap, uint32_t *count) {
   VkPhysicalDevice all[32];
   uint32_t n = 32, i, k = 0;
-  VkResult r = vkEnumeratePhysicalDevices(inst, &n, all);
+  VkResult r;
+  rp__driver_setup_begin();
+  r = vkEnumeratePhysicalDevices(inst, &n, all);
+  rp__driver_setup_end();
   *count = 0;
   if (r != VK_SUCCESS && r != VK_INCOMPLETE)
     return -1;
@@ -237,7 +242,9 @@ int rp_vk__open(rp_vk_impl *impl, uint32_t index, rp_caps *caps) {
     dinfo.ppEnabledExtensionNames = exts;
     impl->feedback = 1;
   }
+  rp__driver_setup_begin();
   r = vkCreateDevice(impl->phys, &dinfo, NULL, &impl->dev);
+  rp__driver_setup_end();
   if (r != VK_SUCCESS) {
     impl->dev = VK_NULL_HANDLE;
     return rp_vk__fail(ctx, r, "vkCreateDevice");
