@@ -484,8 +484,9 @@ RP_API void rp_device_forget_depth(rp_device *dev);
 /** Device time of the last operation in nanoseconds (0 if unknown). */
 RP_API uint64_t rp_device_last_time_ns(const rp_device *dev);
 /** Builds ahead the kernel variants a render with `effects` may use on
- *  the volume uploaded now (any step and image size), so that the first
- *  such render does not wait for a build (on PoCL one takes about a
+ *  the volume uploaded now (any step and image size; with RP_EFFECT_AO
+ *  also rp_device_compute_ao's), so that the first use does not wait
+ *  for a build (on PoCL one takes about a
  *  second cold, tens of milliseconds from its disk cache). 0 when they
  *  are built, or when the backend builds on first use only (the
  *  reference device and MPI). RP_ESTATE before a volume was uploaded;

@@ -155,8 +155,9 @@ typedef struct rp_backend_ops {
   uint64_t (*last_time_ns)(void *impl);
   /* Optional (NULL: kernels are built on first use only). Builds every
    * kernel variant a frame with `effects` may use on the volume uploaded
-   * now (depth pass and raycast, for any step and image size), so that
-   * the frame finds them built. The one op that may run on one thread
+   * now (depth pass and raycast, for any step and image size; with
+   * RP_EFFECT_AO, on a whole volume, also compute_ao's, which makes what
+   * that raycast reads), so that they are found built. The one op that may run on one thread
    * while another thread runs any other op on the same impl: it reads
    * only what is fixed at create, and what the volume upload sets under
    * the backend's lock; it adds what it built to the backend's table

@@ -87,6 +87,8 @@ typedef struct scene {
   rp_ao_plan *ao_plan;
   rp_ao_run *ao_run;
   int ao_ready;  /* the devices hold AO for the current volume and TF */
+  int ao_waits;  /* the run's first step waits for the builder to build
+                    the AO kernels (rp_device_group_prepare) */
 } scene;
 
 /* What the cost model trains on after delivery. */
@@ -284,13 +286,16 @@ static int update_ao(rp_runtime *rt) {
   int err = 0;
   drop_ao_run(s);
   s->ao_ready = 0;
+  s->ao_waits = 0;
   if (!(s->effects & RP_EFFECT_AO)) {
     if (rp_device_group_ao_bytes(rt->group) != 0)
       err = rp_device_group_set_ao(rt->group, NULL);
   } else {
-    /* The AO variant's kernels, built while AO is computed, so that the
-     * frame AO is ready in does not wait for them. */
-    (void)rp_device_group_prepare(rt->group, s->effects);
+    /* AO's kernels (the AO volume's and the raycast that reads it) on
+     * the builder: the run starts once they are built, and the frame AO
+     * is ready in renders with them at once; no frame builds one. */
+    s->ao_waits = rp_device_group_prepare(rt->group, s->effects) == 0 &&
+                  !rp_device_group_prepared(rt->group, s->effects);
     err = rp_ao_plan_create(rt->ctx, s->vol, s->tf, &rt->desc.ao,
                             &s->ao_plan);
     if (err == 0)
@@ -315,7 +320,14 @@ static int advance_ao(rp_runtime *rt) {
                       : rt->desc.ao_frame_share * s->target_ms;
   double fraction = 0.0;
   rp_ao *ao = NULL;
-  int err = rp_ao_run_step(s->ao_run, budget, &fraction);
+  int err;
+  if (s->ao_waits) {
+    st->ao_progress = 0.0;
+    if (!rp_device_group_prepared(rt->group, s->effects))
+      return 0;
+    s->ao_waits = 0;
+  }
+  err = rp_ao_run_step(s->ao_run, budget, &fraction);
   st->ao_progress = fraction;
   if (err == 0 && fraction < 1.0)
     return 0;

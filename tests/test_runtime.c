@@ -725,6 +725,24 @@ static void test_effects_wait_for_kernels(void **state) {
   print_message("shading shown %d frames after the first that wanted "
                 "it\n", f + 1);
 
+  /* AO: the run waits for its kernels (the AO volume's and the
+   * raycast's), built ahead, then steps; frames render without AO until
+   * it is done, and with it from then on, none building a kernel. */
+  assert_int_equal(rp_runtime_set_effects(a.rt, lit | RP_EFFECT_AO), 0);
+  (void)frame(&a);
+  assert_int_equal(a.s.last.status, 0);
+  assert_int_equal(a.s.last.effects, lit);
+  assert_true(a.s.last.ao_progress == 0.0);
+  t0 = uv_hrtime();
+  for (f = 0; a.s.last.effects != (lit | RP_EFFECT_AO) &&
+              uv_hrtime() - t0 < 60e9; f++) {
+    (void)frame(&a);
+    assert_int_equal(a.s.last.status, 0);
+  }
+  assert_int_equal(a.s.last.effects, lit | RP_EFFECT_AO);
+  print_message("AO shown %d frames after the first that wanted it\n",
+                f + 1);
+
   /* Back to a set this volume has rendered: at once. */
   assert_int_equal(rp_runtime_set_effects(a.rt, EFFECTS), 0);
   (void)frame(&a);

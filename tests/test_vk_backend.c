@@ -1054,6 +1054,49 @@ static void test_prepare(void **state) {
   free(b);
 }
 
+/* With AO, prepare also builds compute_ao's pipeline: the AO volume's
+ * computation and the frames that read it, at either step kind, build
+ * nothing. */
+static void test_prepare_ao(void **state) {
+  const uint32_t effects = RP_EFFECT_SHADING | RP_EFFECT_ERT |
+                           RP_EFFECT_SKIP | RP_EFFECT_AO;
+  const float steps[2] = {1.0f, 0.6f};
+  rp_context *ctx2 = rp_test_context();
+  void *prep = fresh_device(NULL);
+  uint8_t *a = malloc(64 * 64 * 4), *ao;
+  uint32_t lo[3] = {0, 0, 0}, built;
+  rp_ao_desc ad = {0};
+  rp_ao_plan *plan = NULL;
+  rp_ao_job job;
+  rp_camera cams[3];
+  scene s;
+  frame f;
+  int i;
+  (void)state;
+  prepare_scene(&s, cams);
+  scene_upload(&s, prep);
+  ao = malloc(s.vol->voxel_count);
+  assert_true(a && ao);
+  assert_int_equal(g_ops->prepare(prep, ctx2, effects), 0);
+  built = pipelines_created(prep);
+  assert_int_equal(rp_ao_plan_create(g_ctx, s.vol, s.tf, &ad, &plan), 0);
+  ao_job_init(&s, plan, lo, s.vol->dims, &job);
+  assert_int_equal(g_ops->compute_ao(prep, &job, ao), 0);
+  assert_int_equal(g_ops->upload_ao(prep, ao), 0);
+  for (i = 0; i < 2; i++) {
+    frame_desc fd = {64, 64, 1.0f, steps[i], effects};
+    frame_init(&s, &cams[i], &fd, &f);
+    vk_render(prep, &f, NULL, a, NULL, NULL);
+  }
+  assert_int_equal(pipelines_created(prep), built);
+  rp_ao_plan_destroy(plan);
+  g_ops->destroy(prep);
+  rp_context_destroy(ctx2);
+  scene_free(&s);
+  free(a);
+  free(ao);
+}
+
 /* Before any volume: RP_ESTATE, said in the caller's context, not in the
  * device's; through the ops and through rp_device_prepare. */
 static void test_prepare_no_volume(void **state) {
@@ -1588,6 +1631,7 @@ int main(void) {
       cmocka_unit_test(test_fetch_counts),
       cmocka_unit_test(test_regions),
       cmocka_unit_test(test_prepare),
+      cmocka_unit_test(test_prepare_ao),
       cmocka_unit_test(test_prepare_no_volume),
       cmocka_unit_test(test_prepare_concurrent),
       cmocka_unit_test(test_prepare_full_table),

@@ -887,28 +887,34 @@ static uint64_t cl_last_time_ns(void *p) {
 }
 
 /* The frame's kernels ahead of it, on the calling thread (rp_backend_ops
- * says what may run meanwhile). PoCL still compiles a kernel's
+ * says what may run meanwhile): the depth pass and the raycast, and with
+ * AO the AO volume kernel (the runtime's AO run waits for it rather than
+ * build it on a frame). The keys come from the volume's fields, read
+ * under the lock; a volume uploaded while this builds makes them stale,
+ * which costs the frame a build of its own, never a wrong kernel: the
+ * key says what a program was built for. PoCL still compiles a kernel's
  * work-group function at its first launch: from its disk cache that is
  * quick, but cold it cost the first frame 460-480 ms here. Launching
  * from here instead stalled a frame just as long (PoCL's device holds
- * its queues while it compiles), so the frame is left to do it. The keys come from the volume's fields,
- * read under the lock; a volume uploaded while this builds makes them
- * stale, which costs the frame a build of its own, never a wrong kernel:
- * the key says what a program was built for. */
+ * its queues while it compiles), so the frame is left to do it. */
 static int cl_prepare(void *p, rp_context *ctx, uint32_t effects) {
   rp_cl_impl *impl = p;
-  rp_cl_kind kinds[2] = {RP_CL_DEPTH, RP_CL_RAYCAST};
-  uint32_t keys[2];
-  int i, j, have, rc;
+  rp_cl_kind kinds[3] = {RP_CL_DEPTH, RP_CL_RAYCAST, RP_CL_AO};
+  uint32_t keys[3];
+  int i, j, n = 2, have, rc;
   pthread_mutex_lock(&impl->lock);
   have = impl->voxel_type != 0;
   keys[0] = effects & RP_EFFECT_SKIP;
   keys[1] = raycast_key(impl, effects, 0);
+  keys[2] = ao_key(impl);
+  /* AO is not computed on a brick pool (set_brick_pool). */
+  if ((effects & RP_EFFECT_AO) && !impl->bricked)
+    n = 3;
   pthread_mutex_unlock(&impl->lock);
   if (!have)
     return rp__fail(ctx, RP_ESTATE, "opencl: prepare before a volume was "
                     "uploaded (the raycast is built for its voxel type)");
-  for (i = 0; i < 2; i++) {
+  for (i = 0; i < n; i++) {
     cl_program prog;
     cl_kernel kernel;
     pthread_mutex_lock(&impl->lock);

@@ -400,6 +400,14 @@ static uint32_t pipeline_key(rp_vk_kernel k, const rp_frame_params *p,
   return key;
 }
 
+/* compute_ao's pipeline: its step against the TF's, the layout and the
+ * voxel type. */
+static uint32_t ao_pipeline_key(int correct, int quad, rp_voxel_type type) {
+  return ((uint32_t)RP_VK_AO << RP_VK_KEY_KERNEL_SHIFT) |
+         (correct ? RP_VK_KEY_CORRECT : 0u) | (quad ? RP_VK_KEY_QUAD : 0u) |
+         ((uint32_t)type << RP_VK_KEY_TYPE_SHIFT);
+}
+
 /* The table's entry for `key`, or VK_NULL_HANDLE. The caller holds the
  * lock. */
 static VkPipeline find_pipeline(const rp_vk_impl *impl, uint32_t key) {
@@ -558,16 +566,17 @@ static int get_pipeline(rp_vk_impl *impl, uint32_t key, VkPipeline *out) {
  * keyed by RP_EFFECT_SKIP (the front end runs one for every new camera,
  * skipping or not), and the raycast with and without the opacity
  * correction (the frame's step decides), for the layout, voxel type and
- * brick pool the device holds now. Not the fetch-counting raycast (tests
- * and cost models ask for it), the ERT pre-pass (a call of its own, not
- * part of a render) nor compute_ao. The volume's fields are read under
+ * brick pool the device holds now; with AO, compute_ao's both ways too
+ * (the runtime's AO run waits for them rather than build on a frame).
+ * Not the fetch-counting raycast (tests and cost models ask for it) nor
+ * the ERT pre-pass (a call of its own). The volume's fields are read under
  * the lock; a volume uploaded while this builds makes the keys stale,
  * which costs the frame a build of its own, never a wrong pipeline: the
  * key says what a pipeline was specialised for. */
 static int vk_prepare(void *ip, rp_context *ctx, uint32_t effects) {
   rp_vk_impl *impl = ip;
   rp_frame_params p;
-  uint32_t keys[3];
+  uint32_t keys[5];
   rp_voxel_type type;
   const char *lost;
   VkPipeline pipe;
@@ -597,6 +606,10 @@ static int vk_prepare(void *ip, rp_context *ctx, uint32_t effects) {
     p.ref_step = i == 0 ? 1.0f : 2.0f; /* RP_VK_KEY_CORRECT off, on */
     keys[n++] = pipeline_key(RP_VK_RAYCAST, &p, 0, type, quad);
   }
+  /* compute_ao's, as it keys it, with its step against the TF's either
+   * way (not on a brick pool, where AO is not computed). */
+  for (i = 0; i < 2 && !bricked && (effects & RP_EFFECT_AO); i++)
+    keys[n++] = ao_pipeline_key(i, quad, type);
   for (i = 0; i < n; i++) {
     if (lookup(impl, keys[i]) != VK_NULL_HANDLE)
       continue;
@@ -1502,10 +1515,8 @@ static int vk_compute_ao(void *p, const rp_ao_job *job, uint8_t *out) {
     return err;
   if (layers / 4 + 1 > impl->props.limits.maxComputeWorkGroupCount[2])
     layers = (impl->props.limits.maxComputeWorkGroupCount[2] - 1) * 4;
-  key = ((uint32_t)RP_VK_AO << RP_VK_KEY_KERNEL_SHIFT) |
-        (job->step != job->ref_step ? RP_VK_KEY_CORRECT : 0) |
-        (impl->quad ? RP_VK_KEY_QUAD : 0) |
-        ((uint32_t)impl->voxel_type << RP_VK_KEY_TYPE_SHIFT);
+  key = ao_pipeline_key(job->step != job->ref_step, impl->quad,
+                        impl->voxel_type);
   if ((err = get_pipeline(impl, key, &pipe)) != 0)
     return err;
   if ((err = ao_scratch(impl, job, slab * (layers < nz ? layers : nz))) !=
