@@ -872,8 +872,10 @@ static void builder_main(void *arg) {
   rp_device_group *g = arg;
 #ifdef __linux__
   /* A build is compiler work on the host's cores, which a CPU device
-   * renders on too: at the lowest priority it takes what frames leave.
-   * Linux keeps a nice value per thread. */
+   * renders on too. At nice 5 it leaves frames most of them and still
+   * ends within a few frames; at 19 it never ended while frames kept
+   * the cores busy (docs/runtime.md). Linux keeps nice values per
+   * thread. */
   (void)setpriority(PRIO_PROCESS, (id_t)syscall(SYS_gettid), 5);
 #endif
   uv_mutex_lock(&g->build_lock);
