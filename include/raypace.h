@@ -486,10 +486,10 @@ RP_API uint64_t rp_device_last_time_ns(const rp_device *dev);
 /** Builds ahead the kernel variants a render with `effects` may use on
  *  the volume uploaded now (any step and image size; with RP_EFFECT_AO
  *  also rp_device_compute_ao's), so that the first use does not wait
- *  for a build (on PoCL one takes about a
- *  second cold, tens of milliseconds from its disk cache). 0 when they
- *  are built, or when the backend builds on first use only (the
- *  reference device and MPI). RP_ESTATE before a volume was uploaded;
+ *  for a build (on PoCL one takes about a second cold, tens of
+ *  milliseconds from its disk cache). 0 when they are built, or when
+ *  the backend builds on first use only (the reference device and
+ *  MPI). RP_ESTATE before a volume was uploaded;
  *  RP_EBUILD, RP_ENOMEM or RP_EDEVICE when a build fails.
  *  \threadsafety the exception to the one-thread rule: another thread
  *  may call it while `dev` renders, uploads or computes AO, provided

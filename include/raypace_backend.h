@@ -157,8 +157,9 @@ typedef struct rp_backend_ops {
    * kernel variant a frame with `effects` may use on the volume uploaded
    * now (depth pass and raycast, for any step and image size; with
    * RP_EFFECT_AO, on a whole volume, also compute_ao's, which makes what
-   * that raycast reads), so that they are found built. The one op that may run on one thread
-   * while another thread runs any other op on the same impl: it reads
+   * that raycast reads), so that they are found built. The one op that
+   * may run on one thread while another thread runs any other op on the
+   * same impl: it reads
    * only what is fixed at create, and what the volume upload sets under
    * the backend's lock; it adds what it built to the backend's table
    * under that lock, and only where the table has a free entry, never

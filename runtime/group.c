@@ -866,7 +866,7 @@ int rp_device_group_set_volume(rp_device_group *g, const rp_volume *vol) {
   return upload(g, JOB_VOLUME, "rp_device_group_set_volume");
 }
 
-/* ---- Kernels built ahead --------------------------------------------------- */
+/* ---- Kernels built ahead ------------------------------------------------ */
 
 static void builder_main(void *arg) {
   rp_device_group *g = arg;
