@@ -193,16 +193,17 @@ struct rp_device_group {
   uint64_t last_samples;
   /* The builder (rp_device_group_prepare). `can_prepare`: a device
    * builds ahead (else preparing is a no-op). Under build_lock: the
-   * effect sets asked for (bit 1 << set) and not yet taken, those done
-   * for volume generation build_gen (tried: one that failed is the
-   * frame's to build and report), and the devices of the last request. */
+   * effect sets asked for (bit 1 << set) and not yet taken, the one
+   * being built, those done for volume generation build_gen (tried: one
+   * that failed is the frame's to build and report), and the devices of
+   * the last request. */
   int can_prepare;
   uv_mutex_t build_lock;
   uv_cond_t build_cv;
   uv_thread_t builder;
   int builder_started, build_quit;
   rp_context *build_ctx; /* the builder's, for its errors */
-  uint32_t build_want, build_done;
+  uint32_t build_want, build_busy, build_done;
   uint64_t build_gen;
   rp_device *build_devs[RP_GROUP_MAX_DEVICES];
   uint32_t build_ndev;
@@ -858,10 +859,10 @@ int rp_device_group_set_volume(rp_device_group *g, const rp_volume *vol) {
     g->m[i].vol_gen = g->vol_gen;
   }
   /* What was built or asked for was for the old volume (its voxel type
-   * is in the kernels' keys). */
+   * is in the kernels' keys); a build under way counts for nothing. */
   uv_mutex_lock(&g->build_lock);
   g->build_gen = g->vol_gen;
-  g->build_want = g->build_done = 0;
+  g->build_want = g->build_busy = g->build_done = 0;
   uv_mutex_unlock(&g->build_lock);
   return upload(g, JOB_VOLUME, "rp_device_group_set_volume");
 }
@@ -890,6 +891,7 @@ static void builder_main(void *arg) {
     while (!((g->build_want >> set) & 1u))
       set++;
     g->build_want &= ~(1u << set);
+    g->build_busy = 1u << set;
     gen = g->build_gen;
     n = g->build_ndev;
     memcpy(devs, g->build_devs, n * sizeof *devs);
@@ -899,6 +901,7 @@ static void builder_main(void *arg) {
     for (i = 0; i < n; i++)
       (void)rp_device_prepare(devs[i], g->build_ctx, set);
     uv_mutex_lock(&g->build_lock);
+    g->build_busy = 0;
     if (gen == g->build_gen)
       g->build_done |= 1u << set;
   }
@@ -927,7 +930,8 @@ int rp_device_group_prepare(rp_device_group *g, uint32_t effects) {
   }
   set = effects;
   uv_mutex_lock(&g->build_lock);
-  if (!((g->build_done >> set) & 1u)) {
+  /* A frame waiting for the set asks every frame: once is enough. */
+  if (!(((g->build_done | g->build_want | g->build_busy) >> set) & 1u)) {
     g->build_want |= 1u << set;
     g->build_ndev = 0;
     for (i = 0; i < g->count; i++)

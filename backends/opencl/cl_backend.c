@@ -137,52 +137,70 @@ static int build_kernel(rp_cl_impl *impl, rp_context *ctx, rp_cl_kind kind,
   return 0;
 }
 
+/* Puts a built (prog, kernel) for (kind, key) in the cache and sets *out
+ * to the kernel to use: the cache's own when it has one already (the
+ * other thread built it meanwhile; ours is released). The render thread
+ * (`owner`) takes the least recently used entry, evicting it, and counts
+ * a hit when the entry was there; prepare only fills a free entry (one
+ * never used: last_use 0), and releases what it built when there is
+ * none (*out NULL). */
+static void keep_kernel(rp_cl_impl *impl, rp_cl_kind kind, uint32_t key,
+                        cl_program prog, cl_kernel kernel, int owner,
+                        cl_kernel *out) {
+  rp_cl_program *p;
+  int i, fresh = 0;
+  pthread_mutex_lock(&impl->lock);
+  if ((p = cached(impl, kind, key)) != NULL) {
+    impl->hits += (uint32_t)owner;
+  } else {
+    p = &impl->cache[0];
+    for (i = 1; i < RP_CL_CACHE_SIZE; i++)
+      if (impl->cache[i].last_use < p->last_use)
+        p = &impl->cache[i];
+    if (owner || p->program == NULL) {
+      release_program(p);
+      p->kind = kind;
+      p->key = key;
+      p->program = prog;
+      p->kernel = kernel;
+      impl->builds++;
+      fresh = 1;
+    } else {
+      p = NULL;
+    }
+  }
+  if (p != NULL && (owner || fresh))
+    p->last_use = ++impl->use_clock;
+  *out = p != NULL ? p->kernel : NULL;
+  pthread_mutex_unlock(&impl->lock);
+  if (!fresh) {
+    clReleaseKernel(kernel);
+    clReleaseProgram(prog);
+  }
+}
+
 /* The calling (render) thread is the only one that uses kernels from the
  * cache or evicts them; prepare only fills free entries. So a kernel
  * handed out here stays valid while this thread uses it, and the lock is
  * held only to look up and to insert, never across a build. */
 int rp_cl__kernel(rp_cl_impl *impl, rp_cl_kind kind, uint32_t key,
                   cl_kernel *out) {
-  rp_cl_program *slot, *p;
+  rp_cl_program *p;
   cl_program prog;
   cl_kernel kernel;
-  int i, rc;
+  int rc;
   pthread_mutex_lock(&impl->lock);
   if ((p = cached(impl, kind, key)) != NULL) {
     p->last_use = ++impl->use_clock;
     impl->hits++;
     *out = p->kernel;
-    pthread_mutex_unlock(&impl->lock);
-    return 0;
   }
   pthread_mutex_unlock(&impl->lock);
+  if (p != NULL)
+    return 0;
   if ((rc = build_kernel(impl, impl->ctx, kind, key, &prog, &kernel)) != 0)
     return rc;
-  pthread_mutex_lock(&impl->lock);
-  if ((p = cached(impl, kind, key)) != NULL) {
-    /* prepare added it while this thread was building: keep one. */
-    clReleaseKernel(kernel);
-    clReleaseProgram(prog);
-    p->last_use = ++impl->use_clock;
-    impl->hits++;
-    *out = p->kernel;
-    pthread_mutex_unlock(&impl->lock);
-    return 0;
-  }
-  /* A free slot (last_use 0), else the least recently used program. */
-  slot = &impl->cache[0];
-  for (i = 1; i < RP_CL_CACHE_SIZE; i++)
-    if (impl->cache[i].last_use < slot->last_use)
-      slot = &impl->cache[i];
-  release_program(slot);
-  slot->kind = kind;
-  slot->key = key;
-  slot->program = prog;
-  slot->kernel = kernel;
-  slot->last_use = ++impl->use_clock;
-  impl->builds++;
-  *out = kernel;
-  pthread_mutex_unlock(&impl->lock);
+  keep_kernel(impl, kind, key, prog, kernel, 1, out);
   return 0;
 }
 
@@ -901,7 +919,7 @@ static int cl_prepare(void *p, rp_context *ctx, uint32_t effects) {
   rp_cl_impl *impl = p;
   rp_cl_kind kinds[3] = {RP_CL_DEPTH, RP_CL_RAYCAST, RP_CL_AO};
   uint32_t keys[3];
-  int i, j, n = 2, have, rc;
+  int i, n = 2, have, rc;
   pthread_mutex_lock(&impl->lock);
   have = impl->voxel_type != 0;
   keys[0] = effects & RP_EFFECT_SKIP;
@@ -925,25 +943,8 @@ static int cl_prepare(void *p, rp_context *ctx, uint32_t effects) {
     if ((rc = build_kernel(impl, ctx, kinds[i], keys[i], &prog,
                            &kernel)) != 0)
       return rc;
-    pthread_mutex_lock(&impl->lock);
-    have = cached(impl, kinds[i], keys[i]) != NULL;
-    for (j = 0; !have && j < RP_CL_CACHE_SIZE; j++) {
-      rp_cl_program *slot = &impl->cache[j];
-      if (slot->program != NULL)
-        continue;
-      slot->kind = kinds[i];
-      slot->key = keys[i];
-      slot->program = prog;
-      slot->kernel = kernel;
-      slot->last_use = ++impl->use_clock;
-      impl->builds++;
-      have = 2;
-    }
-    pthread_mutex_unlock(&impl->lock);
-    if (have != 2) { /* there already, or no free entry: see the op */
-      clReleaseKernel(kernel);
-      clReleaseProgram(prog);
-    }
+    /* Kept, there already, or dropped for want of room: 0 either way. */
+    keep_kernel(impl, kinds[i], keys[i], prog, kernel, 0, &kernel);
   }
   return 0;
 }
