@@ -618,16 +618,6 @@ static void test_several_devices(void **state) {
   rp_context_destroy(a.ctx);
 }
 
-/* Whether an OpenCL device is here: the tests that need one skip
- * otherwise. */
-static int have_opencl(void) {
-  rp_context *probe = rp_test_context();
-  uint32_t n = 0;
-  int have = rp_device_count(probe, "opencl", &n) == 0 && n > 0;
-  rp_context_destroy(probe);
-  return have;
-}
-
 /* Out of core (M8): a device with half the volume's memory. Every frame
  * uploads bricks and predicted it would before it started; the upload
  * is reported apart from the raycast. (That the predicted bytes are the
@@ -641,7 +631,7 @@ static void test_out_of_core(void **state) {
   int f;
   (void)state;
   memset(&a, 0, sizeof a);
-  if (!have_opencl())
+  if (!rp_test_has_device("opencl"))
     skip();
   dd.backend = "opencl";
   dd.budget_bytes = 64 * 64 * 64 / 2;
@@ -696,7 +686,7 @@ static void test_effects_wait_for_kernels(void **state) {
   int f;
   (void)state;
   memset(&a, 0, sizeof a);
-  if (!have_opencl())
+  if (!rp_test_has_device("opencl"))
     skip();
   dd.backend = "opencl";
   app_open_devices(&a, &dd, 1);

@@ -84,6 +84,14 @@ rp_context *rp_test_context(void) {
   return ctx;
 }
 
+int rp_test_has_device(const char *backend) {
+  rp_context *probe = rp_test_context();
+  uint32_t n = 0;
+  int have = rp_device_count(probe, backend, &n) == 0 && n > 0;
+  rp_context_destroy(probe);
+  return have;
+}
+
 void rp_test_check_fetches(const char *what, const rp_tile_stats *got,
                            const uint64_t *got_fetches,
                            const rp_tile_stats *want,

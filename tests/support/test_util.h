@@ -28,6 +28,9 @@ const char *rp_test_write_file(const char *name, const void *data,
                                size_t len);
 /* A context with defaults; asserts on failure. */
 rp_context *rp_test_context(void);
+/* Whether `backend` has a device here: the tests that need one skip
+ * otherwise. */
+int rp_test_has_device(const char *backend);
 /* A transfer-function preset; asserts on failure. */
 rp_tf *rp_test_preset(rp_context *ctx, const char *name);
 
