@@ -458,7 +458,7 @@ static void ao_drop_run(replay *r) {
 /* The effects a frame renders: AO only once its volume is ready. */
 static uint32_t ao_effects(const replay *r, uint32_t effects) {
   return r->on.ao_tf == r->on.tf_active ? effects
-                                  : effects & ~(uint32_t)RP_EFFECT_AO;
+                                        : effects & ~(uint32_t)RP_EFFECT_AO;
 }
 
 /* Starts AO for the active TF unless the devices hold it or a run for it
