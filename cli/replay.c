@@ -12,6 +12,12 @@
  * The cost model is trained for every controller, so prediction error is
  * reported for all; only "predicted" acts on it.
  *
+ * After each such round a still frame renders too: the first frame's
+ * camera at one density, with the round's TF and effects. Its times
+ * carry the machine's noise over the same minutes as the controllers'
+ * frames, and say how close to the target a perfect model could come
+ * (noise_floor, "timing noise" in the table).
+ *
  * Frame time is the wall time of the frame's render passes (device
  * render with readback, plus the upscale when the image scale is below
  * 1). The probe (depth pass + ERT pre-pass on the host) and the
@@ -40,11 +46,19 @@
 #include "raypace_pace.h"
 #include "raypace_sequence.h"
 
+/* The still frame (play(), still_frame()): frames spent finding the
+ * density whose frame takes the first target, and the smoothing factors
+ * of the EWMA predictors tried on its times. */
+#define STILL_AIM_FRAMES 4
+#define NOISE_EWMAS 4
+static const double NOISE_ALPHAS[NOISE_EWMAS] = {0.1, 0.2, 0.3, 0.5};
+
 typedef struct replay_opts {
   const char *volume, *sequence, *controller, *backend, *csv, *plot;
-  const char *trace;
+  const char *trace, *noise_csv;
   double target_ms, target_fraction;
   uint32_t device, width, height, settle, frames, seed;
+  int no_noise; /* --no-noise: no still frame */
   float base_step;
   float min_step; /* 0: base_step */
   rp_space space;
@@ -81,6 +95,22 @@ typedef struct frame_row {
   double imbalance; /* --devices: the last pass's */
   device_row dev[RP_GROUP_MAX_DEVICES];
 } frame_row;
+
+/* The machine's timing noise, from the still frame's times (natural
+ * logs), within each stretch of frames that rendered the same TF and
+ * effects (a segment): about what a controller's error cannot go
+ * under, whatever its model. */
+typedef struct noise_floor {
+  uint32_t frames; /* 0: not measured */
+  uint32_t segments;
+  double rho, median_ms;
+  double sd;       /* against the segment's median: a model that knew
+                      each frame's cost exactly (an oracle) */
+  double sd_last;  /* against the frame before: last-frame's rule */
+  double sd_best;  /* the least of sd, sd_last and the EWMAs of
+                      NOISE_ALPHAS: the best of these predictors */
+  double max_over; /* slowest frame / its segment's median - 1 */
+} noise_floor;
 
 typedef struct summary {
   rp_controller_kind kind;
@@ -128,6 +158,14 @@ typedef struct replay {
   rp_tile_stats *tiles;
   double full_ms;     /* frame time without adaptation, at the start */
   double seq_target0; /* the sequence's first target, ms */
+  /* The still frame, rendered after each round of the controllers'
+   * frames: the first frame's camera at a fixed density, with the
+   * round's TF and effects. */
+  rp_camera still_cam;
+  double *still_ms;    /* per recorded frame */
+  uint32_t *still_seg; /* its segment */
+  uint32_t still_tf, still_effects;
+  noise_floor noise;
   FILE *trace; /* --trace */
 } replay;
 
@@ -171,6 +209,14 @@ static void usage(FILE *f) {
       "(default 10)\n"
       "  --frames N            play only the first N frames\n"
       "  --seed N              ERT pre-pass seed (default 1)\n"
+      "  --no-noise            no still frame: by default, after each\n"
+      "                        frame of every controller, the first\n"
+      "                        frame's camera renders at a fixed density\n"
+      "                        (as long as the first target), to measure\n"
+      "                        the machine's timing noise: the floor under\n"
+      "                        every controller's error (two or more\n"
+      "                        controllers, one device, in core)\n"
+      "  --noise-csv FILE      the still frame's times, a row each\n"
       "  --csv FILE            per-frame rows of every controller\n"
       "  --trace FILE          what each controller's cost model learned "
       "from,\n"
@@ -210,6 +256,8 @@ static int parse_opts(int argc, char **argv, replay_opts *o) {
       {"settle", required_argument, 0, 'S'},
       {"frames", required_argument, 0, 'n'},
       {"seed", required_argument, 0, 'e'},
+      {"no-noise", no_argument, 0, 'N'},
+      {"noise-csv", required_argument, 0, 'W'},
       {"csv", required_argument, 0, 'C'},
       {"trace", required_argument, 0, 'T'},
       {"plot", required_argument, 0, 'P'},
@@ -266,6 +314,8 @@ static int parse_opts(int argc, char **argv, replay_opts *o) {
     case 'S': bad = cli_parse_u32(optarg, 100000, &o->settle); break;
     case 'n': bad = cli_parse_u32(optarg, 10000000, &o->frames); break;
     case 'e': bad = cli_parse_u32(optarg, UINT32_MAX, &o->seed); break;
+    case 'N': o->no_noise = 1; break;
+    case 'W': o->noise_csv = optarg; break;
     case 'C': o->csv = optarg; break;
     case 'T': o->trace = optarg; break;
     case 'P': o->plot = optarg; break;
@@ -296,6 +346,13 @@ static int parse_opts(int argc, char **argv, replay_opts *o) {
   if (o->devices_spec != NULL && o->device_given) {
     fprintf(stderr, "raypace replay: --devices excludes --backend and "
                     "--device\n");
+    return 2;
+  }
+  if (o->noise_csv != NULL && (o->no_noise || o->devices_spec != NULL)) {
+    fprintf(stderr, "raypace replay: --noise-csv needs the still frame, "
+                    "which %s\n", o->no_noise ? "--no-noise turns off"
+                                              : "a group does not render "
+                                                "(not with --devices)");
     return 2;
   }
   if (o->devices_spec != NULL && o->trace != NULL) {
@@ -631,6 +688,138 @@ static int calibrate(replay *r) {
   if (!(r->seq_target0 > 0)) {
     fprintf(stderr, "raypace replay: the sequence's first target is not "
                     "positive\n");
+    return 1;
+  }
+  return 0;
+}
+
+/* The spread of n frame times `ms` of the still frame, in segments
+ * `seg` (noise_floor; its rho is kept). Within a segment, every
+ * predictor is scored on its frames after the first, each from the
+ * frames before it; the EWMAs start at the segment's first frame.
+ * `work` holds n doubles. */
+static void noise_stats(const double *ms, const uint32_t *seg, uint32_t n,
+                        double *work, noise_floor *out) {
+  double se = 0.0, se_last = 0.0, se_ew[NOISE_EWMAS] = {0};
+  double ew[NOISE_EWMAS], best;
+  uint32_t i, j, a, scored = 0;
+  double rho = out->rho;
+  memset(out, 0, sizeof *out);
+  out->rho = rho;
+  for (i = 0; i < n; i = j) {
+    double lmed;
+    for (j = i; j < n && seg[j] == seg[i]; j++)
+      work[j - i] = ms[j];
+    lmed = log(cli_median(work, (int)(j - i)));
+    out->max_over = fmax(out->max_over, work[j - i - 1] / exp(lmed) - 1);
+    out->segments++;
+    for (a = 0; a < NOISE_EWMAS; a++)
+      ew[a] = log(ms[i]);
+    for (; i + 1 < j; i++) {
+      double l = log(ms[i + 1]), e;
+      se += (l - lmed) * (l - lmed);
+      e = l - log(ms[i]);
+      se_last += e * e;
+      for (a = 0; a < NOISE_EWMAS; a++) {
+        e = l - ew[a];
+        se_ew[a] += e * e;
+        ew[a] += NOISE_ALPHAS[a] * e;
+      }
+      scored++;
+    }
+  }
+  memcpy(work, ms, n * sizeof *work);
+  out->median_ms = n > 0 ? cli_median(work, (int)n) : 0.0;
+  if (scored == 0)
+    return;
+  out->frames = n;
+  out->sd = sqrt(se / scored);
+  out->sd_last = sqrt(se_last / scored);
+  best = fmin(se, se_last);
+  for (a = 0; a < NOISE_EWMAS; a++)
+    best = fmin(best, se_ew[a]);
+  out->sd_best = sqrt(best / scored);
+}
+
+/* Sets up the still frame: the first frame's camera, at the density
+ * whose frame takes the first target, found by last-frame's rule over
+ * a few frames (frame time is not proportional to density: there is a
+ * fixed cost per ray and per frame). Its frames are then as long as the
+ * sequence's: the machine's noise is a larger share of a shorter frame. */
+static int still_open(replay *r) {
+  rp_sequence_state st;
+  pass_result pr;
+  double target, lo;
+  uint32_t i;
+  int err;
+  r->still_ms = malloc(r->frames * sizeof *r->still_ms);
+  r->still_seg = malloc(r->frames * sizeof *r->still_seg);
+  if (r->still_ms == NULL || r->still_seg == NULL)
+    return cli_error(r->ctx, "still frame", RP_ENOMEM);
+  if ((err = rp_sequence_frame(r->seq, 0, &st)) != 0)
+    return cli_error(r->ctx, "sequence", err);
+  rp_sequence_camera(&st, r->vol, &r->still_cam);
+  target = frame_target(r, &st);
+  if (use_tf(r, st.tf) != 0 || ao_now(r, st.effects) != 0)
+    return 1;
+  lo = rp_space_min_density(&r->space);
+  r->noise.rho = fmax(lo, fmin(1.0, target / r->full_ms));
+  for (i = 0; i < STILL_AIM_FRAMES; i++) {
+    if (render_pass(r, &r->still_cam, st.effects, r->noise.rho, NULL,
+                    &pr) != 0)
+      return 1;
+    if (pr.ms > 0)
+      r->noise.rho = fmax(lo, fmin(1.0, r->noise.rho * target / pr.ms));
+  }
+  return 0;
+}
+
+/* The still frame after recorded frame f of every controller: the TF
+ * and effects that frame rendered on the shared device (so no TF or AO
+ * is uploaded for it), its depth pass forgotten as the controllers' are.
+ * A new TF or effect set starts a segment. */
+static int still_frame(replay *r, uint32_t f) {
+  rp_sequence_state st;
+  pass_result pr;
+  uint32_t effects;
+  int err;
+  if ((err = rp_sequence_frame(r->seq, f, &st)) != 0)
+    return cli_error(r->ctx, "sequence", err);
+  effects = ao_effects(r, st.effects);
+  if (use_tf(r, st.tf) != 0)
+    return 1;
+  rp_device_forget_depth(r->on.dev);
+  if (render_pass(r, &r->still_cam, effects, r->noise.rho, NULL, &pr) !=
+      0)
+    return 1;
+  r->still_seg[f] = f == 0 ? 0
+                    : r->still_seg[f - 1] +
+                          ((uint32_t)st.tf != r->still_tf ||
+                           effects != r->still_effects);
+  r->still_tf = (uint32_t)st.tf;
+  r->still_effects = effects;
+  r->still_ms[f] = pr.ms > 0 ? pr.ms : 1e-6;
+  return 0;
+}
+
+/* Writes --noise-csv. */
+static int write_noise_csv(const replay *r) {
+  FILE *f = fopen(r->o.noise_csv, "w");
+  uint32_t i;
+  int bad;
+  if (f == NULL) {
+    fprintf(stderr, "raypace replay: --noise-csv %s: cannot open for "
+                    "writing\n", r->o.noise_csv);
+    return 1;
+  }
+  fprintf(f, "frame,segment,density,measured_ms\n");
+  for (i = 0; i < r->frames; i++)
+    fprintf(f, "%u,%u,%.5f,%.6f\n", i, r->still_seg[i], r->noise.rho,
+            r->still_ms[i]);
+  bad = ferror(f);
+  if (fclose(f) != 0 || bad) {
+    fprintf(stderr, "raypace replay: --noise-csv %s: write failed\n",
+            r->o.noise_csv);
     return 1;
   }
   return 0;
@@ -976,10 +1165,14 @@ static int play(replay *r, player *ps, int n) {
     if (!r->o.quiet && n > 1)
       fprintf(stderr, "replay: %d controllers, frame by frame in turn%s\n",
               n, ps[n - 1].own_device ? ", a device each (AO)" : "");
+    /* One controller reuses its depth pass from frame to frame, which
+     * a still frame between its frames would undo: none then. */
+    if (!r->o.no_noise && n > 1 && still_open(r) != 0)
+      goto out;
     for (k = 0; k < n; k++)
       if (player_open(r, &ps[k]) != 0)
         goto out;
-    for (i = 0; i < total; i++)
+    for (i = 0; i < total; i++) {
       for (k = 0; k < n; k++) {
         player *p = &ps[(i + (uint32_t)k) % (uint32_t)n];
         int err;
@@ -993,6 +1186,19 @@ static int play(replay *r, player *ps, int n) {
         if (err != 0)
           goto out;
       }
+      if (r->still_ms != NULL && i >= r->o.settle &&
+          still_frame(r, i - r->o.settle) != 0)
+        goto out;
+    }
+    if (r->still_ms != NULL) {
+      double *work = malloc(r->frames * sizeof *work);
+      if (work == NULL) {
+        cli_error(r->ctx, "still frame", RP_ENOMEM);
+        goto out;
+      }
+      noise_stats(r->still_ms, r->still_seg, r->frames, work, &r->noise);
+      free(work);
+    }
   } else {
     for (k = 0; k < n; k++) {
       if (!r->o.quiet)
@@ -1275,6 +1481,17 @@ static void print_json(const replay *r, const summary *s) {
   else
     cJSON_AddNullToObject(o, "sigma_error_after_30");
   cJSON_AddNumberToObject(o, "overhead_ms", s->overhead_ms);
+  if (r->noise.frames > 0) {
+    cJSON *n = cJSON_AddObjectToObject(o, "noise");
+    cJSON_AddNumberToObject(n, "frames", r->noise.frames);
+    cJSON_AddNumberToObject(n, "segments", r->noise.segments);
+    cJSON_AddNumberToObject(n, "density", r->noise.rho);
+    cJSON_AddNumberToObject(n, "median_ms", r->noise.median_ms);
+    cJSON_AddNumberToObject(n, "sd", r->noise.sd);
+    cJSON_AddNumberToObject(n, "sd_last", r->noise.sd_last);
+    cJSON_AddNumberToObject(n, "sd_best", r->noise.sd_best);
+    cJSON_AddNumberToObject(n, "max_overshoot", r->noise.max_over);
+  }
   if (r->o.ndevices > 0) {
     cJSON *a = cJSON_AddArrayToObject(o, "devices");
     uint32_t i;
@@ -1303,6 +1520,16 @@ static void print_table(const replay *r, const summary *sums, int nctl) {
   if (r->o.ndevices > 0)
     printf("devices %s (a group of %u)\n", r->o.devices_spec,
            r->o.ndevices);
+  if (r->noise.frames > 0)
+    printf("timing noise, a still frame after each round (%u frames, %u "
+           "segment%s, density %.3f, median %.2f ms): sd %.1f%% about "
+           "the median, %.1f%% frame to frame, %.1f%% the best "
+           "predictor; slowest +%.1f%%\n",
+           r->noise.frames, r->noise.segments,
+           r->noise.segments == 1 ? "" : "s", r->noise.rho,
+           r->noise.median_ms,
+           100 * r->noise.sd, 100 * r->noise.sd_last,
+           100 * r->noise.sd_best, 100 * r->noise.max_over);
   printf("%-11s %8s %8s %8s %8s %8s %7s %7s %8s %9s %8s %8s%s\n",
          "controller", "mean_ms", "target", "rmse_ms", "rmse_open",
          "rmse_rel", "max_ovr", "sw_ovr", ">1.2T", "density", "pred_rmse",
@@ -1323,7 +1550,7 @@ static void print_table(const replay *r, const summary *sums, int nctl) {
 
 /* The issue's goals as ratios within this run, when the controllers they
  * compare were all played. */
-static void print_goals(const summary *sums, int nctl) {
+static void print_goals(const replay *r, const summary *sums, int nctl) {
   const summary *by[RP_CONTROL_COUNT] = {0};
   double best = INFINITY, best_open = INFINITY;
   int k;
@@ -1341,12 +1568,19 @@ static void print_goals(const summary *sums, int nctl) {
       best_open = by[k]->rmse_open_ms;
   }
   printf("goals: predicted rmse / best reactive = %.3f (<= 0.5), "
-         "reachable frames only %.3f; max overshoot %.1f%% (<= 25%%), "
-         "on TF switches %.1f%%",
+         "reachable frames only %.3f",
          isfinite(best) ? by[RP_CONTROL_PREDICTED]->rmse_ms / best : NAN,
          isfinite(best_open) && best_open > 0
              ? by[RP_CONTROL_PREDICTED]->rmse_open_ms / best_open
-             : NAN,
+             : NAN);
+  /* A model with no error but the machine's own would miss each target
+   * by about noise.sd_best of it: about where the ratio lands from the
+   * noise alone (an estimate from another frame, not a bound). */
+  if (r->noise.frames > 0 && isfinite(best_open) && best_open > 0)
+    printf(" (%.3f from timing noise alone)",
+           r->noise.sd_best * by[RP_CONTROL_PREDICTED]->mean_target /
+               best_open);
+  printf("; max overshoot %.1f%% (<= 25%%), on TF switches %.1f%%",
          100 * by[RP_CONTROL_PREDICTED]->max_over,
          100 * by[RP_CONTROL_PREDICTED]->switch_over);
   if (by[RP_CONTROL_TWO_PASS] != NULL)
@@ -1417,6 +1651,8 @@ static int open_scene(replay *r) {
 static void close_scene(replay *r) {
   int i;
   ao_drop_run(r);
+  free(r->still_ms);
+  free(r->still_seg);
   free(r->scaled);
   free(r->image);
   free(r->tiles);
@@ -1492,6 +1728,13 @@ int cli_cmd_replay(int argc, char **argv) {
   }
   if (play(&r, players, nctl) != 0)
     goto out;
+  if (r.o.noise_csv != NULL && r.still_ms == NULL)
+    fprintf(stderr, "raypace replay: --noise-csv %s not written: no "
+                    "still frame with one controller, or out of core "
+                    "(the controllers play one after another)\n",
+            r.o.noise_csv);
+  else if (r.o.noise_csv != NULL && write_noise_csv(&r) != 0)
+    goto out;
   for (k = 0; k < nctl; k++) {
     summarise(kinds[k], rows[k], r.frames, rp_space_max_density(&r.space),
               &sums[k]);
@@ -1502,7 +1745,7 @@ int cli_cmd_replay(int argc, char **argv) {
       print_json(&r, &sums[k]);
   } else {
     print_table(&r, sums, nctl);
-    print_goals(sums, nctl);
+    print_goals(&r, sums, nctl);
   }
   /* Without --csv the plot's data goes to PLOT.csv, removed after. */
   csv = r.o.csv != NULL ? r.o.csv : r.o.plot != NULL ? csv_tmp : NULL;

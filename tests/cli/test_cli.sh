@@ -115,7 +115,7 @@ has "replay list sequences" "tf-switch"
 has "replay list controllers" "predicted"
 check "replay all" "$rp" replay gen:phantom:24 --backend reference \
   --sequence tf-switch --frames 24 --settle 2 --size 32x32 --json --quiet \
-  --csv "$dir/r.csv"
+  --csv "$dir/r.csv" --noise-csv "$dir/n.csv"
 for c in none last-frame two-pass predicted vtk ue5 valve; do
   has "replay json $c" "\"controller\":\"$c\""
 done
@@ -127,6 +127,42 @@ if [ "$(head -1 "$dir/r.csv" | cut -d, -f1-5)" = \
    [ "$(wc -l <"$dir/r.csv")" -eq $((7 * 24 + 1)) ]; then
   pass=$((pass + 1)); else
   echo "FAIL: replay csv"; head -3 "$dir/r.csv"; fails=$((fails + 1)); fi
+# The still frame's noise figures, worked out again from its times: the
+# switch at frame 20 starts a second segment. sd is about each segment's
+# median (the middle pair's mean for an even count), sd_last against the
+# frame before; a segment's first frame is not scored (22 of 24 are).
+noise_of() { # noise_of FIELD: that field of the first JSON line's "noise"
+  head -1 "$dir/out" |
+    sed -n "s/.*\"noise\":{.*\"$1\":\([-0-9.e+]*\).*/\1/p"
+}
+if awk -F, -v sd="$(noise_of sd)" -v sl="$(noise_of sd_last)" '
+  FNR == 1 { next }
+  NR == FNR {  # first pass: the times of each segment, kept sorted
+    n = ++cnt[$2]; i = n
+    while (i > 1 && v[$2, i - 1] > $4 + 0) { v[$2, i] = v[$2, i - 1]; i-- }
+    v[$2, i] = $4 + 0
+    next
+  }
+  {            # second pass, in frame order
+    if (!($2 in med)) {
+      n = cnt[$2]
+      med[$2] = n % 2 ? v[$2, (n + 1) / 2] \
+                      : (v[$2, n / 2] + v[$2, n / 2 + 1]) / 2
+      segs++
+    } else {
+      d = log($4 / med[$2]); se += d * d
+      d = log($4 / last); se_last += d * d; k++
+    }
+    last = $4
+  }
+  function near(a, b) { return b > 0 && a / b > 0.999 && a / b < 1.001 }
+  END { exit !(segs == 2 && k == 22 && near(sqrt(se / k), sd) &&
+               near(sqrt(se_last / k), sl)) }' "$dir/n.csv" "$dir/n.csv"
+then pass=$((pass + 1)); else
+  echo "FAIL: replay noise (sd $(noise_of sd), sd_last $(noise_of sd_last))"
+  cat "$dir/n.csv"; fails=$((fails + 1)); fi
+refuse "replay noise csv" "needs the still frame" "$rp" replay gen:ml:8 \
+  --backend reference --no-noise --noise-csv "$dir/x.csv"
 # AO in steps: frames before the switch at 40 render with AO; the switch
 # starts a new AO run, the frames during it render without AO, and one
 # before frame 50 renders with it again (24^3: eight 16^3 jobs at most,
