@@ -87,6 +87,9 @@ typedef struct rp_tune_desc {
   double max_time_us; /* checked before each prediction after the
                          first (CLOCK_MONOTONIC), so a call overruns it
                          by at most one prediction; 0: 200 */
+  double lift;        /* share of the target under which a rise the
+                         damping held back is taken at once (below);
+                         in (0, 1); 0: 0.25. \since 0.2 */
 } rp_tune_desc;
 
 typedef struct rp_tune_result {
@@ -103,12 +106,12 @@ typedef struct rp_tune_result {
  *  ub = min(rho_max, max(rho_min, rho_prev * raise_limit)) (rho_prev
  *  > 0): a rise is damped, a fall is not, and rho_min wins over the
  *  damping. When the damping alone held rho back at a density predicted
- *  at a quarter of the target or less, rho rises at once to the largest
- *  density predicted at a quarter of the target, searched between the
- *  two the same way, rho_max first (a 4x error of the model would be
- *  needed to overshoot; a switch to a cheap TF then gets the finest
- *  image at once); these predictions count against max_iters and
- *  max_time_us. Predictions
+ *  at `lift` of the target or less (a quarter by default), rho rises at
+ *  once to the largest density predicted at `lift` of the target,
+ *  searched between the two the same way, rho_max first (at a quarter,
+ *  a 4x error of the model would be needed to overshoot; a switch to a
+ *  cheap TF then gets the finest image at once); these predictions
+ *  count against max_iters and max_time_us. Predictions
  *  that are NaN, infinite or <= 0 count as unknown.
  *  The result is the largest rho seen with t' <= target; if none was
  *  seen, rho_min when t'(rho_min) > target, else (the budget ran out

@@ -66,6 +66,25 @@
  * 2.0 and 2.8 ms for frames of 4.7 and 6.0 ms, rose 1.25x on each, and
  * the third frame took 10.6 ms against a 6.2 ms target. */
 #define PREDICT_TRUST 1.5
+/* predicted: a frame that came in within this factor of its t' (either
+ * way), on a scene that the model still prices within this factor of
+ * that frame's time at that frame's density, shows the model right for
+ * the scene at hand, and the next frame lifts a damped rise at
+ * PREDICT_LIFT of the target instead of rp_tune's quarter: to
+ * overshoot, the model would then have to be off by 2x at the new
+ * density just after it was off by under 1.2x at the old one. Without
+ * the second test, a frame that turned shading off was lifted from
+ * density 0.009 to 0.027 on the last frame's word and took 1.13x its
+ * target (mixed, frame 140). Measured on the mixed sequence (bonsai, 256^2): after a
+ * switch to a cheap TF the model was off by 2x for three frames (a new
+ * TF's cost per sample), then within 10 %, and the density climbed
+ * from 0.09 to 1 by 1.25x a frame: ten frames at 30-56 % of the target,
+ * each predicted within 20 %. ln 1.2 = 0.18 is one to four standard
+ * deviations of the model's log residual on a scene it knows (0.174 on
+ * a 512^2 orbit, docs/pacing.md; 0.045-0.061 on the 256^2 orbit and
+ * zoom). */
+#define PREDICT_CLOSE 1.2
+#define PREDICT_LIFT 0.5
 
 struct rp_controller {
   rp_context *ctx;
@@ -112,6 +131,11 @@ int rp_controller_from_name(const char *name, rp_controller_kind *out) {
       return 0;
     }
   return RP_EINVAL;
+}
+
+/* a within PREDICT_CLOSE of b, either way; false for NaN. */
+static int close_to(double a, double b) {
+  return a <= PREDICT_CLOSE * b && a * PREDICT_CLOSE >= b;
 }
 
 /* The desc with its defaults filled in: the one place that knows them
@@ -425,6 +449,14 @@ int rp_controller_begin_frame(rp_controller *c, double target_ms,
     td.rho_max = c->d.rho_max;
     td.raise_limit = c->d.raise_limit;
     td.max_time_us = c->d.tune_time_us; /* 0: rp_tune's default */
+    /* The last frame against its own t', and this frame's scene at the
+     * last frame's density against the last frame: a scene that changed
+     * (an effect toggled, a new TF) is one the model has not yet been
+     * right about. One prediction past rp_tune's budget. NaN compares
+     * false. */
+    if (c->frames > 0 && c->pred_ms > 0 && close_to(c->t_last, c->pred_ms) &&
+        close_to(predict(user, c->rho_last), c->t_last))
+      td.lift = PREDICT_LIFT;
     if ((err = rp_tune(&td, predict, user, &res)) != 0)
       return rp__fail(c->ctx, err, "controller: rp_tune failed (%s)",
                       rp_err_name(err));

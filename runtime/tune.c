@@ -64,6 +64,8 @@ static rp_tune_desc tune_defaults(const rp_tune_desc *in) {
     d.tolerance = TUNE_TOL;
   if (d.max_time_us == 0)
     d.max_time_us = TUNE_TIME_US;
+  if (d.lift == 0)
+    d.lift = TUNE_LIFT;
   return d;
 }
 
@@ -74,7 +76,7 @@ static int check_desc(const rp_tune_desc *d) {
   } f[] = {{"target_ms", d->target_ms},   {"rho_prev", d->rho_prev},
            {"rho_min", d->rho_min},       {"rho_max", d->rho_max},
            {"raise_limit", d->raise_limit}, {"tolerance", d->tolerance},
-           {"max_time_us", d->max_time_us}};
+           {"max_time_us", d->max_time_us}, {"lift", d->lift}};
   size_t i;
   /* rp_tune has no context: the messages are dropped (rp__fail with a
    * NULL ctx), the codes say which class of fault it was. */
@@ -85,7 +87,7 @@ static int check_desc(const rp_tune_desc *d) {
   if (!(d->target_ms > 0) || d->rho_prev < 0 || !(d->rho_min > 0) ||
       d->rho_min > d->rho_max || d->raise_limit < 1 ||
       d->max_iters < 1 || !(d->tolerance > 0 && d->tolerance < 1) ||
-      !(d->max_time_us > 0))
+      !(d->max_time_us > 0) || !(d->lift > 0 && d->lift < 1))
     return rp__fail(NULL, RP_EINVAL, "tune: a field is out of range");
   return 0;
 }
@@ -344,17 +346,17 @@ int rp_tune(const rp_tune_desc *desc, rp_predict_fn predict, void *user,
 
   memset(out, 0, sizeof *out);
   if (held_at_ub(&s) && s.ub < d.rho_max &&
-      s.best.t <= TUNE_LIFT * s.target && iters < d.max_iters &&
+      s.best.t <= d.lift * s.target && iters < d.max_iters &&
       !spent(start, d.max_time_us)) {
     /* Held back by the damping alone, with the density it allows
      * predicted far under the target: lifted to the largest density
-     * predicted at TUNE_LIFT of the target, searched the same way
+     * predicted at d.lift of the target, searched the same way
      * between that density and rho_max (first asking at rho_max, which
      * is the answer after a switch to a cheap TF). */
     search l;
     double t = predict(user, d.rho_max);
     iters++;
-    search_init(&l, TUNE_LIFT * s.target, d.tolerance, s.best.r,
+    search_init(&l, d.lift * s.target, d.tolerance, s.best.r,
                 d.rho_max);
     if (priced(t))
       (void)record(&l, d.rho_max, t);

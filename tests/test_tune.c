@@ -85,19 +85,26 @@ static double m_nan_band(void *u, double rho) {
  * budget itself. */
 #define NO_TIME_LIMIT_US 1e9
 
-static rp_tune_result tune(double target, double rho_prev, rp_predict_fn fn,
-                           model *m) {
+/* rp_tune with rp_tune_desc.lift = lift (0: the default). */
+static rp_tune_result tune_lifted(double target, double rho_prev,
+                                  double lift, rp_predict_fn fn, model *m) {
   rp_tune_desc d;
   rp_tune_result r;
   memset(&d, 0, sizeof d);
   d.target_ms = target;
   d.max_time_us = NO_TIME_LIMIT_US;
   d.rho_prev = rho_prev;
+  d.lift = lift;
   memset(&r, 0, sizeof r);
   assert_int_equal(rp_tune(&d, fn, m, &r), 0);
   assert_int_equal(r.iters, m->calls);
   assert_true(isfinite(r.rho));
   return r;
+}
+
+static rp_tune_result tune(double target, double rho_prev, rp_predict_fn fn,
+                           model *m) {
+  return tune_lifted(target, rho_prev, 0, fn, m);
 }
 
 /* ---- tuner ------------------------------------------------------------- */
@@ -462,6 +469,35 @@ static void tune_damping_lift(void **state) {
   m.a = 100;
   r = tune(10, 0.9, m_linear, &m);
   assert_true(r.rho <= 0.1 && r.rho >= 0.099);
+}
+
+/* rp_tune_desc.lift moves the lift's threshold and its aim together:
+ * t' = 10 rho from 0.05, target 10, lift 0.5: damped to 0.0625 (0.625
+ * ms, under half the target), lifted to where t' = 5, rho in [0.495,
+ * 0.5]; from 0.45 the damped 0.5625 is priced over half: no lift. Out
+ * of (0, 1), or not finite, it is refused. */
+static void tune_lift_share(void **state) {
+  model m = {0};
+  rp_tune_desc d;
+  rp_tune_result r;
+  static const double bad[] = {1.0, 1.5, -0.25, NAN};
+  size_t i;
+  (void)state;
+  m.a = 10;
+  r = tune_lifted(10, 0.05, 0.5, m_linear, &m);
+  assert_true(r.rho >= 0.495 && r.rho <= 0.5);
+  assert_true(r.predicted_ms >= 4.95 && r.predicted_ms <= 5);
+  memset(&m, 0, sizeof m);
+  m.a = 10;
+  r = tune_lifted(10, 0.45, 0.5, m_linear, &m);
+  assert_true(r.rho == 0.45 * (1.0 / 0.8));
+  memset(&d, 0, sizeof d);
+  d.target_ms = 10;
+  for (i = 0; i < sizeof bad / sizeof bad[0]; i++) {
+    d.lift = bad[i];
+    assert_int_equal(rp_tune(&d, m_linear, &m, &r),
+                     isnan(bad[i]) ? RP_ENOTFINITE : RP_EINVAL);
+  }
 }
 
 static void tune_extreme_targets(void **state) {
@@ -839,6 +875,56 @@ static void controller_predicted_holds_on_a_miss(void **state) {
       rp_controller_begin_frame(c, 4, plant_predict, &cheap, &rho), 0);
   assert_true(rho < 0.4 && rho >= 0.99 * 0.3 - 1e-12);
   assert_int_equal(rp_controller_end_pass(c, 4, &again, &r2), 0);
+  rp_controller_destroy(c);
+  rp_context_destroy(ctx);
+}
+
+/* predicted, with an exact model (t' = 10 rho, target 10) from 0.05: the
+ * first frame lifts its damped rise at a quarter of the target (rho
+ * 0.25); a frame that came in at its t' lets the next lift at half
+ * (0.5), and past half the rise is damped again (0.625). A frame 30 %
+ * over its t' lifts at a quarter only: the damped 0.3125, priced at
+ * 3.125 ms, stays. So does a frame right about a scene that then
+ * changed: after 0.25 at its t', the model prices the new scene at half
+ * the cost (t' = 5 rho, 1.25 ms at 0.25 against the 2.5 ms taken), and
+ * the lift aims at a quarter, t' = 2.5 at 0.5, not at half (1.0). */
+/* One frame of target 10 on plant p, taking `over` times p's own t' for
+ * the density chosen; returns that density. */
+static double frame_over(rp_controller *c, plant *p, double over) {
+  double rho, next;
+  int again;
+  assert_int_equal(
+      rp_controller_begin_frame(c, 10, plant_predict, p, &rho), 0);
+  assert_int_equal(
+      rp_controller_end_pass(c, over * plant_time(p, rho), &again, &next),
+      0);
+  assert_int_equal(again, 0);
+  return rho;
+}
+
+static void controller_predicted_lifts_when_right(void **state) {
+  rp_context *ctx = rp_test_context();
+  rp_controller *c = make(ctx, RP_CONTROL_PREDICTED, 0.05);
+  plant exact = {10, 0};
+  double rho;
+  (void)state;
+  rho = frame_over(c, &exact, 1.0);
+  assert_true(rho >= 0.2475 && rho <= 0.25);
+  rho = frame_over(c, &exact, 1.0);
+  assert_true(rho >= 0.495 && rho <= 0.5);
+  assert_close(frame_over(c, &exact, 1.0), 1.25 * rho, 1e-12);
+  rp_controller_destroy(c);
+
+  c = make(ctx, RP_CONTROL_PREDICTED, 0.05);
+  rho = frame_over(c, &exact, 1.3);
+  assert_close(frame_over(c, &exact, 1.0), 1.25 * rho, 1e-12);
+  rp_controller_destroy(c);
+
+  c = make(ctx, RP_CONTROL_PREDICTED, 0.05);
+  (void)frame_over(c, &exact, 1.0);
+  exact.a = 5;
+  rho = frame_over(c, &exact, 1.0);
+  assert_true(rho >= 0.495 && rho <= 0.5);
   rp_controller_destroy(c);
   rp_context_destroy(ctx);
 }
@@ -1224,6 +1310,7 @@ int main(void) {
       cmocka_unit_test(tune_nan_in_places),
       cmocka_unit_test(tune_damping),
       cmocka_unit_test(tune_damping_lift),
+      cmocka_unit_test(tune_lift_share),
       cmocka_unit_test(tune_clamps),
       cmocka_unit_test(tune_extreme_targets),
       cmocka_unit_test(tune_time_limit),
@@ -1235,6 +1322,7 @@ int main(void) {
       cmocka_unit_test(controller_two_pass),
       cmocka_unit_test(controller_predicted_vs_last_frame),
       cmocka_unit_test(controller_predicted_holds_on_a_miss),
+      cmocka_unit_test(controller_predicted_lifts_when_right),
       cmocka_unit_test(controller_vtk),
       cmocka_unit_test(controller_ue5),
       cmocka_unit_test(controller_valve),
