@@ -137,7 +137,10 @@ typedef enum rp_controller_kind {
                                 render again */
   RP_CONTROL_PREDICTED = 3,  /* ours: rp_tune on the caller's model;
                                 no rise after a frame that took over
-                                1.5x its prediction */
+                                1.5x its prediction; a damped rise
+                                lifted at half the target (lift 0.5)
+                                after one within 1.2x of it, on a
+                                scene still priced within 1.2x */
   RP_CONTROL_VTK = 4,        /* isd' = isd sqrt(t_last f / target),
                                 isd in [1, 10], rho = 1 / isd^2 */
   RP_CONTROL_UE5 = 5,        /* UE5 dynamic resolution, rho = s^2 */

@@ -69,20 +69,20 @@
 /* predicted: a frame that came in within this factor of its t' (either
  * way), on a scene that the model still prices within this factor of
  * that frame's time at that frame's density, shows the model right for
- * the scene at hand, and the next frame lifts a damped rise at
- * PREDICT_LIFT of the target instead of rp_tune's quarter: to
- * overshoot, the model would then have to be off by 2x at the new
- * density just after it was off by under 1.2x at the old one. Without
- * the second test, a frame that turned shading off was lifted from
- * density 0.009 to 0.027 on the last frame's word and took 1.13x its
- * target (mixed, frame 140). Measured on the mixed sequence (bonsai, 256^2): after a
- * switch to a cheap TF the model was off by 2x for three frames (a new
- * TF's cost per sample), then within 10 %, and the density climbed
- * from 0.09 to 1 by 1.25x a frame: ten frames at 30-56 % of the target,
- * each predicted within 20 %. ln 1.2 = 0.18 is one to four standard
- * deviations of the model's log residual on a scene it knows (0.174 on
- * a 512^2 orbit, docs/pacing.md; 0.045-0.061 on the 256^2 orbit and
- * zoom). */
+ * the scene at hand; the next frame then lifts a damped rise at
+ * PREDICT_LIFT of the target instead of rp_tune's quarter. To
+ * overshoot, the model would have to be off by 2x at the new density
+ * just after it was off by under 1.2x at the old one. ln 1.2 = 0.18 is
+ * one to four standard deviations of the model's log residual on a
+ * scene it knows (0.174 on a 512^2 orbit, docs/pacing.md; 0.045-0.061
+ * on the 256^2 orbit and zoom).
+ * Measured on the mixed sequence (bonsai, 256^2): after a switch to a
+ * cheap TF the model was off by 2x for three frames (a new TF's cost
+ * per sample), then within 10 %, and the density climbed from 0.09 to
+ * 1 by 1.25x a frame: ten frames at 30-56 % of the target, each
+ * predicted within 20 %. Without the second test, a frame that turned
+ * shading off was lifted from density 0.009 to 0.027 on the last
+ * frame's word and took 1.13x its target (frame 140). */
 #define PREDICT_CLOSE 1.2
 #define PREDICT_LIFT 0.5
 
