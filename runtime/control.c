@@ -441,6 +441,8 @@ int rp_controller_begin_frame(rp_controller *c, double target_ms,
   case RP_CONTROL_PREDICTED: {
     rp_tune_desc td;
     rp_tune_result res;
+    /* The last frame has a t' to be held against (NaN fails this). */
+    int priced = c->frames > 0 && c->pred_ms > 0;
     int err;
     memset(&td, 0, sizeof td);
     td.target_ms = target_ms;
@@ -454,16 +456,15 @@ int rp_controller_begin_frame(rp_controller *c, double target_ms,
      * (an effect toggled, a new TF) is one the model has not yet been
      * right about. One prediction past rp_tune's budget. NaN compares
      * false. */
-    if (c->frames > 0 && c->pred_ms > 0 && close_to(c->t_last, c->pred_ms) &&
+    if (priced && close_to(c->t_last, c->pred_ms) &&
         close_to(predict(user, c->rho_last), c->t_last))
       td.lift = PREDICT_LIFT;
     if ((err = rp_tune(&td, predict, user, &res)) != 0)
       return rp__fail(c->ctx, err, "controller: rp_tune failed (%s)",
                       rp_err_name(err));
     r = res.rho;
-    /* The last frame against its own t' (NaN compares false). */
-    if (c->frames > 0 && c->pred_ms > 0 &&
-        c->t_last > PREDICT_TRUST * c->pred_ms && r > c->rho_last) {
+    if (priced && c->t_last > PREDICT_TRUST * c->pred_ms &&
+        r > c->rho_last) {
       /* Held, priced at the held density when the model can: one
        * prediction past rp_tune's max_iters and time. */
       r = c->rho_last;
