@@ -356,7 +356,11 @@ static int vk_create(rp_context *ctx, uint32_t index, uint32_t units,
     return rp__fail(ctx, RP_ENOMEM, "vulkan: out of memory for the device "
                     "(%zu bytes)", sizeof *impl);
   impl->ctx = ctx;
-  pthread_mutex_init(&impl->lock, NULL);
+  if (pthread_mutex_init(&impl->lock, NULL) != 0) {
+    rp__free(ctx, impl);
+    return rp__fail(ctx, RP_ENOMEM, "vulkan: no mutex for device %u",
+                    (unsigned)index);
+  }
   /* Room from the start: prepare only fills free entries (growing is
    * the render thread's, from its context), and a device's first frames
    * are what it would prepare for. */
