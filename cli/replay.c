@@ -1537,11 +1537,15 @@ static void print_table(const replay *r, const summary *sums, int nctl) {
   for (k = 0; k < nctl; k++) {
     const summary *s = &sums[k];
     printf("%-11s %8.2f %8.2f %8.2f %8.2f %8.3f %6.1f%% %6.1f%% %7.1f%% "
-           "%9.4f %8.2f %8.3f", rp_controller_name(s->kind), s->mean_ms,
+           "%9.4f %8.2f ", rp_controller_name(s->kind), s->mean_ms,
            s->mean_target, s->rmse_ms, s->rmse_open_ms, s->rmse_rel,
            100 * s->max_over, 100 * s->switch_over,
-           100 * s->share_over_20, s->mean_density, s->pred_rmse_ms,
-           s->sigma_err_30);
+           100 * s->share_over_20, s->mean_density, s->pred_rmse_ms);
+    /* NaN when the run had no 30 frames to measure it after. */
+    if (isfinite(s->sigma_err_30))
+      printf("%8.3f", s->sigma_err_30);
+    else
+      printf("%8s", "-");
     if (r->o.ndevices > 0)
       printf(" %7.3f %6u", s->mean_imbalance, s->devices_alive);
     printf("\n");
@@ -1567,19 +1571,28 @@ static void print_goals(const replay *r, const summary *sums, int nctl) {
     if (by[k] != NULL && by[k]->rmse_open_ms < best_open)
       best_open = by[k]->rmse_open_ms;
   }
-  printf("goals: predicted rmse / best reactive = %.3f (<= 0.5), "
-         "reachable frames only %.3f",
-         isfinite(best) ? by[RP_CONTROL_PREDICTED]->rmse_ms / best : NAN,
-         isfinite(best_open) && best_open > 0
-             ? by[RP_CONTROL_PREDICTED]->rmse_open_ms / best_open
-             : NAN);
-  /* A model with no error but the machine's own would miss each target
-   * by about noise.sd_best of it: about where the ratio lands from the
-   * noise alone (an estimate from another frame, not a bound). */
-  if (r->noise.frames > 0 && isfinite(best_open) && best_open > 0)
-    printf(" (%.3f from timing noise alone)",
-           r->noise.sd_best * by[RP_CONTROL_PREDICTED]->mean_target /
-               best_open);
+  /* With no reactive rule played (one controller) there is nothing to
+   * hold the RMSE against: say so rather than print a NaN. */
+  if (!isfinite(best))
+    printf("goals: predicted rmse / best reactive: no reactive "
+           "controller played (--controller all)");
+  else {
+    printf("goals: predicted rmse / best reactive = %.3f (<= 0.5), "
+           "reachable frames only ",
+           by[RP_CONTROL_PREDICTED]->rmse_ms / best);
+    if (isfinite(best_open) && best_open > 0)
+      printf("%.3f", by[RP_CONTROL_PREDICTED]->rmse_open_ms / best_open);
+    else
+      printf("- (none)");
+    /* A model with no error but the machine's own would miss each
+     * target by about noise.sd_best of it: about where the ratio lands
+     * from the noise alone (an estimate from another frame, not a
+     * bound). */
+    if (r->noise.frames > 0 && isfinite(best_open) && best_open > 0)
+      printf(" (%.3f from timing noise alone)",
+             r->noise.sd_best * by[RP_CONTROL_PREDICTED]->mean_target /
+                 best_open);
+  }
   printf("; max overshoot %.1f%% (<= 25%%), on TF switches %.1f%%",
          100 * by[RP_CONTROL_PREDICTED]->max_over,
          100 * by[RP_CONTROL_PREDICTED]->switch_over);

@@ -210,6 +210,15 @@ check "replay table" "$rp" replay gen:ml:16 --backend reference \
   --sequence orbit --frames 4 --settle 1 --size 16x16 --controller vtk \
   --target-ms 5 --space ray --quiet
 has "replay table header" "rmse_ms"
+# One controller: the goal line has no reactive rule to compare with and
+# says so, rather than print a ratio of NaN.
+check "replay one controller" "$rp" replay gen:ml:16 --backend reference \
+  --sequence orbit --frames 4 --settle 1 --size 16x16 \
+  --controller predicted --target-ms 5 --quiet
+has "replay goals alone" "no reactive controller played"
+if grep -qi "nan" "$dir/out"; then
+  echo "FAIL: replay one controller prints a NaN"; cat "$dir/out"
+  fails=$((fails + 1)); else pass=$((pass + 1)); fi
 refuse "replay controller" "unknown controller 'pid'" "$rp" replay \
   gen:ml:8 --controller pid
 refuse "replay sequence" "no-such-seq" "$rp" replay gen:ml:8 \
