@@ -583,6 +583,8 @@ static void usage_bench(FILE *f) {
              "                   SSIM) over step and image scale\n"
              "  overhead VOLUME  what each stage of a runtime frame costs\n"
              "                   (H build, uploads, probe, predict, ...)\n"
+             "  pacing VOLUME    the frame-time goals (replay of every\n"
+             "                   controller), medians over repeated runs\n"
              "Run 'raypace bench BENCHMARK --help' for its options.\n");
 }
 
@@ -599,7 +601,9 @@ int cli_cmd_bench(int argc, char **argv) {
     return bench_quality(argc - 1, argv + 1);
   if (strcmp(argv[1], "overhead") == 0)
     return cli_cmd_bench_overhead(argc - 1, argv + 1);
+  if (strcmp(argv[1], "pacing") == 0)
+    return cli_cmd_bench_pacing(argc - 1, argv + 1);
   fprintf(stderr, "raypace bench: unknown benchmark '%s' (known: quality, "
-                  "overhead)\n", argv[1]);
+                  "overhead, pacing)\n", argv[1]);
   return 2;
 }

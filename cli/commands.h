@@ -6,6 +6,27 @@
 
 /* raypace replay VOLUME ...: cli/replay.c */
 int cli_cmd_replay(int argc, char **argv);
+/* The goals of M4 (DESIGN section 10) from one replay of every
+ * controller, each a ratio within the run; NaN where the controllers it
+ * compares were not played, or there was no still frame. */
+typedef struct cli_pacing_goals {
+  double ratio;       /* predicted's target RMSE / the best of last-frame,
+                         vtk, ue5 and valve */
+  double ratio_open;  /* the same over frames whose target was reachable */
+  double ratio_noise; /* where ratio_open lands from timing noise alone:
+                         the still frame's sd_best x target / that best */
+  double max_over, switch_over;         /* predicted's, as fractions */
+  double density_two_pass;              /* predicted's / two-pass's */
+  double density_last_frame;            /* predicted's / last-frame's */
+  double noise_sd_best, noise_max_over; /* the still frame's */
+  double full_ms; /* the no-adaptation frame, measured at the start */
+} cli_pacing_goals;
+
+/* Plays `raypace replay` with argv (argv[0] = "replay") and fills goals
+ * instead of printing; returns the command's exit status. */
+int cli_replay_goals(int argc, char **argv, cli_pacing_goals *goals);
+/* raypace bench pacing VOLUME ...: cli/bench_pacing.c */
+int cli_cmd_bench_pacing(int argc, char **argv);
 /* raypace bench quality VOLUME ...: cli/bench.c */
 int cli_cmd_bench(int argc, char **argv);
 /* raypace bench overhead VOLUME ...: cli/bench_overhead.c */

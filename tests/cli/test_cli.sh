@@ -219,6 +219,37 @@ has "replay goals alone" "no reactive controller played"
 if grep -qi "nan" "$dir/out"; then
   echo "FAIL: replay one controller prints a NaN"; cat "$dir/out"
   fails=$((fails + 1)); else pass=$((pass + 1)); fi
+# bench pacing: each sequence's median is the middle of its three runs'
+# figures, picked here from the JSON by awk for two of them.
+check "bench pacing json" "$rp" bench pacing gen:ml:16 --backend reference \
+  --sequences orbit,tf-switch --runs 3 --frames 6 --settle 1 --size 16x16 \
+  --json --quiet
+if [ "$(grep -c '"runs":3,' "$dir/out")" = 2 ]; then pass=$((pass + 1))
+else echo "FAIL: bench pacing: not two sequences of 3 runs"; cat "$dir/out"
+  fails=$((fails + 1)); fi
+for field in ratio_reachable density_vs_two_pass; do
+  bad=$(awk -v f="\"$field\":" '{
+    n = 0; s = $0
+    while ((i = index(s, f)) > 0) {
+      s = substr(s, i + length(f)); v[n++] = s + 0 }
+    # v[0] the median, v[1..3] the runs: the median of three is the one
+    # neither under nor over both others.
+    m = v[1]
+    if ((v[2] - v[1]) * (v[2] - v[3]) <= 0) m = v[2]
+    if ((v[3] - v[1]) * (v[3] - v[2]) <= 0) m = v[3]
+    if (n != 4 || v[0] != m) print NR ": " n " values, median " v[0] " not " m
+  }' "$dir/out")
+  if [ -z "$bad" ]; then pass=$((pass + 1)); else
+    echo "FAIL: bench pacing median of $field: $bad"; fails=$((fails + 1)); fi
+done
+check "bench pacing table" "$rp" bench pacing gen:ml:16 --backend reference \
+  --sequences orbit --runs 2 --frames 4 --settle 1 --size 16x16 --quiet
+has "bench pacing met" "  met [R.][O.][D.][L.]$"
+has "bench pacing each run" "^orbit #2 "
+refuse "bench pacing runs" "bad value '0' for --runs" "$rp" bench pacing \
+  gen:ml:8 --runs 0
+refuse "bench pacing sequence" "no-such-seq" "$rp" bench pacing gen:ml:8 \
+  --backend reference --sequences no-such-seq --runs 1 --quiet
 refuse "replay controller" "unknown controller 'pid'" "$rp" replay \
   gen:ml:8 --controller pid
 refuse "replay sequence" "no-such-seq" "$rp" replay gen:ml:8 \

@@ -1,0 +1,334 @@
+/* raypace bench pacing: M4's goals (DESIGN section 10) as medians over
+ * repeated replays of every controller.
+ *
+ * One replay's ratios move a lot from run to run on a shared machine
+ * (its timing noise drifts over minutes; the still frame of
+ * `raypace replay` measures it), so a goal is judged on the median of
+ * several runs, each run's figure still a ratio within that run. Every
+ * run is `raypace replay VOLUME --sequence S --controller all` with the
+ * options given here passed through, played afresh: a new context,
+ * device and cost models, as a user's separate runs would be. */
+#include <cjson/cJSON.h>
+#include <getopt.h>
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "cli_util.h"
+#include "commands.h"
+#include "raypace_sequence.h"
+
+#define MAX_RUNS 100
+#define MAX_SEQUENCES 32
+/* The options passed through to replay: each with its value. */
+#define MAX_PASSED 16
+
+/* The figures of one sequence's table row, in cli_pacing_goals order. */
+enum {
+  F_RATIO,
+  F_OPEN,
+  F_NOISE,
+  F_MAX_OVER,
+  F_SWITCH_OVER,
+  F_DENS_2P,
+  F_DENS_LF,
+  F_NOISE_SD,
+  F_NOISE_MAX,
+  F_FULL_MS,
+  FIGURES
+};
+
+static const char *const figure_names[FIGURES] = {
+    "ratio",         "ratio_reachable",    "ratio_from_noise",
+    "max_overshoot", "switch_overshoot",   "density_vs_two_pass",
+    "density_vs_last_frame", "still_sd_best", "still_slowest",
+    "no_adaptation_ms"};
+
+static void figures_of(const cli_pacing_goals *g, double *f) {
+  f[F_RATIO] = g->ratio;
+  f[F_OPEN] = g->ratio_open;
+  f[F_NOISE] = g->ratio_noise;
+  f[F_MAX_OVER] = g->max_over;
+  f[F_SWITCH_OVER] = g->switch_over;
+  f[F_DENS_2P] = g->density_two_pass;
+  f[F_DENS_LF] = g->density_last_frame;
+  f[F_NOISE_SD] = g->noise_sd_best;
+  f[F_NOISE_MAX] = g->noise_max_over;
+  f[F_FULL_MS] = g->full_ms;
+}
+
+static void usage(FILE *f) {
+  fprintf(f,
+      "usage: raypace bench pacing VOLUME [--sequences LIST] [--runs N]\n"
+      "                            [replay options] [--json] [--quiet]\n\n"
+      "Plays each sequence N times under every controller (raypace\n"
+      "replay --controller all) and prints M4's goals, each a ratio\n"
+      "within one run, as the median over the runs (NaN runs left out),\n"
+      "then each run's figures.\n\n"
+      "  --sequences LIST      comma-separated built-in names or JSON\n"
+      "                        files (default: every built-in sequence)\n"
+      "  --runs N              runs per sequence, 1..%d (default 3)\n"
+      "  --json                one JSON object per sequence: the medians\n"
+      "                        and every run's figures\n"
+      "  --quiet               no per-run progress on stderr\n\n"
+      "Passed to each replay (see raypace replay --help): --target-ms,\n"
+      "--target-fraction, --space, --base-step, --min-step, --size,\n"
+      "--backend, --device, --settle, --frames, --seed.\n\n"
+      "Columns: ratio = the predicted controller's target RMSE over the\n"
+      "best of last-frame, vtk, ue5 and valve (goal <= 0.5), on all\n"
+      "frames and on those whose target was reachable; noise = where\n"
+      "the reachable ratio lands from timing noise alone; max_ovr and\n"
+      "sw_ovr = its largest overshoot, anywhere and on TF switches (goal\n"
+      "<= 25 %%); d/2p and d/lf = its mean density over two-pass's (goal\n"
+      ">= 1.5) and last-frame's (>= 0.9); still_sd and still_max = the\n"
+      "still frame's best-predictor spread and slowest frame; met =\n"
+      "the goals the medians meet: R (reachable ratio), O (max\n"
+      "overshoot), D (d/2p), L (d/lf), '.' for one missed.\n",
+      MAX_RUNS);
+}
+
+/* The median of the finite values among v[0..n) (reordered); NaN if
+ * none. */
+static double finite_median(double *v, int n) {
+  int i, m = 0;
+  for (i = 0; i < n; i++)
+    if (isfinite(v[i]))
+      v[m++] = v[i];
+  return m > 0 ? cli_median(v, m) : NAN;
+}
+
+static void print_cell(double v, const char *fmt, int width) {
+  if (isfinite(v))
+    printf(fmt, v);
+  else
+    printf("%*s", width, "-");
+}
+
+static void print_row(const char *name, const double *f) {
+  printf("%-16s", name);
+  print_cell(f[F_RATIO], " %6.3f", 7);
+  print_cell(f[F_OPEN], " %9.3f", 10);
+  print_cell(f[F_NOISE], " %6.3f", 7);
+  print_cell(100 * f[F_MAX_OVER], " %6.1f%%", 8);
+  print_cell(100 * f[F_SWITCH_OVER], " %6.1f%%", 8);
+  print_cell(f[F_DENS_2P], " %5.2f", 6);
+  print_cell(f[F_DENS_LF], " %5.2f", 6);
+  print_cell(100 * f[F_NOISE_SD], " %7.1f%%", 9);
+  print_cell(100 * f[F_NOISE_MAX], " %8.1f%%", 10);
+}
+
+static void print_header(void) {
+  printf("%-16s %6s %9s %6s %7s %7s %5s %5s %8s %9s\n", "sequence",
+         "ratio", "reachable", "noise", "max_ovr", "sw_ovr", "d/2p",
+         "d/lf", "still_sd", "still_max");
+}
+
+/* M4's goals met by the medians f, as letters (usage). */
+static void goals_met(const double *f, char met[5]) {
+  met[0] = f[F_OPEN] <= 0.5 ? 'R' : '.';
+  met[1] = f[F_MAX_OVER] <= 0.25 ? 'O' : '.';
+  met[2] = f[F_DENS_2P] >= 1.5 ? 'D' : '.';
+  met[3] = f[F_DENS_LF] >= 0.9 ? 'L' : '.';
+  met[4] = '\0';
+}
+
+static void json_figures(cJSON *o, const double *f) {
+  int i;
+  for (i = 0; i < FIGURES; i++)
+    cJSON_AddNumberToObject(o, figure_names[i], f[i]);
+}
+
+static int print_json(const char *sequence, int runs,
+                      double (*each)[FIGURES], const double *median) {
+  cJSON *o = cJSON_CreateObject(), *m, *a;
+  char *text;
+  int i;
+  if (o == NULL)
+    return 1;
+  cJSON_AddStringToObject(o, "sequence", sequence);
+  cJSON_AddNumberToObject(o, "runs", runs);
+  if ((m = cJSON_AddObjectToObject(o, "median")) != NULL)
+    json_figures(m, median);
+  if ((a = cJSON_AddArrayToObject(o, "each")) != NULL)
+    for (i = 0; i < runs; i++) {
+      cJSON *r = cJSON_CreateObject();
+      if (r == NULL)
+        break;
+      json_figures(r, each[i]);
+      cJSON_AddItemToArray(a, r);
+    }
+  text = cJSON_PrintUnformatted(o);
+  cJSON_Delete(o);
+  if (m == NULL || a == NULL || text == NULL) {
+    free(text);
+    fprintf(stderr, "raypace bench pacing: out of memory\n");
+    return 1;
+  }
+  printf("%s\n", text);
+  free(text);
+  return 0;
+}
+
+int cli_cmd_bench_pacing(int argc, char **argv) {
+  static const struct option opts[] = {
+      {"sequences", required_argument, 0, 'q'},
+      {"runs", required_argument, 0, 'r'},
+      {"json", no_argument, 0, 'j'},
+      {"quiet", no_argument, 0, 'Q'},
+      {"help", no_argument, 0, 'h'},
+      /* passed through */
+      {"target-ms", required_argument, 0, 'p'},
+      {"target-fraction", required_argument, 0, 'p'},
+      {"space", required_argument, 0, 'p'},
+      {"base-step", required_argument, 0, 'p'},
+      {"min-step", required_argument, 0, 'p'},
+      {"size", required_argument, 0, 'p'},
+      {"backend", required_argument, 0, 'p'},
+      {"device", required_argument, 0, 'p'},
+      {"settle", required_argument, 0, 'p'},
+      {"frames", required_argument, 0, 'p'},
+      {"seed", required_argument, 0, 'p'},
+      {0, 0, 0, 0}};
+  const char *seqs[MAX_SEQUENCES], *volume;
+  char *passed[2 * MAX_PASSED];
+  char names[MAX_PASSED][24]; /* "--" and a name of opts */
+  char seq_list[4096] = "";
+  char *args[8 + 2 * MAX_PASSED];
+  double(*each)[FIGURES] = NULL;
+  double median[FIGURES], column[MAX_RUNS];
+  uint32_t runs = 3;
+  int nseq = 0, npassed = 0, json = 0, quiet = 0, c, li = 0, rc = 0;
+  int s, i, k;
+  optind = 0; /* as replay's: forget any scan before */
+  while ((c = getopt_long(argc, argv, "h", opts, &li)) != -1) {
+    switch (c) {
+    case 'q':
+      if (strlen(optarg) >= sizeof seq_list) {
+        fprintf(stderr, "raypace bench pacing: --sequences too long\n");
+        return 2;
+      }
+      strcpy(seq_list, optarg);
+      break;
+    case 'r':
+      if (cli_parse_u32(optarg, MAX_RUNS, &runs) != 0 || runs == 0) {
+        fprintf(stderr, "raypace bench pacing: bad value '%s' for --runs "
+                        "(1..%d)\n", optarg, MAX_RUNS);
+        return 2;
+      }
+      break;
+    case 'j': json = 1; break;
+    case 'Q': quiet = 1; break;
+    case 'h': usage(stdout); return 0;
+    case 'p':
+      if (npassed == MAX_PASSED) {
+        fprintf(stderr, "raypace bench pacing: more than %d options to "
+                        "pass to replay\n", MAX_PASSED);
+        return 2;
+      }
+      snprintf(names[npassed], sizeof names[0], "--%s", opts[li].name);
+      passed[2 * npassed] = names[npassed];
+      passed[2 * npassed + 1] = optarg;
+      npassed++;
+      break;
+    default: usage(stderr); return 2;
+    }
+  }
+  if (optind + 1 != argc) {
+    usage(stderr);
+    return 2;
+  }
+  /* Each replay parses its own options: optind is not ours after. */
+  volume = argv[optind];
+  if (seq_list[0] != '\0') {
+    char *tok, *save = NULL;
+    for (tok = strtok_r(seq_list, ",", &save); tok != NULL;
+         tok = strtok_r(NULL, ",", &save)) {
+      if (nseq == MAX_SEQUENCES) {
+        fprintf(stderr, "raypace bench pacing: more than %d sequences\n",
+                MAX_SEQUENCES);
+        return 2;
+      }
+      seqs[nseq++] = tok;
+    }
+    if (nseq == 0) {
+      fprintf(stderr, "raypace bench pacing: --sequences names none\n");
+      return 2;
+    }
+  } else {
+    const char *const *builtins = rp_sequence_builtin_names();
+    for (; builtins[nseq] != NULL && nseq < MAX_SEQUENCES; nseq++)
+      seqs[nseq] = builtins[nseq];
+  }
+  each = malloc((size_t)nseq * runs * sizeof *each);
+  if (each == NULL) {
+    fprintf(stderr, "raypace bench pacing: out of memory\n");
+    return 1;
+  }
+  if (!json) {
+    printf("bench pacing: %s, %u run%s per sequence, every controller",
+           volume, runs, runs == 1 ? "" : "s");
+    for (k = 0; k < npassed; k++)
+      printf("%s%s %s", k == 0 ? " (" : " ", passed[2 * k],
+             passed[2 * k + 1]);
+    printf("%s; medians over the runs\n", npassed > 0 ? ")" : "");
+    print_header();
+  }
+  for (s = 0; s < nseq; s++) {
+    double(*run)[FIGURES] = each + (size_t)s * runs;
+    char met[5];
+    for (i = 0; i < (int)runs; i++) {
+      cli_pacing_goals g;
+      int n = 0;
+      args[n++] = "replay";
+      args[n++] = (char *)volume;
+      args[n++] = "--sequence";
+      args[n++] = (char *)seqs[s];
+      args[n++] = "--controller";
+      args[n++] = "all";
+      args[n++] = "--quiet";
+      for (k = 0; k < 2 * npassed; k++)
+        args[n++] = passed[k];
+      args[n] = NULL;
+      if ((rc = cli_replay_goals(n, args, &g)) != 0) {
+        fprintf(stderr, "raypace bench pacing: %s, run %d failed\n",
+                seqs[s], i + 1);
+        goto out;
+      }
+      figures_of(&g, run[i]);
+      if (!quiet)
+        fprintf(stderr, "bench pacing: %s run %d/%u: ratio %.3f, "
+                        "reachable %.3f (%.3f from noise), max overshoot "
+                        "%.1f%%\n", seqs[s], i + 1, runs, g.ratio,
+                g.ratio_open, g.ratio_noise, 100 * g.max_over);
+    }
+    for (k = 0; k < FIGURES; k++) {
+      for (i = 0; i < (int)runs; i++)
+        column[i] = run[i][k];
+      median[k] = finite_median(column, (int)runs);
+    }
+    if (json) {
+      if ((rc = print_json(seqs[s], (int)runs, run, median)) != 0)
+        goto out;
+      continue;
+    }
+    print_row(seqs[s], median);
+    goals_met(median, met);
+    printf("  met %s\n", met);
+    fflush(stdout);
+  }
+  if (!json && runs > 1) {
+    printf("each run:\n");
+    print_header();
+    for (s = 0; s < nseq; s++)
+      for (i = 0; i < (int)runs; i++) {
+        char name[80];
+        snprintf(name, sizeof name, "%.56s #%d", seqs[s], i + 1);
+        print_row(name, each[(size_t)s * runs + i]);
+        printf("\n");
+      }
+  }
+out:
+  free(each);
+  return rc;
+}
