@@ -113,9 +113,14 @@ typedef struct rp_tune_result {
  *  cheap TF then gets the finest image at once); these predictions
  *  count against max_iters and max_time_us. Predictions
  *  that are NaN, infinite or <= 0 count as unknown.
- *  The result is the largest rho seen with t' <= target; if none was
- *  seen, rho_min when t'(rho_min) > target, else (the budget ran out
- *  first) Eq. 2's unverified step down from the smallest rho tried. A
+ *  The result is the largest rho seen with t' <= target. If none was
+ *  seen and t'(rho_min) > target, no density meets the target: the
+ *  largest rho up to ub predicted within 10 % of t'(rho_min), searched
+ *  the same way, ub first (the fastest frame costs rho_min's time, and
+ *  where fixed costs dominate a far finer image costs little more;
+ *  rho_min itself when the budget is spent; \since 0.2, before it
+ *  rho_min). Otherwise (the budget ran out first) Eq. 2's unverified
+ *  step down from the smallest rho tried. A
  *  model that predicts nothing valid leaves rho at rho_prev (or rho_max
  *  on the first frame). Never NaN. No context: errors carry no message.
  *  \returns 0; RP_EINVAL (NULL argument, field out of range) or

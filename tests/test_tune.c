@@ -254,12 +254,14 @@ static void tune_constant_models(void **state) {
   assert_true(r.predicted_ms == 5);
   assert_int_equal(r.limited, 1);
   /* Twice the target everywhere: 0.5, then 0.5 * 9.95 / 20, then the
-   * flat secant sends it to rho_min, which is over too. */
+   * flat secant sends it to rho_min, which is over too. No density
+   * meets the target, and every one costs rho_min's time: the upper
+   * clamp 0.625, asked once more (TUNE_FLOOR_SLACK). */
   memset(&m, 0, sizeof m);
   m.value = 20;
   r = tune(10, 0.5, m_const, &m);
-  assert_int_equal(r.iters, 3);
-  assert_true(r.rho == 1e-3);
+  assert_int_equal(r.iters, 4);
+  assert_true(r.rho == 0.5 * (1.0 / 0.8));
   assert_true(r.predicted_ms == 20);
   assert_int_equal(r.limited, 1);
   /* Nothing valid: the start and both clamps are tried, then rho_prev
@@ -368,13 +370,15 @@ static void tune_clamps(void **state) {
   assert_int_equal(rp_tune(&d, m_linear, &m, &r), 0);
   assert_true(r.rho == 0.3);
   assert_int_equal(r.limited, 1);
-  /* rho_min over it (t' = 100 rho: rho* = 0.1). */
+  /* rho_min over it (t' = 100 rho: rho* = 0.1): t'(0.2) = 20 ms, so the
+   * density goes where t' is within 10 % of that, the band [0.99, 1] x
+   * 22 ms: rho in [0.2178, 0.22]. */
   m.a = 100;
   d.rho_max = 0;
   d.rho_min = 0.2;
   assert_int_equal(rp_tune(&d, m_linear, &m, &r), 0);
-  assert_true(r.rho == 0.2);
-  assert_true(r.predicted_ms == 20);
+  assert_true(r.rho >= 0.2178 && r.rho <= 0.22);
+  assert_true(r.predicted_ms >= 21.78 && r.predicted_ms <= 22);
   assert_int_equal(r.limited, 1);
   /* rho_prev * raise_limit under rho_min: rho_min wins over the
    * damping. Its 0.005 ms is under a quarter of the target, so the lift
@@ -504,11 +508,13 @@ static void tune_extreme_targets(void **state) {
   model m = {0};
   rp_tune_result r;
   (void)state;
+  /* t' = 10 rho + 1 at a target of 1 ns: 1.01 ms at rho_min, so rho
+   * where t' is in [0.99, 1] x 1.111 ms: [0.009989, 0.0111]. */
   m.a = 10;
   m.b = 1;
   r = tune(1e-9, 0, m_linear, &m);
-  assert_true(r.rho == 1e-3);
-  assert_close(r.predicted_ms, 1.01, 1e-12);
+  assert_true(r.rho >= 0.009989 && r.rho <= 0.0111);
+  assert_true(r.predicted_ms >= 0.99 * 1.111 && r.predicted_ms <= 1.111);
   assert_int_equal(r.limited, 1);
   memset(&m, 0, sizeof m);
   m.a = 10;
@@ -517,6 +523,56 @@ static void tune_extreme_targets(void **state) {
   assert_true(r.rho == 1);
   assert_int_equal(r.iters, 1);
   assert_int_equal(r.limited, 1);
+}
+
+/* A target under rho_min's time: t' = 10 + 10 rho (a fixed cost that
+ * dominates), target 5. rho_min's 10.01 ms is the fastest frame; the
+ * tuner takes the largest density predicted within 10 % of it
+ * (TUNE_FLOOR_SLACK), 11.011 ms: rho in [(0.99 x 11.011 - 10) / 10,
+ * 0.1011] = [0.0901, 0.1011], not rho_min. The damping still holds a
+ * rise: from rho_prev 0.01 the clamp 0.0125 (10.125 ms) is the answer;
+ * with the clamp at rho_min itself, rho_min, with no prediction more. */
+static void tune_unreachable_target(void **state) {
+  model m = {0};
+  rp_tune_desc d;
+  rp_tune_result r;
+  int calls;
+  (void)state;
+  m.a = 10;
+  m.b = 10;
+  r = tune(5, 0, m_linear, &m);
+  printf("unreachable: rho %.4f, %.3f ms after %d predictions\n", r.rho,
+         r.predicted_ms, r.iters);
+  assert_true(r.rho >= 0.0901 && r.rho <= 0.1011);
+  assert_true(r.predicted_ms >= 0.99 * 11.011 &&
+              r.predicted_ms <= 11.011);
+  assert_int_equal(r.limited, 1);
+  memset(&m, 0, sizeof m);
+  m.a = 10;
+  m.b = 10;
+  r = tune(5, 0.01, m_linear, &m);
+  assert_true(r.rho == 0.01 * (1.0 / 0.8));
+  assert_close(r.predicted_ms, 10.125, 1e-12);
+  assert_int_equal(r.limited, 1);
+  /* rho_prev * raise_limit under rho_min: the clamp is rho_min. */
+  memset(&m, 0, sizeof m);
+  m.a = 10;
+  m.b = 10;
+  memset(&d, 0, sizeof d);
+  d.target_ms = 5;
+  d.rho_prev = 1e-4;
+  d.max_time_us = NO_TIME_LIMIT_US;
+  assert_int_equal(rp_tune(&d, m_linear, &m, &r), 0);
+  calls = m.calls;
+  assert_true(r.rho == 1e-3);
+  assert_close(r.predicted_ms, 10.01, 1e-12);
+  assert_int_equal(r.iters, calls);
+  /* A time that does not depend on rho, on a first frame: rho_max. */
+  memset(&m, 0, sizeof m);
+  m.value = 30;
+  r = tune(10, 0, m_const, &m);
+  assert_true(r.rho == 1);
+  assert_true(r.predicted_ms == 30);
 }
 
 static double wall_ms(void) {
@@ -929,6 +985,33 @@ static void controller_predicted_lifts_when_right(void **state) {
   rp_context_destroy(ctx);
 }
 
+/* A target no density meets, through the controllers: plant 10 rho +
+ * 10, target 5, from rho_start 1. predicted goes at once to the largest
+ * density within 10 % of rho_min's 10.01 ms (rp_tune: [0.0901, 0.1011])
+ * and stays there, every frame within 10 % of the fastest; last-frame
+ * halves the density a frame (rho 5 / (10 rho + 10) < rho / 2) down to
+ * rho_min, whose frames are under 1 % faster. */
+static void controller_unreachable_target(void **state) {
+  rp_context *ctx = rp_test_context();
+  rp_controller *pc = make(ctx, RP_CONTROL_PREDICTED, 0);
+  rp_controller *lc = make(ctx, RP_CONTROL_LAST_FRAME, 0);
+  plant pp = {10, 10}, lp = {10, 10};
+  double rho = 0, t = 0;
+  int f;
+  (void)state;
+  for (f = 0; f < 20; f++) {
+    rho = frame(pc, 5, &pp, &t, NULL, NULL);
+    assert_true(rho >= 0.0901 && rho <= 0.1011);
+    assert_true(t <= 11.011);
+  }
+  for (f = 0; f < 20; f++)
+    rho = frame(lc, 5, &lp, &t, NULL, NULL);
+  assert_true(rho == 1e-3);
+  rp_controller_destroy(pc);
+  rp_controller_destroy(lc);
+  rp_context_destroy(ctx);
+}
+
 /* VTK: isd' = isd sqrt(t f / budget), isd in [1, 10], rho = 1 / isd^2,
  * so rho' = rho budget / (f t) while isd stays inside. f = 1.66 for a
  * budget under a second (vtkFixedPointVolumeRayCastMapper), 1 above. */
@@ -1313,6 +1396,7 @@ int main(void) {
       cmocka_unit_test(tune_lift_share),
       cmocka_unit_test(tune_clamps),
       cmocka_unit_test(tune_extreme_targets),
+      cmocka_unit_test(tune_unreachable_target),
       cmocka_unit_test(tune_time_limit),
       cmocka_unit_test(tune_bad_desc),
       cmocka_unit_test(controller_names),
@@ -1323,6 +1407,7 @@ int main(void) {
       cmocka_unit_test(controller_predicted_vs_last_frame),
       cmocka_unit_test(controller_predicted_holds_on_a_miss),
       cmocka_unit_test(controller_predicted_lifts_when_right),
+      cmocka_unit_test(controller_unreachable_target),
       cmocka_unit_test(controller_vtk),
       cmocka_unit_test(controller_ue5),
       cmocka_unit_test(controller_valve),
