@@ -76,16 +76,17 @@ static void usage(FILE *f) {
       "--target-fraction, --space, --base-step, --min-step, --size,\n"
       "--backend, --device, --settle, --frames, --seed.\n\n"
       "Columns: ratio = the predicted controller's target RMSE over the\n"
-      "best of last-frame, vtk, ue5 and valve (goal <= 0.5), on all\n"
+      "best of last-frame, vtk, ue5 and valve (goal <= %g), on all\n"
       "frames and on those whose target was reachable; noise = where\n"
       "the reachable ratio lands from timing noise alone; max_ovr and\n"
       "sw_ovr = its largest overshoot, anywhere and on TF switches (goal\n"
-      "<= 25 %%); d/2p and d/lf = its mean density over two-pass's (goal\n"
-      ">= 1.5) and last-frame's (>= 0.9); still_sd and still_max = the\n"
+      "<= %g %%); d/2p and d/lf = its mean density over two-pass's (goal\n"
+      ">= %g) and last-frame's (>= %g); still_sd and still_max = the\n"
       "still frame's best-predictor spread and slowest frame; met =\n"
       "the goals the medians meet: R (reachable ratio), O (max\n"
       "overshoot), D (d/2p), L (d/lf), '.' for one missed.\n",
-      MAX_RUNS);
+      MAX_RUNS, CLI_GOAL_RATIO, 100 * CLI_GOAL_OVERSHOOT, CLI_GOAL_TWO_PASS,
+      CLI_GOAL_LAST_FRAME);
 }
 
 /* The median of the finite values among v[0..n) (reordered); NaN if
@@ -96,6 +97,15 @@ static double finite_median(double *v, int n) {
     if (isfinite(v[i]))
       v[m++] = v[i];
   return m > 0 ? cli_median(v, m) : NAN;
+}
+
+/* One figure of a run's progress line: "-" for NaN, as in the table. */
+static void progress_figure(const char *name, double v, double scale,
+                            const char *unit) {
+  if (isfinite(v))
+    fprintf(stderr, "%s %.3g%s", name, scale * v, unit);
+  else
+    fprintf(stderr, "%s -", name);
 }
 
 static void print_cell(double v, const char *fmt, int width) {
@@ -126,10 +136,10 @@ static void print_header(void) {
 
 /* M4's goals met by the medians f, as letters (usage). */
 static void goals_met(const double *f, char met[5]) {
-  met[0] = f[F_OPEN] <= 0.5 ? 'R' : '.';
-  met[1] = f[F_MAX_OVER] <= 0.25 ? 'O' : '.';
-  met[2] = f[F_DENS_2P] >= 1.5 ? 'D' : '.';
-  met[3] = f[F_DENS_LF] >= 0.9 ? 'L' : '.';
+  met[0] = f[F_OPEN] <= CLI_GOAL_RATIO ? 'R' : '.';
+  met[1] = f[F_MAX_OVER] <= CLI_GOAL_OVERSHOOT ? 'O' : '.';
+  met[2] = f[F_DENS_2P] >= CLI_GOAL_TWO_PASS ? 'D' : '.';
+  met[3] = f[F_DENS_LF] >= CLI_GOAL_LAST_FRAME ? 'L' : '.';
   met[4] = '\0';
 }
 
@@ -194,7 +204,7 @@ int cli_cmd_bench_pacing(int argc, char **argv) {
   char *passed[2 * MAX_PASSED];
   char names[MAX_PASSED][24]; /* "--" and a name of opts */
   char seq_list[4096] = "";
-  char *args[8 + 2 * MAX_PASSED];
+  char *args[9 + 2 * MAX_PASSED];
   double(*each)[FIGURES] = NULL;
   double median[FIGURES], column[MAX_RUNS];
   uint32_t runs = 3;
@@ -281,7 +291,6 @@ int cli_cmd_bench_pacing(int argc, char **argv) {
       cli_pacing_goals g;
       int n = 0;
       args[n++] = "replay";
-      args[n++] = (char *)volume;
       args[n++] = "--sequence";
       args[n++] = (char *)seqs[s];
       args[n++] = "--controller";
@@ -289,6 +298,9 @@ int cli_cmd_bench_pacing(int argc, char **argv) {
       args[n++] = "--quiet";
       for (k = 0; k < 2 * npassed; k++)
         args[n++] = passed[k];
+      /* A volume named like an option is still the volume. */
+      args[n++] = "--";
+      args[n++] = (char *)volume;
       args[n] = NULL;
       if ((rc = cli_replay_goals(n, args, &g)) != 0) {
         fprintf(stderr, "raypace bench pacing: %s, run %d failed\n",
@@ -296,11 +308,15 @@ int cli_cmd_bench_pacing(int argc, char **argv) {
         goto out;
       }
       figures_of(&g, run[i]);
-      if (!quiet)
-        fprintf(stderr, "bench pacing: %s run %d/%u: ratio %.3f, "
-                        "reachable %.3f (%.3f from noise), max overshoot "
-                        "%.1f%%\n", seqs[s], i + 1, runs, g.ratio,
-                g.ratio_open, g.ratio_noise, 100 * g.max_over);
+      if (!quiet) {
+        fprintf(stderr, "bench pacing: %s run %d/%u:", seqs[s], i + 1,
+                runs);
+        progress_figure(" ratio", g.ratio, 1, "");
+        progress_figure(", reachable", g.ratio_open, 1, "");
+        progress_figure(", from noise", g.ratio_noise, 1, "");
+        progress_figure(", max overshoot", g.max_over, 100, "%");
+        fputc('\n', stderr);
+      }
     }
     for (k = 0; k < FIGURES; k++) {
       for (i = 0; i < (int)runs; i++)

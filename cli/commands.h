@@ -8,7 +8,14 @@
 int cli_cmd_replay(int argc, char **argv);
 /* The goals of M4 (DESIGN section 10) from one replay of every
  * controller, each a ratio within the run; NaN where the controllers it
- * compares were not played, or there was no still frame. */
+ * compares were not played, where the rule compared with had no error
+ * (or no reachable frame, for ratio_open and ratio_noise), or where
+ * there was no still frame. The goals' bounds, for the replay's goal
+ * line and bench pacing's table alike: */
+#define CLI_GOAL_RATIO 0.5       /* ratio_open <= */
+#define CLI_GOAL_OVERSHOOT 0.25  /* max_over <= */
+#define CLI_GOAL_TWO_PASS 1.5    /* density_two_pass >= */
+#define CLI_GOAL_LAST_FRAME 0.9  /* density_last_frame >= */
 typedef struct cli_pacing_goals {
   double ratio;       /* predicted's target RMSE / the best of last-frame,
                          vtk, ue5 and valve */
@@ -23,7 +30,8 @@ typedef struct cli_pacing_goals {
 } cli_pacing_goals;
 
 /* Plays `raypace replay` with argv (argv[0] = "replay") and fills goals
- * instead of printing; returns the command's exit status. */
+ * instead of printing (all NaN if it stops before the summaries);
+ * returns the command's exit status. */
 int cli_replay_goals(int argc, char **argv, cli_pacing_goals *goals);
 /* raypace bench pacing VOLUME ...: cli/bench_pacing.c */
 int cli_cmd_bench_pacing(int argc, char **argv);

@@ -1562,16 +1562,21 @@ static int is_reactive(rp_controller_kind k) {
 
 /* The issue's goals as ratios within this run (cli_pacing_goals): NaN
  * where the controllers a figure compares were not played. */
+static void goals_clear(cli_pacing_goals *g) {
+  g->ratio = g->ratio_open = g->ratio_noise = NAN;
+  g->max_over = g->switch_over = NAN;
+  g->density_two_pass = g->density_last_frame = NAN;
+  g->noise_sd_best = g->noise_max_over = NAN;
+  g->full_ms = NAN;
+}
+
 static void goals_compute(const replay *r, const summary *sums, int nctl,
                           cli_pacing_goals *g) {
   const summary *by[RP_CONTROL_COUNT] = {0};
   const summary *p;
   double best = INFINITY, best_open = INFINITY;
   int k;
-  g->ratio = g->ratio_open = g->ratio_noise = NAN;
-  g->max_over = g->switch_over = NAN;
-  g->density_two_pass = g->density_last_frame = NAN;
-  g->noise_sd_best = g->noise_max_over = NAN;
+  goals_clear(g);
   g->full_ms = r->full_ms;
   for (k = 0; k < nctl; k++)
     by[sums[k].kind] = &sums[k];
@@ -1632,7 +1637,7 @@ static void print_goals(const replay *r, const summary *sums, int nctl) {
       printf("%.3f", g.ratio);
     else
       printf("-");
-    printf(" (<= 0.5), reachable frames only ");
+    printf(" (<= %g), reachable frames only ", CLI_GOAL_RATIO);
     if (isfinite(g.ratio_open))
       printf("%.3f", g.ratio_open);
     else
@@ -1640,12 +1645,14 @@ static void print_goals(const replay *r, const summary *sums, int nctl) {
     if (isfinite(g.ratio_noise))
       printf(" (%.3f from timing noise alone)", g.ratio_noise);
   }
-  printf("; max overshoot %.1f%% (<= 25%%), on TF switches %.1f%%",
-         100 * g.max_over, 100 * g.switch_over);
+  printf("; max overshoot %.1f%% (<= %g%%), on TF switches %.1f%%",
+         100 * g.max_over, 100 * CLI_GOAL_OVERSHOOT, 100 * g.switch_over);
   if (isfinite(g.density_two_pass))
-    printf("; density / two-pass = %.2f (>= 1.5)", g.density_two_pass);
+    printf("; density / two-pass = %.2f (>= %g)", g.density_two_pass,
+           CLI_GOAL_TWO_PASS);
   if (isfinite(g.density_last_frame))
-    printf("; density / last-frame = %.2f (>= 0.9)", g.density_last_frame);
+    printf("; density / last-frame = %.2f (>= %g)", g.density_last_frame,
+           CLI_GOAL_LAST_FRAME);
   printf("\n");
 }
 
@@ -1736,6 +1743,8 @@ static int replay_main(int argc, char **argv, cli_pacing_goals *goals) {
   int nctl = 0, k, rc;
   memset(&r, 0, sizeof(r));
   memset(players, 0, sizeof(players));
+  if (goals != NULL)
+    goals_clear(goals);
   if ((rc = parse_opts(argc, argv, &r.o)) != 0)
     return rc == 1 ? 0 : rc;
   if (r.o.list)

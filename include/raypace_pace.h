@@ -98,7 +98,7 @@ typedef struct rp_tune_result {
                           at rho */
   int iters;           /* predictions made */
   int limited;         /* 1 if rho was cut by raise_limit, rho_min or
-                          rho_max */
+                          rho_max, or no density met the target */
 } rp_tune_result;
 
 /** Eq. 2 (DESIGN section 6): the largest density whose predicted time
@@ -116,11 +116,12 @@ typedef struct rp_tune_result {
  *  The result is the largest rho seen with t' <= target. If none was
  *  seen and t'(rho_min) > target, no density meets the target: the
  *  largest rho up to ub predicted within 10 % of t'(rho_min), searched
- *  the same way, ub first (the fastest frame costs rho_min's time, and
- *  where fixed costs dominate a far finer image costs little more;
- *  rho_min itself when the budget is spent; \since 0.2, before it
- *  rho_min). Otherwise (the budget ran out first) Eq. 2's unverified
- *  step down from the smallest rho tried. A
+ *  the same way from the call's predictions so far, then ub (where
+ *  fixed costs dominate, a far finer image costs little more than
+ *  rho_min's); rho_min itself when that rho is under twice rho_min or
+ *  the budget is spent (\since 0.2; before, rho_min). Otherwise (the
+ *  budget ran out first) Eq. 2's unverified step down from the
+ *  smallest rho tried. A
  *  model that predicts nothing valid leaves rho at rho_prev (or rho_max
  *  on the first frame). Never NaN. No context: errors carry no message.
  *  \returns 0; RP_EINVAL (NULL argument, field out of range) or

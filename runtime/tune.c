@@ -52,10 +52,16 @@
  * dominate (launch, readback, a small image), that frame is hardly
  * faster than one at many times the density: measured on a 16^2 image
  * (PoCL), 0.12 ms at rho 0.001 against 0.13 at 0.2. So the density
- * goes to the largest predicted within this share of rho_min's time
- * instead: a frame at most 10 % slower than the fastest the model knows
- * of, for the best image that costs. */
+ * goes to the largest predicted within TUNE_FLOOR_SLACK of rho_min's
+ * time instead, for the best image that time allows; but only if that
+ * is at least TUNE_FLOOR_GAIN times rho_min: where the time is all
+ * samples (t' proportional to rho), 10 % more time buys 10 % more
+ * density, not worth a frame that already misses its target. */
 #define TUNE_FLOOR_SLACK 0.1
+#define TUNE_FLOOR_GAIN 2.0
+/* Valid predictions a search keeps, for the floor search to start from
+ * (more than TUNE_ITERS: a caller may allow more). */
+#define TUNE_MAX_SEEN 16
 
 /* The desc with its defaults filled in: the one place that knows them
  * (STYLE rule 3). */
@@ -120,6 +126,8 @@ typedef struct search {
   double bad[TUNE_MAX_BAD];
   int nbad;
   int probe; /* next fallback probe while nothing valid is known */
+  point seen[TUNE_MAX_SEEN]; /* valid predictions, in the order made */
+  int nseen;
 } search;
 
 /* The smallest known-bad density above r (+inf if none), and the
@@ -224,6 +232,11 @@ static double next_candidate(search *s, double r0) {
  * accepted band. */
 static int record(search *s, double r, double t) {
   s->tried_lb |= r == s->lb;
+  if (s->nseen < TUNE_MAX_SEEN) {
+    s->seen[s->nseen].r = r;
+    s->seen[s->nseen].t = t;
+    s->nseen++;
+  }
   if (t <= s->target && (!s->have_best || r > s->best.r)) {
     s->best.r = r;
     s->best.t = t;
@@ -386,19 +399,37 @@ int rp_tune(const rp_tune_desc *desc, rp_predict_fn predict, void *user,
   if (!s.have_best && s.have_lb && s.ub > s.lb &&
       iters < d.max_iters && !spent(start, d.max_time_us)) {
     /* Even rho_min is over the target (TUNE_FLOOR_SLACK): the largest
-     * density predicted within the slack of rho_min's time, asked first
-     * at the upper clamp (a time that does not depend on rho ends
-     * there), then searched between the two. */
+     * density predicted within the slack of rho_min's time. The search
+     * starts from what this call has predicted already (on a steady
+     * scene, last frame's answer is among it and ends it), then asks
+     * the upper clamp (a time that does not depend on rho ends there),
+     * then searches between. Its band is kept in the upper half of the
+     * slack (a caller's wide tolerance would reach down to rho_min's
+     * own time and end the search there). */
     search f;
-    double t = predict(user, s.ub);
-    iters++;
-    search_init(&f, s.t_lb * (1.0 + TUNE_FLOOR_SLACK), d.tolerance, s.lb,
-                s.ub);
-    (void)record(&f, s.lb, s.t_lb);
-    if (!(priced(t) ? record(&f, s.ub, t) : (record_bad(&f, s.ub), 0)) &&
-        !(f.best.r >= s.ub))
+    int i, done = 0, have_ub = 0;
+    search_init(&f, s.t_lb * (1.0 + TUNE_FLOOR_SLACK),
+                fmin(d.tolerance,
+                     0.5 * TUNE_FLOOR_SLACK / (1.0 + TUNE_FLOOR_SLACK)),
+                s.lb, s.ub);
+    memcpy(f.bad, s.bad, sizeof f.bad);
+    f.nbad = s.nbad;
+    for (i = 0; i < s.nseen && !done; i++)
+      if (s.seen[i].r <= s.ub) {
+        have_ub |= s.seen[i].r == s.ub;
+        done = record(&f, s.seen[i].r, s.seen[i].t);
+      }
+    if (!done && !have_ub && !(f.have_best && f.best.r >= s.ub)) {
+      double t = predict(user, s.ub);
+      iters++;
+      if (priced(t))
+        done = record(&f, s.ub, t);
+      else
+        record_bad(&f, s.ub);
+    }
+    if (!done && !(f.have_best && f.best.r >= s.ub))
       run_search(&f, s.ub, &d, predict, user, start, &iters);
-    if (f.best.r > cheapest.r)
+    if (f.have_best && f.best.r >= TUNE_FLOOR_GAIN * s.lb)
       cheapest = f.best;
   }
   out->iters = iters;

@@ -370,15 +370,14 @@ static void tune_clamps(void **state) {
   assert_int_equal(rp_tune(&d, m_linear, &m, &r), 0);
   assert_true(r.rho == 0.3);
   assert_int_equal(r.limited, 1);
-  /* rho_min over it (t' = 100 rho: rho* = 0.1): t'(0.2) = 20 ms, so the
-   * density goes where t' is within 10 % of that, the band [0.99, 1] x
-   * 22 ms: rho in [0.2178, 0.22]. */
+  /* rho_min over it (t' = 100 rho: rho* = 0.1). Within 10 % of
+   * t'(0.2) = 20 ms lies only rho 0.22, under twice rho_min: rho_min. */
   m.a = 100;
   d.rho_max = 0;
   d.rho_min = 0.2;
   assert_int_equal(rp_tune(&d, m_linear, &m, &r), 0);
-  assert_true(r.rho >= 0.2178 && r.rho <= 0.22);
-  assert_true(r.predicted_ms >= 21.78 && r.predicted_ms <= 22);
+  assert_true(r.rho == 0.2);
+  assert_true(r.predicted_ms == 20);
   assert_int_equal(r.limited, 1);
   /* rho_prev * raise_limit under rho_min: rho_min wins over the
    * damping. Its 0.005 ms is under a quarter of the target, so the lift
@@ -525,48 +524,76 @@ static void tune_extreme_targets(void **state) {
   assert_int_equal(r.limited, 1);
 }
 
+/* The plant of tune_unreachable_target: t' = 10 + 10 rho. */
+static model fixed_cost(void) {
+  model m = {0};
+  m.a = 10;
+  m.b = 10;
+  return m;
+}
+
+/* rp_tune at target 5 on fixed_cost, with rho_prev and tolerance set. */
+static rp_tune_result tune_fixed_cost(double rho_prev, double tolerance,
+                                      model *m) {
+  rp_tune_desc d = {0};
+  rp_tune_result r;
+  *m = fixed_cost();
+  d.target_ms = 5;
+  d.rho_prev = rho_prev;
+  d.tolerance = tolerance;
+  d.max_time_us = NO_TIME_LIMIT_US;
+  assert_int_equal(rp_tune(&d, m_linear, m, &r), 0);
+  assert_int_equal(r.iters, m->calls);
+  return r;
+}
+
 /* A target under rho_min's time: t' = 10 + 10 rho (a fixed cost that
  * dominates), target 5. rho_min's 10.01 ms is the fastest frame; the
  * tuner takes the largest density predicted within 10 % of it
  * (TUNE_FLOOR_SLACK), 11.011 ms: rho in [(0.99 x 11.011 - 10) / 10,
- * 0.1011] = [0.0901, 0.1011], not rho_min. The damping still holds a
- * rise: from rho_prev 0.01 the clamp 0.0125 (10.125 ms) is the answer;
- * with the clamp at rho_min itself, rho_min, with no prediction more. */
+ * 0.1011] = [0.0901, 0.1011], not rho_min. On the next frame, from
+ * that answer, the main search predicts it again (then 0.0434 and
+ * rho_min) and the floor search ends on it: 3 predictions, the same
+ * rho. The damping still holds a rise: from rho_prev 0.01 the clamp
+ * 0.0125 (10.125 ms) is the answer; with the clamp at rho_min itself,
+ * rho_min, after its one prediction. Where the time is all samples
+ * (t' = 100 rho, target 0.05), 10 % more time buys 10 % more density,
+ * under TUNE_FLOOR_GAIN's 2x: rho_min. */
 static void tune_unreachable_target(void **state) {
-  model m = {0};
-  rp_tune_desc d;
+  model m;
   rp_tune_result r;
-  int calls;
+  double rho;
   (void)state;
-  m.a = 10;
-  m.b = 10;
-  r = tune(5, 0, m_linear, &m);
+  r = tune_fixed_cost(0, 0, &m);
   printf("unreachable: rho %.4f, %.3f ms after %d predictions\n", r.rho,
          r.predicted_ms, r.iters);
   assert_true(r.rho >= 0.0901 && r.rho <= 0.1011);
   assert_true(r.predicted_ms >= 0.99 * 11.011 &&
               r.predicted_ms <= 11.011);
   assert_int_equal(r.limited, 1);
-  memset(&m, 0, sizeof m);
-  m.a = 10;
-  m.b = 10;
-  r = tune(5, 0.01, m_linear, &m);
+  rho = r.rho;
+  r = tune_fixed_cost(rho, 0, &m);
+  assert_true(r.rho == rho);
+  assert_int_equal(r.iters, 3);
+  r = tune_fixed_cost(0.01, 0, &m);
   assert_true(r.rho == 0.01 * (1.0 / 0.8));
   assert_close(r.predicted_ms, 10.125, 1e-12);
   assert_int_equal(r.limited, 1);
   /* rho_prev * raise_limit under rho_min: the clamp is rho_min. */
-  memset(&m, 0, sizeof m);
-  m.a = 10;
-  m.b = 10;
-  memset(&d, 0, sizeof d);
-  d.target_ms = 5;
-  d.rho_prev = 1e-4;
-  d.max_time_us = NO_TIME_LIMIT_US;
-  assert_int_equal(rp_tune(&d, m_linear, &m, &r), 0);
-  calls = m.calls;
+  r = tune_fixed_cost(1e-4, 0, &m);
   assert_true(r.rho == 1e-3);
   assert_close(r.predicted_ms, 10.01, 1e-12);
-  assert_int_equal(r.iters, calls);
+  assert_int_equal(r.iters, 1);
+  /* A caller's tolerance of 0.5: the floor search's band stays in the
+   * upper half of the slack, t' in [1.05, 1.1] x 10.01 ms, rho in
+   * [0.0511, 0.1011]. */
+  r = tune_fixed_cost(0, 0.5, &m);
+  assert_true(r.rho >= 0.0511 && r.rho <= 0.1011);
+  memset(&m, 0, sizeof m);
+  m.a = 100;
+  r = tune(0.05, 0, m_linear, &m);
+  assert_true(r.rho == 1e-3);
+  assert_close(r.predicted_ms, 0.1, 1e-12);
   /* A time that does not depend on rho, on a first frame: rho_max. */
   memset(&m, 0, sizeof m);
   m.value = 30;

@@ -250,6 +250,11 @@ refuse "bench pacing runs" "bad value '0' for --runs" "$rp" bench pacing \
   gen:ml:8 --runs 0
 refuse "bench pacing sequence" "no-such-seq" "$rp" bench pacing gen:ml:8 \
   --backend reference --sequences no-such-seq --runs 1 --quiet
+# A volume named like an option reaches replay as a volume, not as one
+# of its options (replay's --help would end the run with no figures).
+refuse "bench pacing volume" "no such file" "$rp" bench pacing \
+  --backend reference --sequences orbit --runs 1 --frames 2 --quiet \
+  -- --help
 refuse "replay controller" "unknown controller 'pid'" "$rp" replay \
   gen:ml:8 --controller pid
 refuse "replay sequence" "no-such-seq" "$rp" replay gen:ml:8 \
