@@ -414,6 +414,8 @@ int rp_tune(const rp_tune_desc *desc, rp_predict_fn predict, void *user,
                 s.lb, s.ub);
     memcpy(f.bad, s.bad, sizeof f.bad);
     f.nbad = s.nbad;
+    for (i = 0; i < f.nbad; i++)
+      have_ub |= f.bad[i] == s.ub; /* asked already, and unpriced */
     for (i = 0; i < s.nseen && !done; i++)
       if (s.seen[i].r <= s.ub) {
         have_ub |= s.seen[i].r == s.ub;

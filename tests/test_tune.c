@@ -27,6 +27,7 @@ typedef struct model {
   double lo_t, hi_t;
   double value;     /* constant */
   double nan_lo, nan_hi; /* linear, NaN inside [nan_lo, nan_hi] */
+  int nan_calls;         /* calls that returned NaN */
   long sleep_ns;    /* step: each call from sleep_from on sleeps this */
   int sleep_from;
   int calls;
@@ -73,8 +74,10 @@ static double m_const(void *u, double rho) {
 static double m_nan_band(void *u, double rho) {
   model *m = u;
   m->calls++;
-  if (rho >= m->nan_lo && rho <= m->nan_hi)
+  if (rho >= m->nan_lo && rho <= m->nan_hi) {
+    m->nan_calls++;
     return NAN;
+  }
   return m->a * rho + m->b;
 }
 
@@ -594,6 +597,16 @@ static void tune_unreachable_target(void **state) {
   r = tune(0.05, 0, m_linear, &m);
   assert_true(r.rho == 1e-3);
   assert_close(r.predicted_ms, 0.1, 1e-12);
+  /* Unpriced from 0.5 up: the first frame's start (rho_max) is asked
+   * once, not again by the floor search, which still finds the band. */
+  memset(&m, 0, sizeof m);
+  m.a = 10;
+  m.b = 10;
+  m.nan_lo = 0.5;
+  m.nan_hi = 1;
+  r = tune(5, 0, m_nan_band, &m);
+  assert_true(r.rho >= 0.0901 && r.rho <= 0.1011);
+  assert_int_equal(m.nan_calls, 1);
   /* A time that does not depend on rho, on a first frame: rho_max. */
   memset(&m, 0, sizeof m);
   m.value = 30;
