@@ -1560,8 +1560,7 @@ static int is_reactive(rp_controller_kind k) {
          k == RP_CONTROL_UE5 || k == RP_CONTROL_VALVE;
 }
 
-/* The issue's goals as ratios within this run (cli_pacing_goals): NaN
- * where the controllers a figure compares were not played. */
+/* Every figure unknown: what a run that ends early reports. */
 static void goals_clear(cli_pacing_goals *g) {
   g->ratio = g->ratio_open = g->ratio_noise = NAN;
   g->max_over = g->switch_over = NAN;
@@ -1570,6 +1569,8 @@ static void goals_clear(cli_pacing_goals *g) {
   g->full_ms = NAN;
 }
 
+/* The issue's goals as ratios within this run (cli_pacing_goals): NaN
+ * where the controllers a figure compares were not played. */
 static void goals_compute(const replay *r, const summary *sums, int nctl,
                           cli_pacing_goals *g) {
   const summary *by[RP_CONTROL_COUNT] = {0};
