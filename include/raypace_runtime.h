@@ -1,10 +1,13 @@
-/* raypace runtime: the frame pipeline an app embeds (DESIGN section 1).
+/* raypace runtime: the frame pipeline an app embeds (DESIGN sections 1
+ * and 11).
  *
- * An rp_runtime lives on a libuv loop: the app's own (desc.loop), or one
- * the runtime makes and runs on a thread of its own (desc.loop NULL). The
- * app posts events -- volume, transfer function, camera, viewport,
- * target, effects, controller -- from any thread; each marks the derived
- * data it invalidates and the next frame recomputes only that:
+ * An rp_runtime runs frames on a libuv loop -- the app's own (desc.loop),
+ * or one the runtime makes and runs on a thread of its own (desc.loop
+ * NULL) -- or, in manual pacing, on the caller's thread, one frame per
+ * rp_runtime_step and no loop or thread at all. The app posts events --
+ * volume, transfer function, camera, viewport, target, effects,
+ * controller, density -- from any thread; each marks the derived data it
+ * invalidates and the next frame recomputes only that:
  *
  *   volume      -> block histograms H, device upload, then as for a TF
  *   TF          -> H-alpha + occupancy, device upload, then as for a camera
@@ -14,14 +17,16 @@
  *   steps (desc.ao_frame_share of each), which render without AO until
  *   it is done; turned off -> the AO memory freed (with AO on, a volume
  *   or TF change recomputes it too)
- *   target, shading toggled, controller -> nothing derived
+ *   target, shading toggled, controller, density -> nothing derived
  *
  * Events between two frames coalesce: the latest value of each kind wins
  * and each recompute runs at most once per frame. A frame is: recompute
- * -> predict -> tune -> render on the device's worker thread; completion
- * comes back to the loop through a uv_async; the loop thread delivers the
- * frame to the app's callback and then trains the cost model. The loop
- * thread never waits on a device.
+ * -> predict -> tune -> render (runtime/frame.c, the one place a frame's
+ * logic lives, whichever pacing drives it); the frame is delivered to
+ * the app's callback, and then the cost model trains on it. With a loop,
+ * the frame runs on the runtime's worker thread and completion comes
+ * back to the loop through a uv_async: the loop thread never waits on a
+ * device.
  *
  * Thread safety, per function:
  * - rp_runtime_create: any thread; with desc.loop set, the loop must not
@@ -31,10 +36,13 @@
  *   until close or destroy begins; afterwards they return RP_ESTATE. The
  *   caller must stop calling them before the close callback (or destroy)
  *   returns: the runtime's memory is gone after that.
+ * - rp_runtime_step (manual pacing): one thread at a time, not from the
+ *   frame callback.
  * - rp_runtime_close: the loop's thread only (an app loop).
- * - rp_runtime_destroy: any thread but the runtime's loop thread (own
- *   loop only).
- * - The frame callback runs on the loop thread. It may call the setters
+ * - rp_runtime_destroy: own loop: any thread but the runtime's loop
+ *   thread; manual pacing: any thread, not during rp_runtime_step.
+ * - The frame callback runs on the loop thread (manual pacing: inside
+ *   rp_runtime_step, on its caller's thread). It may call the setters
  *   and rp_runtime_request_frame, and (app loop) rp_runtime_close.
  */
 #ifndef RAYPACE_RUNTIME_H
@@ -62,7 +70,12 @@ typedef enum rp_pacing {
   /* Each rp_runtime_request_frame starts one frame (VR compositors drive
    * frames themselves). Requests made while a frame is in flight
    * coalesce into the next one. */
-  RP_PACE_ON_REQUEST = 1
+  RP_PACE_ON_REQUEST = 1,
+  /* No loop and no thread: each rp_runtime_step runs one frame on the
+   * caller's thread and delivers it before returning (a test, a replay,
+   * a benchmark, an app with a render loop of its own). desc.loop must
+   * be NULL. \since 0.2 */
+  RP_PACE_MANUAL = 2
 } rp_pacing;
 
 #define RP_RUNTIME_MAX_DEVICES 8
@@ -144,6 +157,18 @@ typedef struct rp_frame_stats {
                               prepare); the first frame on a volume
                               builds its own. \since 0.2 */
   uint64_t samples;        /* samples the raycast took (tile sums) */
+  /* The render passes alone, summed: the part of measured_ms the
+   * controller's budget is for and the cost model learns. \since 0.2 */
+  double render_ms;
+  /* The cost model's view of the last pass (NaN when it had none):
+   * the samples it expected (S' kappa), the volume fetches per sample
+   * (k) and the cost per fetch (sigma); then the pass's raycast time as
+   * the model reads it (device time; with several devices, the fastest
+   * device's rate times the frame's samples) and the time the models
+   * learn from (the pass without brick uploads; NaN when the frame
+   * teaches nothing, see train_ms). \since 0.2 */
+  double samples_predicted, fetches, sigma_predicted_ns;
+  double raycast_ms, learn_ms;
   /* Per stage. Zero when the stage did not run for this frame. */
   double histograms_ms;    /* H build */
   double volume_upload_ms;
@@ -193,6 +218,10 @@ typedef struct rp_frame {
   const uint8_t *rgba;
   uint32_t width, height;
   const rp_frame_stats *stats;
+  /* What the cost model predicted the frame from (the host's depth pass
+   * and ERT pre-pass, raypace_pace.h); NULL when the frame failed.
+   * \since 0.2 */
+  const struct rp_frame_probe *probe;
 } rp_frame;
 
 typedef void (*rp_frame_cb)(rp_runtime *rt, const rp_frame *frame,
@@ -215,6 +244,12 @@ typedef struct rp_runtime_desc {
   void *user;
   rp_controller_kind controller; /* 0: RP_CONTROL_NONE; see
                              rp_runtime_set_controller */
+  /* The density before the first frame (rp_controller_desc.rho_start):
+   * RP_CONTROL_NONE renders it every frame, the others start from it.
+   * 0: 1, clamped to the space's range; else within
+   * [rp_space_min_density, rp_space_max_density] of `space`. See
+   * rp_runtime_set_density. \since 0.2 */
+  double density;
   double target_ms;       /* 0: 1000 / 60 */
   uint32_t width, height; /* viewport; 0: 512 x 512 */
   uint32_t effects;       /* RP_EFFECT_*; 0: none */
@@ -236,7 +271,8 @@ typedef struct rp_runtime_desc {
 } rp_runtime_desc;
 
 /** Creates the runtime, opens its device and starts its worker thread
- *  (and, with desc.loop NULL, its loop thread). The runtime keeps its own
+ *  (and, with desc.loop NULL, its loop thread; in manual pacing neither:
+ *  frames run inside rp_runtime_step). The runtime keeps its own
  *  context, made from `ctx`'s description (allocator, logger, threads):
  *  `ctx` is only used for this call's error message. Nothing renders until
  *  a volume, a TF and a camera have been set.
@@ -249,15 +285,16 @@ RP_API int rp_runtime_create(rp_context *ctx, const rp_runtime_desc *desc,
 /** App loop only, on the loop thread: stops pacing, lets a frame in
  *  flight finish without delivering it, joins the worker, closes the
  *  handles and frees everything; then calls `closed(user)` (may be NULL)
- *  from the loop. Calling it twice, or on an own-loop runtime, returns
- *  RP_ESTATE. \since 0.1 */
+ *  from the loop. Calling it twice, or on an own-loop or manual runtime,
+ *  returns RP_ESTATE. \since 0.1 */
 RP_API int rp_runtime_close(rp_runtime *rt, rp_runtime_closed_cb closed,
                             void *user);
 
-/** Own loop only, from any thread but the runtime's loop thread: as
+/** Own loop, from any thread but the runtime's loop thread: as
  *  rp_runtime_close, then stops the loop thread; returns when all is
- *  freed. NULL: no-op. Returns RP_ESTATE (and does nothing) on an app
- *  loop or from the loop thread. \since 0.1 */
+ *  freed. Manual pacing: frees everything at once (not during a step).
+ *  NULL: no-op. Returns RP_ESTATE (and does nothing) on an app loop or
+ *  from the loop thread. \since 0.1 */
 RP_API int rp_runtime_destroy(rp_runtime *rt);
 
 /* ---- Events: any thread. Each returns 0, RP_ESTATE after close began,
@@ -292,15 +329,31 @@ RP_API int rp_runtime_set_effects(rp_runtime *rt, uint32_t effects);
  *  keeps what it learned. RP_EINVAL for an unknown kind. \since 0.1 */
 RP_API int rp_runtime_set_controller(rp_runtime *rt,
                                      rp_controller_kind kind);
+/** The controller's starting density (rp_runtime_desc.density): what
+ *  RP_CONTROL_NONE renders from the next frame on, as an app with a
+ *  fixed quality setting wants; the controller starts afresh as with
+ *  rp_runtime_set_controller. RP_ENOTFINITE, RP_ERANGE outside the
+ *  space's [min, max] density. \since 0.2 */
+RP_API int rp_runtime_set_density(rp_runtime *rt, double density);
 /** On-request pacing: asks for one frame. RP_ESTATE in timer pacing.
  *  \since 0.1 */
 RP_API int rp_runtime_request_frame(rp_runtime *rt);
+
+/** Manual pacing: runs one frame now, on the calling thread, with the
+ *  events posted since the last one; delivers it to desc.on_frame before
+ *  returning, then trains the cost model on it. Returns the frame's
+ *  status (0, or the RP_E* it failed with: the callback got it too);
+ *  RP_ESTATE, with nothing run, in another pacing mode, from the frame
+ *  callback, after destroy began, or before a volume, a TF and a camera
+ *  were set (the message goes to the context's logger). \since 0.2 */
+RP_API int rp_runtime_step(rp_runtime *rt);
 
 /** The counters as of now (any thread). \since 0.1 */
 RP_API void rp_runtime_get_counters(rp_runtime *rt,
                                     rp_runtime_counters *out);
 
-/** "timer", "on-request"; RP_EINVAL for an unknown name. \since 0.1 */
+/** "timer", "on-request", "manual"; RP_EINVAL for an unknown name.
+ *  \since 0.1 */
 RP_API const char *rp_pacing_name(rp_pacing pacing);
 RP_API int rp_pacing_from_name(const char *name, rp_pacing *out);
 

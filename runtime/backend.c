@@ -377,6 +377,12 @@ int rp__device_builds_ahead(const rp_device *dev) {
   return dev->ops != NULL && dev->ops->prepare != NULL;
 }
 
+int rp__device_clock_ns(const rp_device *dev, uint64_t *ns) {
+  (void)dev;
+  (void)ns;
+  return 0; /* no backend here keeps a clock of its own yet */
+}
+
 int rp_device_prepare(rp_device *dev, rp_context *ctx, uint32_t effects) {
   if (dev == NULL || ctx == NULL)
     return rp__fail(ctx, RP_EINVAL, "rp_device_prepare: NULL %s",

@@ -781,6 +781,10 @@ int rp_device_group_create(rp_context *ctx, const rp_group_desc *desc,
   return 0;
 }
 
+rp_device *rp__group_device(const rp_device_group *g, uint32_t i) {
+  return g != NULL && i < g->count ? g->m[i].dev : NULL;
+}
+
 uint32_t rp_device_group_count(const rp_device_group *g) {
   return g != NULL ? g->count : 0;
 }

@@ -234,6 +234,15 @@ int rp__png_write_rgb(rp_context *ctx, const char *path, const uint8_t *rgb,
 
 /* Whether the device builds kernels ahead (its backend has `prepare`). */
 int rp__device_builds_ahead(const rp_device *dev);
+/* 1 with *ns set when the device keeps a clock of its own (a backend
+ * whose time is simulated), else 0: its time is the host's. */
+int rp__device_clock_ns(const rp_device *dev, uint64_t *ns);
+
+/* ---- group.c ----------------------------------------------------------- */
+
+struct rp_device_group;
+/* Member i's device (NULL when i >= count). */
+rp_device *rp__group_device(const struct rp_device_group *g, uint32_t i);
 
 /* Around a driver's set-up calls (OpenCL's first device query, Vulkan's
  * instance and device creation). Drivers keep what they allocate there

@@ -1,0 +1,756 @@
+/* The frame engine (frame.h): events -> recompute -> predict -> tune ->
+ * render -> measure, and training after delivery. The order of the
+ * stages and what each event makes stale is DESIGN section 1's table;
+ * docs/architecture.md follows one frame through here. */
+#include <math.h>
+#include <pthread.h>
+#include <stdio.h>
+#include <string.h>
+
+#include "ao.h"
+#include "frame.h"
+#include "internal.h"
+#include "passes.h"
+#include "raypace_group.h"
+
+/* Derived data that is out of date. A stage clears its bit only when it
+ * succeeds, so a frame that fails half-way leaves the rest for the next
+ * frame to retry. */
+enum {
+  STALE_HISTOGRAMS = 1u << 0,
+  STALE_VOLUME_UPLOAD = 1u << 1,
+  STALE_OCCUPANCY = 1u << 2,
+  STALE_TF_UPLOAD = 1u << 3,
+  STALE_PROBE = 1u << 4,
+  STALE_CONTROLLER = 1u << 5,
+  STALE_AO = 1u << 6 /* the AO volume, or (AO off) its memory */
+};
+
+/* The least share of the target a frame's render passes are given when
+ * its recompute and probe already used more: the budget stays positive,
+ * and one slow recompute (a volume load) does not drop the density. */
+#define MIN_RENDER_SHARE 0.25
+
+/* The tuner's wall-clock budget per frame when the engine's time is a
+ * device's simulated clock: the frame's decisions must then depend on
+ * that clock alone, so the tuner is not cut short by the host's speed
+ * (a sanitizer build runs it many times slower). */
+#define VIRTUAL_TUNE_TIME_US 1e9
+
+typedef struct scene {
+  uint32_t stale;
+  rp_volume *vol;
+  rp_histograms *h;
+  rp_tf *tf;
+  rp_occupancy *occ;
+  rp_camera cam;
+  uint32_t width, height, effects;
+  double target_ms;
+  double density; /* rp_controller_desc.rho_start */
+  rp_controller_kind controller_kind;
+  rp_controller *controller;
+  rp_frame_probe probe;
+  /* Effect sets rendered since the volume was uploaded, bit (1 << set):
+   * a set's first frame builds its kernel variant and allocates, a cost
+   * the model must not learn as if every frame paid it. */
+  uint32_t warm_sets;
+  /* What this frame renders (choose_effects), and what the last frame
+   * rendered, valid while warm_sets != 0. */
+  uint32_t render_effects, shown_effects;
+  /* AO being computed in steps (RP_EFFECT_AO on and not yet ready):
+   * frames render without AO until the run finishes. */
+  rp_ao_plan *ao_plan;
+  rp_ao_run *ao_run;
+  int ao_ready;  /* the devices hold AO for the current volume and TF */
+  int ao_waits;  /* the run's first step waits for the builder to build
+                    the AO kernels (rp_device_group_prepare) */
+} scene;
+
+/* What the cost models learn from the last frame, after delivery;
+ * valid: 0 for a failed frame and a cold one (warm_sets). */
+typedef struct training {
+  int valid;
+  rp_frame_probe probe;
+  float step, scale;
+  double pass_ms;
+} training;
+
+struct rp__engine {
+  rp_context *ctx;
+  rp_runtime_desc desc; /* defaults resolved; devices not kept */
+  rp_space_desc space;
+  rp_device_group *group;
+  rp_device *clock_dev; /* the single device whose clock is the
+                           engine's, or NULL: CLOCK_MONOTONIC */
+  pthread_mutex_t count_lock;
+  rp_runtime_counters counters; /* the passes'; under count_lock */
+  scene s;
+  /* The frame being made, and after it the last one. */
+  double begin_ms;
+  uint64_t frame_no;
+  rp_frame_stats stats;
+  uint8_t *scaled, *image;
+  size_t scaled_cap, image_cap;
+  rp_tile_stats *tiles;
+  size_t tiles_cap;
+  const uint8_t *out_rgba;
+  uint32_t out_w, out_h;
+  training train;
+};
+
+/* ---- Time and counters --------------------------------------------------- */
+
+double rp__engine_now_ms(const rp__engine *e) {
+  uint64_t ns;
+  if (e->clock_dev != NULL && rp__device_clock_ns(e->clock_dev, &ns))
+    return (double)ns * 1e-6;
+  return rp__now_ms();
+}
+
+static void count(rp__engine *e, uint64_t *field) {
+  pthread_mutex_lock(&e->count_lock);
+  (*field)++;
+  pthread_mutex_unlock(&e->count_lock);
+}
+
+void rp__engine_counters(rp__engine *e, rp_runtime_counters *out) {
+  pthread_mutex_lock(&e->count_lock);
+  *out = e->counters;
+  pthread_mutex_unlock(&e->count_lock);
+}
+
+static void publish_ao_bytes(rp__engine *e) {
+  uint64_t bytes = rp_device_group_ao_bytes(e->group);
+  pthread_mutex_lock(&e->count_lock);
+  e->counters.ao_bytes = bytes;
+  pthread_mutex_unlock(&e->count_lock);
+}
+
+void rp__events_drop(rp__events *ev) {
+  rp_volume_destroy(ev->vol);
+  rp_tf_destroy(ev->tf);
+  ev->vol = NULL;
+  ev->tf = NULL;
+  ev->marks = 0;
+}
+
+/* ---- Events and what they make stale ------------------------------------- */
+
+/* Takes the events into the scene and marks what they invalidate.
+ * Objects move; nothing here can fail. */
+static void take_events(rp__engine *e, rp__events *in) {
+  scene *s = &e->s;
+  if (in->marks & RP__POSTED_VOLUME) {
+    rp_occupancy_destroy(s->occ);
+    rp_histograms_destroy(s->h);
+    rp_volume_destroy(s->vol);
+    s->occ = NULL;
+    s->h = NULL;
+    s->vol = in->vol;
+    in->vol = NULL;
+    s->stale |= STALE_HISTOGRAMS | STALE_VOLUME_UPLOAD | STALE_OCCUPANCY |
+                STALE_TF_UPLOAD | STALE_AO | STALE_PROBE;
+  }
+  if (in->marks & RP__POSTED_TF) {
+    rp_tf_destroy(s->tf);
+    s->tf = in->tf;
+    in->tf = NULL;
+    s->stale |= STALE_OCCUPANCY | STALE_TF_UPLOAD | STALE_AO | STALE_PROBE;
+  }
+  if (in->marks & RP__POSTED_CAMERA) {
+    s->cam = in->cam;
+    s->width = in->width;
+    s->height = in->height;
+    s->stale |= STALE_PROBE;
+  }
+  if (in->marks & RP__POSTED_EFFECTS) {
+    /* The probe follows in choose_effects, which knows what renders. */
+    if ((s->effects ^ in->effects) & RP_EFFECT_AO)
+      s->stale |= STALE_AO;
+    s->effects = in->effects;
+  }
+  if (in->marks & RP__POSTED_TARGET)
+    s->target_ms = in->target_ms;
+  if (in->marks & RP__POSTED_CONTROLLER &&
+      in->controller != s->controller_kind) {
+    s->controller_kind = in->controller;
+    s->stale |= STALE_CONTROLLER;
+  }
+  if (in->marks & RP__POSTED_DENSITY && in->density != s->density) {
+    s->density = in->density;
+    s->stale |= STALE_CONTROLLER;
+  }
+  in->marks = 0;
+}
+
+/* The effects a frame should render: the scene's, without AO while it
+ * is being computed. */
+static uint32_t wanted_effects(const scene *s) {
+  return s->ao_ready ? s->effects : s->effects & ~(uint32_t)RP_EFFECT_AO;
+}
+
+/* The effects this frame renders: those wanted, unless their kernels are
+ * still being built ahead (a build takes from tens of milliseconds to
+ * over a second): then what the last frame rendered, so that no frame
+ * waits for a build. The first frame on a volume builds its own, and so
+ * does a frame that has nothing to fall back on (the last set used AO,
+ * which is off or being computed now). */
+static void choose_effects(rp__engine *e) {
+  scene *s = &e->s;
+  uint32_t want = wanted_effects(s), eff = want;
+  int can_wait = s->warm_sets != 0 &&
+                 (!(s->shown_effects & RP_EFFECT_AO) || s->ao_ready);
+  if (can_wait && !((s->warm_sets >> want) & 1u) &&
+      !rp_device_group_prepared(e->group, want) &&
+      rp_device_group_prepare(e->group, want) == 0)
+    eff = s->shown_effects;
+  /* Every effect is in the probe: ERT cuts the spans, skipping moves
+   * D_front and D_back, shading and AO set k and the visible blocks. */
+  if (eff != s->render_effects)
+    s->stale |= STALE_PROBE;
+  s->render_effects = eff;
+}
+
+/* ---- Ambient occlusion in steps ------------------------------------------ */
+
+static void drop_ao_run(scene *s) {
+  rp_ao_run_destroy(s->ao_run);
+  rp_ao_plan_destroy(s->ao_plan);
+  s->ao_run = NULL;
+  s->ao_plan = NULL;
+}
+
+/* A volume, TF or AO toggle: any run in progress is for the old scene and
+ * goes. AO on: a run starts for the current volume and TF, and frames
+ * render without AO until it is done (advance_ao). AO off: the devices'
+ * AO memory is released, so an effect that is off costs neither time
+ * nor memory. */
+static int update_ao(rp__engine *e) {
+  scene *s = &e->s;
+  int err = 0;
+  drop_ao_run(s);
+  s->ao_ready = 0;
+  s->ao_waits = 0;
+  if (!(s->effects & RP_EFFECT_AO)) {
+    if (rp_device_group_ao_bytes(e->group) != 0)
+      err = rp_device_group_set_ao(e->group, NULL);
+  } else {
+    /* AO's kernels (the AO volume's and the raycast that reads it) on
+     * the builder: the run starts once they are built, and the frame AO
+     * is ready in renders with them at once; no frame builds one. */
+    s->ao_waits = rp_device_group_prepare(e->group, s->effects) == 0 &&
+                  !rp_device_group_prepared(e->group, s->effects);
+    err = rp_ao_plan_create(e->ctx, s->vol, s->tf, &e->desc.ao,
+                            &s->ao_plan);
+    if (err == 0)
+      err = rp_device_group_ao_begin(e->group, s->ao_plan,
+                                     &e->desc.ao_schedule, &s->ao_run);
+    if (err != 0)
+      drop_ao_run(s);
+  }
+  publish_ao_bytes(e);
+  return err;
+}
+
+/* One step of the AO run: ao_frame_share of the target (all of it at
+ * once with share 1); the render passes then get what is left of the
+ * target, as after any stage. When the run is done its AO goes to every
+ * device and frames render with it from this one on. */
+static int advance_ao(rp__engine *e) {
+  scene *s = &e->s;
+  rp_frame_stats *st = &e->stats;
+  double budget = e->desc.ao_frame_share >= 1.0
+                      ? INFINITY
+                      : e->desc.ao_frame_share * s->target_ms;
+  double fraction = 0.0;
+  rp_ao *ao = NULL;
+  int err;
+  if (s->ao_waits) {
+    st->ao_progress = 0.0;
+    if (!rp_device_group_prepared(e->group, s->effects))
+      return 0;
+    s->ao_waits = 0;
+  }
+  err = rp_ao_run_step(s->ao_run, budget, &fraction);
+  st->ao_progress = fraction;
+  if (err == 0 && fraction < 1.0)
+    return 0;
+  err = rp_device_group_ao_end(e->group, s->ao_run, err, &ao, NULL);
+  if (err == 0)
+    err = rp_device_group_set_ao(e->group, ao);
+  rp_ao_destroy(ao);
+  drop_ao_run(s);
+  publish_ao_bytes(e);
+  if (err != 0) {
+    /* Tried again from the start next frame: a lost device is dropped
+     * by now, and the others may finish it. */
+    s->stale |= STALE_AO;
+    return err;
+  }
+  s->ao_ready = 1;
+  count(e, &e->counters.ao_computes);
+  return 0;
+}
+
+/* ---- Recompute ----------------------------------------------------------- */
+
+/* H, then the volume upload, then H-alpha + occupancy and the TF upload:
+ * what the volume and TF events made stale, in dependency order. */
+static int recompute_scene(rp__engine *e) {
+  scene *s = &e->s;
+  rp_frame_stats *st = &e->stats;
+  double t0;
+  int err;
+  if (s->stale & STALE_HISTOGRAMS) {
+    t0 = rp__engine_now_ms(e);
+    if ((err = rp_histograms_build(e->ctx, s->vol, &s->h)) != 0)
+      return err;
+    st->histograms_ms = rp__engine_now_ms(e) - t0;
+    s->stale &= ~(uint32_t)STALE_HISTOGRAMS;
+    count(e, &e->counters.histograms);
+  }
+  if (s->stale & STALE_VOLUME_UPLOAD) {
+    t0 = rp__engine_now_ms(e);
+    if ((err = rp_device_group_set_volume(e->group, s->vol)) != 0)
+      return err;
+    st->volume_upload_ms = rp__engine_now_ms(e) - t0;
+    s->warm_sets = 0;
+    s->stale &= ~(uint32_t)STALE_VOLUME_UPLOAD;
+    count(e, &e->counters.volume_uploads);
+  }
+  if (s->stale & STALE_OCCUPANCY) {
+    t0 = rp__engine_now_ms(e);
+    err = s->occ == NULL ? rp_occupancy_build(e->ctx, s->h, s->tf, &s->occ)
+                         : rp_occupancy_update(s->occ, s->tf);
+    if (err != 0)
+      return err;
+    st->occupancy_ms = rp__engine_now_ms(e) - t0;
+    s->stale &= ~(uint32_t)STALE_OCCUPANCY;
+    count(e, &e->counters.occupancies);
+  }
+  if (s->stale & STALE_TF_UPLOAD) {
+    t0 = rp__engine_now_ms(e);
+    if ((err = rp_device_group_set_tf(e->group, s->tf, s->occ)) != 0)
+      return err;
+    st->tf_upload_ms = rp__engine_now_ms(e) - t0;
+    s->stale &= ~(uint32_t)STALE_TF_UPLOAD;
+    count(e, &e->counters.tf_uploads);
+  }
+  return 0;
+}
+
+/* The controller the scene asks for, made afresh when its kind or its
+ * starting density changed (its history goes; the models keep theirs). */
+static int make_controller(rp__engine *e) {
+  scene *s = &e->s;
+  rp_controller_desc cd = {0};
+  rp_controller *c = NULL;
+  int err;
+  cd.kind = s->controller_kind;
+  cd.rho_min = rp_space_min_density(&e->space);
+  cd.rho_max = rp_space_max_density(&e->space);
+  cd.rho_start = s->density;
+  if (e->clock_dev != NULL)
+    cd.tune_time_us = VIRTUAL_TUNE_TIME_US;
+  if ((err = rp_controller_create(e->ctx, &cd, &c)) != 0)
+    return err;
+  rp_controller_destroy(s->controller);
+  s->controller = c;
+  s->stale &= ~(uint32_t)STALE_CONTROLLER;
+  return 0;
+}
+
+/* Every stale stage, then the AO step, the effects to render, the probe
+ * and the controller. */
+static int recompute(rp__engine *e) {
+  scene *s = &e->s;
+  rp_frame_stats *st = &e->stats;
+  double t0;
+  int err;
+  if ((err = recompute_scene(e)) != 0)
+    return err;
+  if (s->stale & STALE_AO || s->ao_run != NULL) {
+    t0 = rp__engine_now_ms(e);
+    if (s->stale & STALE_AO) {
+      s->stale &= ~(uint32_t)STALE_AO;
+      if ((err = update_ao(e)) != 0)
+        return err;
+    }
+    if (s->ao_run != NULL && (err = advance_ao(e)) != 0)
+      return err;
+    st->ao_ms = rp__engine_now_ms(e) - t0;
+  }
+  choose_effects(e);
+  if (s->stale & STALE_PROBE) {
+    rp_render_desc d = {0};
+    d.width = s->width;
+    d.height = s->height;
+    d.effects = s->render_effects;
+    t0 = rp__engine_now_ms(e);
+    if ((err = rp_frame_probe_compute(e->ctx, s->vol, s->tf, s->occ,
+                                      &s->cam, &d, e->desc.ert_seed,
+                                      (uint32_t)e->frame_no,
+                                      &s->probe)) != 0)
+      return err;
+    /* On the engine's clock, as every other stage. */
+    s->probe.probe_ms = rp__engine_now_ms(e) - t0;
+    st->probe_ms = s->probe.probe_ms;
+    s->stale &= ~(uint32_t)STALE_PROBE;
+    count(e, &e->counters.probes);
+  }
+  if (s->stale & STALE_CONTROLLER || s->controller == NULL)
+    return make_controller(e);
+  return 0;
+}
+
+/* ---- Predict, tune, render ----------------------------------------------- */
+
+/* The controller's model of the frame: `user` is the engine. */
+static double predict_at(void *user, double rho) {
+  rp__engine *e = user;
+  rp_cost_estimate est;
+  float step, scale;
+  rp_space_map(&e->space, rho, &step, &scale);
+  if (rp_device_group_predict(e->group, &e->s.probe, step, scale, &est) != 0)
+    return NAN;
+  return est.ms;
+}
+
+/* Grows *buf to hold `bytes`; keeps the old one on failure. */
+static int reserve(rp__engine *e, void **buf, size_t *cap, size_t bytes) {
+  void *p;
+  if (bytes <= *cap)
+    return 0;
+  p = rp__malloc(e->ctx, bytes);
+  if (p == NULL)
+    return rp__fail(e->ctx, RP_ENOMEM, "runtime: %zu bytes for the frame",
+                    bytes);
+  rp__free(e->ctx, *buf);
+  *buf = p;
+  *cap = bytes;
+  return 0;
+}
+
+/* A group's raycast time for the pass, as one device's would be: the
+ * fastest device's rate (its raycast time over its samples) times the
+ * pass's samples; with one device, its raycast time. */
+static double pass_raycast_ms(const rp_group_report *rep, uint64_t samples) {
+  double best = INFINITY;
+  uint32_t i;
+  if (rep->count == 1)
+    return rep->devices[0].raycast_ms;
+  for (i = 0; i < rep->count; i++) {
+    const rp_group_device *d = &rep->devices[i];
+    if (d->samples > 0 && d->raycast_ms > 0 &&
+        d->raycast_ms / (double)d->samples < best)
+      best = d->raycast_ms / (double)d->samples;
+  }
+  return isfinite(best) ? best * (double)samples : 0.0;
+}
+
+/* The pass's per-device figures into the stats (summed over passes; a
+ * lost device is part of the story, whatever happened). Returns the
+ * most brick upload time any device spent. */
+static double report_devices(rp__engine *e, const rp_group_report *rep,
+                             int *depth) {
+  rp_frame_stats *st = &e->stats;
+  double upload = 0.0;
+  uint32_t i;
+  st->device_count = rep->count;
+  st->devices_alive = rep->alive;
+  st->devices_lost += rep->lost;
+  st->imbalance = rep->imbalance;
+  st->rerender_ms += rep->rerender_ms;
+  *depth = 0;
+  for (i = 0; i < rep->count && i < RP_RUNTIME_MAX_DEVICES; i++) {
+    rp_device_frame *df = &st->devices[i];
+    const rp_group_device *gd = &rep->devices[i];
+    snprintf(df->name, sizeof df->name, "%s", gd->name);
+    df->raycast_ms += gd->raycast_ms;
+    df->upload_ms += gd->upload_ms;
+    df->depth_ms += gd->depth_ms;
+    df->busy_ms += gd->busy_ms;
+    df->readback_ms +=
+        gd->busy_ms - gd->raycast_ms - gd->upload_ms - gd->depth_ms;
+    if (gd->upload_ms > upload)
+      upload = gd->upload_ms;
+    df->rows += gd->region.y1 - gd->region.y0;
+    df->samples += gd->samples;
+    df->share = gd->share;
+    df->region = gd->region;
+    df->strips = gd->strips;
+    df->strip_share = gd->strip_cost_share;
+    df->status = gd->status;
+    if (gd->status != 0)
+      snprintf(df->error, sizeof df->error, "%s", gd->error);
+    df->dropped = gd->dropped;
+    *depth |= gd->depth_passes > 0;
+  }
+  return upload;
+}
+
+/* One render pass at density rho: every device's depth pass when its
+ * inputs changed, the raycast of its region with readback, and the
+ * upscale. *pass_ms: what the controller holds to its budget (the pass
+ * without its brick uploads, which were predicted and taken off). */
+static int render_pass(rp__engine *e, double rho, double *pass_ms) {
+  scene *s = &e->s;
+  rp_frame_stats *st = &e->stats;
+  rp_render_desc d = {0};
+  rp_group_report rep;
+  uint32_t sw, sh, tx, ty, i;
+  double t0 = rp__engine_now_ms(e), t2, upload, ms;
+  int err, depth = 0;
+  rp_space_map(&e->space, rho, &st->step, &st->scale);
+  d.width = s->width;
+  d.height = s->height;
+  d.step = st->step;
+  d.image_scale = st->scale;
+  d.effects = s->render_effects;
+  rp_scaled_size(&d, &sw, &sh);
+  rp_tile_grid(sw, sh, &tx, &ty);
+  if ((err = reserve(e, (void **)&e->scaled, &e->scaled_cap,
+                     (size_t)sw * sh * 4)) != 0 ||
+      (err = reserve(e, (void **)&e->image, &e->image_cap,
+                     (size_t)s->width * s->height * 4)) != 0 ||
+      (err = reserve(e, (void **)&e->tiles, &e->tiles_cap,
+                     (size_t)tx * ty * sizeof(rp_tile_stats))) != 0)
+    return err;
+  err = rp_device_group_render(e->group, &s->cam, &d, &s->probe, e->scaled,
+                               e->tiles, &rep);
+  t2 = rp__engine_now_ms(e);
+  upload = report_devices(e, &rep, &depth);
+  st->upload_ms += upload;
+  if (depth)
+    count(e, &e->counters.device_depth);
+  if (err != 0)
+    return err;
+  count(e, &e->counters.renders);
+  st->samples = 0;
+  for (i = 0; i < tx * ty; i++)
+    st->samples += e->tiles[i].samples;
+  if (sw != s->width || sh != s->height) {
+    rp_image_upscale(e->scaled, sw, sh, e->image, s->width, s->height);
+    e->out_rgba = e->image;
+    st->upscale_ms += rp__engine_now_ms(e) - t2;
+  } else {
+    e->out_rgba = e->scaled;
+  }
+  e->out_w = s->width;
+  e->out_h = s->height;
+  ms = rp__engine_now_ms(e) - t0;
+  st->render_ms += ms;
+  st->raycast_ms = pass_raycast_ms(&rep, st->samples);
+  e->train.valid = (s->warm_sets >> s->render_effects) & 1u;
+  s->warm_sets |= 1u << s->render_effects;
+  s->shown_effects = s->render_effects;
+  e->train.probe = s->probe;
+  e->train.step = st->step;
+  e->train.scale = st->scale;
+  e->train.pass_ms = ms;
+  /* What rp_device_group_train will learn from: the pass without its
+   * brick uploads, never under its raycast. */
+  st->learn_ms = e->train.valid ? fmax(ms - upload, st->raycast_ms) : NAN;
+  *pass_ms = fmax(ms - upload, 0.0);
+  return 0;
+}
+
+/* Out of core: the predicted brick uploads of the coming render (0 in
+ * core, or when the estimate fails: the frame then only runs late). */
+static double predicted_upload_ms(rp__engine *e) {
+  scene *s = &e->s;
+  rp_render_desc d = {0};
+  double ms = 0.0;
+  d.width = s->width;
+  d.height = s->height;
+  d.effects = s->render_effects;
+  if (rp_device_group_upload_ms(e->group, &s->cam, &d, &ms) != 0)
+    return 0.0;
+  return ms;
+}
+
+/* The model's prediction for a pass at rho, into the stats; the time it
+ * took goes to predict_ms. */
+static void predict_pass(rp__engine *e, double rho) {
+  rp_frame_stats *st = &e->stats;
+  rp_cost_estimate est;
+  float step, scale;
+  double t0 = rp__engine_now_ms(e);
+  rp_space_map(&e->space, rho, &step, &scale);
+  if (rp_device_group_predict(e->group, &e->s.probe, step, scale, &est) ==
+      0) {
+    st->predicted_ms = est.ms;
+    st->samples_predicted = est.samples * est.sample_ratio;
+    st->fetches = est.fetches;
+    st->sigma_predicted_ns = est.sigma_ns;
+  } else {
+    st->predicted_ms = st->samples_predicted = NAN;
+    st->fetches = st->sigma_predicted_ns = NAN;
+  }
+  st->predict_ms += rp__engine_now_ms(e) - t0;
+}
+
+/* Controller, prediction and the render passes of one frame. The time the
+ * frame already spent (recompute, probe) is known exactly when the
+ * controller decides: it is taken off the target, and only the render
+ * passes are predicted and learned. Frames with and without a probe then
+ * cost the same in total, where a model that learned the probe as part of
+ * an average c0 was wrong both ways. */
+static int render_frame(rp__engine *e) {
+  scene *s = &e->s;
+  rp_frame_stats *st = &e->stats;
+  double rho, t0, pass_ms = 0.0, budget, upload_before = 0.0;
+  double spent = rp__engine_now_ms(e) - e->begin_ms;
+  int err, again = 1;
+  st->upload_predicted_ms = predicted_upload_ms(e);
+  spent += st->upload_predicted_ms;
+  budget = s->target_ms - spent;
+  if (budget < MIN_RENDER_SHARE * s->target_ms)
+    budget = MIN_RENDER_SHARE * s->target_ms;
+  t0 = rp__engine_now_ms(e);
+  if ((err = rp_controller_begin_frame(s->controller, budget, predict_at, e,
+                                       &rho)) != 0)
+    return err;
+  st->predict_ms = rp__engine_now_ms(e) - t0;
+  while (again) {
+    predict_pass(e, rho);
+    upload_before = st->upload_ms;
+    if ((err = render_pass(e, rho, &pass_ms)) != 0) {
+      /* The controller's frame stays open otherwise; its history goes
+       * with it, which is right after a device failed. */
+      rp_controller_reset(s->controller);
+      return err;
+    }
+    st->rho = rho;
+    st->passes++;
+    if ((err = rp_controller_end_pass(s->controller, pass_ms, &again,
+                                      &rho)) != 0) {
+      rp_controller_reset(s->controller);
+      return err;
+    }
+  }
+  st->measured_ms = rp__engine_now_ms(e) - e->begin_ms;
+  /* What was known: the time spent before the last pass, and its
+   * predicted upload (the last pass's measured one is not known). */
+  st->predicted_ms += st->measured_ms - pass_ms -
+                      (st->upload_ms - upload_before) +
+                      st->upload_predicted_ms;
+  st->delta = st->predicted_ms > 0.0
+                  ? st->measured_ms / st->predicted_ms - 1.0
+                  : NAN;
+  return 0;
+}
+
+void rp__engine_frame(rp__engine *e, rp__events *in, uint64_t frame_no,
+                      uint64_t events, rp_frame *out) {
+  rp_frame_stats *st = &e->stats;
+  int err;
+  e->begin_ms = rp__engine_now_ms(e);
+  e->frame_no = frame_no;
+  memset(st, 0, sizeof *st);
+  st->frame = frame_no;
+  st->events = events;
+  st->predicted_ms = st->delta = st->learn_ms = NAN;
+  st->samples_predicted = st->fetches = st->sigma_predicted_ns = NAN;
+  e->out_rgba = NULL;
+  e->train.valid = 0;
+  rp__clear_error(e->ctx);
+  take_events(e, in);
+  st->controller = e->s.controller_kind;
+  st->target_ms = e->s.target_ms;
+  if ((err = recompute(e)) == 0)
+    err = render_frame(e);
+  st->effects = e->s.render_effects;
+  st->effects_wanted = e->s.effects;
+  if (err != 0) {
+    st->status = err;
+    snprintf(st->error, sizeof st->error, "%s", rp_last_error(e->ctx));
+    e->out_rgba = NULL;
+    e->train.valid = 0;
+    st->learn_ms = NAN;
+  }
+  out->rgba = e->out_rgba;
+  out->width = e->out_w;
+  out->height = e->out_h;
+  out->stats = st;
+  out->probe = err == 0 ? &e->s.probe : NULL;
+}
+
+double rp__engine_train(rp__engine *e) {
+  training *t = &e->train;
+  double t0 = rp__now_ms();
+  if (!t->valid)
+    return 0.0;
+  /* A refused sample (a zero-sample frame, say) teaches nothing; the
+   * models stay as they were, which is the right outcome. */
+  (void)rp_device_group_train(e->group, &t->probe, t->step, t->scale,
+                              t->pass_ms);
+  t->valid = 0;
+  return rp__now_ms() - t0;
+}
+
+/* ---- Lifetime ------------------------------------------------------------ */
+
+int rp__engine_create(rp_context *ctx, const rp_runtime_desc *desc,
+                      rp__engine **out) {
+  rp__engine *e;
+  rp_group_desc gd = {0};
+  rp_device *dev;
+  uint64_t ns;
+  int err;
+  e = rp__calloc(ctx, 1, sizeof *e);
+  if (e == NULL)
+    return rp__fail(ctx, RP_ENOMEM, "rp_runtime_create: out of memory");
+  if (pthread_mutex_init(&e->count_lock, NULL) != 0) {
+    rp__free(ctx, e);
+    return rp__fail(ctx, RP_EDEVICE, "rp_runtime_create: "
+                    "pthread_mutex_init failed");
+  }
+  e->ctx = ctx;
+  e->desc = *desc;
+  e->desc.devices = NULL; /* the group copies them */
+  e->space = desc->space;
+  e->s.target_ms = desc->target_ms;
+  e->s.width = desc->width;
+  e->s.height = desc->height;
+  e->s.effects = desc->effects;
+  e->s.controller_kind = desc->controller;
+  e->s.density = desc->density;
+  gd.devices = desc->device_count > 0 ? desc->devices : &desc->device;
+  gd.count = desc->device_count > 0 ? desc->device_count : 1;
+  gd.damping = desc->damping;
+  gd.model = desc->model;
+  if ((err = rp_device_group_create(ctx, &gd, &e->group)) != 0) {
+    rp__engine_destroy(e);
+    return err;
+  }
+  /* One device that keeps its own clock sets the engine's time; with
+   * several, each has its own and the frame's is the wall clock's. */
+  dev = rp_device_group_count(e->group) == 1 ? rp__group_device(e->group, 0)
+                                             : NULL;
+  if (dev != NULL && rp__device_clock_ns(dev, &ns))
+    e->clock_dev = dev;
+  *out = e;
+  return 0;
+}
+
+void rp__engine_destroy(rp__engine *e) {
+  rp_context *ctx;
+  scene *s;
+  if (e == NULL)
+    return;
+  ctx = e->ctx;
+  s = &e->s;
+  drop_ao_run(s);
+  rp_controller_destroy(s->controller);
+  rp_occupancy_destroy(s->occ);
+  rp_histograms_destroy(s->h);
+  rp_tf_destroy(s->tf);
+  rp_volume_destroy(s->vol);
+  rp_device_group_destroy(e->group);
+  rp__free(ctx, e->scaled);
+  rp__free(ctx, e->image);
+  rp__free(ctx, e->tiles);
+  pthread_mutex_destroy(&e->count_lock);
+  rp__free(ctx, e);
+}
