@@ -160,13 +160,15 @@ typedef struct rp_frame_stats {
   /* The render passes alone, summed: the part of measured_ms the
    * controller's budget is for and the cost model learns. \since 0.2 */
   double render_ms;
-  /* The cost model's view of the last pass (NaN when it had none):
-   * the samples it expected (S' kappa), the volume fetches per sample
-   * (k) and the cost per fetch (sigma); then the pass's raycast time as
-   * the model reads it (device time; with several devices, the fastest
-   * device's rate times the frame's samples) and the time the models
-   * learn from (the pass without brick uploads; NaN when the frame
-   * teaches nothing, see train_ms). \since 0.2 */
+  /* The cost model's view of the last pass (NaN when it had none): its
+   * time t' (the part of predicted_ms that is the model's), the samples
+   * it expected (S' kappa), the volume fetches per sample (k) and the
+   * cost per fetch (sigma); then the pass's raycast time as the model
+   * reads it (device time; with several devices, the fastest device's
+   * rate times the frame's samples) and the time the models learn from
+   * (the pass, without brick uploads when it had some; NaN when the
+   * frame teaches nothing, see train_ms). \since 0.2 */
+  double pass_predicted_ms;
   double samples_predicted, fetches, sigma_predicted_ns;
   double raycast_ms, learn_ms;
   /* Per stage. Zero when the stage did not run for this frame. */

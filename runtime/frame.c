@@ -62,6 +62,13 @@ typedef struct scene {
   rp_ao_plan *ao_plan;
   rp_ao_run *ao_run;
   int ao_ready;  /* the devices hold AO for the current volume and TF */
+  /* The TF whose AO the devices hold (0: none), and that TF when it is
+   * no longer the scene's: a TF posted again with the same content
+   * while the devices still hold its AO (switched away and back before
+   * the other TF's AO was done) takes its place, id and all, and its AO
+   * renders at once. */
+  uint64_t ao_tf_id;
+  rp_tf *ao_tf;
   int ao_waits;  /* the run's first step waits for the builder to build
                     the AO kernels (rp_device_group_prepare) */
 } scene;
@@ -141,6 +148,9 @@ void rp__events_drop(rp__events *ev) {
 static void take_events(rp__engine *e, rp__events *in) {
   scene *s = &e->s;
   if (in->marks & RP__POSTED_VOLUME) {
+    rp_tf_destroy(s->ao_tf); /* an AO of another volume */
+    s->ao_tf = NULL;
+    s->ao_tf_id = 0;
     rp_occupancy_destroy(s->occ);
     rp_histograms_destroy(s->h);
     rp_volume_destroy(s->vol);
@@ -152,9 +162,20 @@ static void take_events(rp__engine *e, rp__events *in) {
                 STALE_TF_UPLOAD | STALE_AO | STALE_PROBE;
   }
   if (in->marks & RP__POSTED_TF) {
-    rp_tf_destroy(s->tf);
-    s->tf = in->tf;
+    rp_tf *tf = in->tf;
     in->tf = NULL;
+    if (s->ao_tf != NULL && rp__tf_same(s->ao_tf, tf)) {
+      rp_tf_destroy(tf);
+      tf = s->ao_tf;
+      s->ao_tf = NULL;
+    }
+    if (s->tf != NULL && s->tf->id == s->ao_tf_id) {
+      rp_tf_destroy(s->ao_tf);
+      s->ao_tf = s->tf;
+    } else {
+      rp_tf_destroy(s->tf);
+    }
+    s->tf = tf;
     s->stale |= STALE_OCCUPANCY | STALE_TF_UPLOAD | STALE_AO | STALE_PROBE;
   }
   if (in->marks & RP__POSTED_CAMERA) {
@@ -234,6 +255,11 @@ static int update_ao(rp__engine *e) {
   if (!(s->effects & RP_EFFECT_AO)) {
     if (rp_device_group_ao_bytes(e->group) != 0)
       err = rp_device_group_set_ao(e->group, NULL);
+    rp_tf_destroy(s->ao_tf);
+    s->ao_tf = NULL;
+    s->ao_tf_id = 0;
+  } else if (s->ao_tf_id == s->tf->id) {
+    s->ao_ready = 1; /* back to the TF whose AO the devices hold */
   } else {
     /* AO's kernels (the AO volume's and the raycast that reads it) on
      * the builder: the run starts once they are built, and the frame AO
@@ -281,12 +307,17 @@ static int advance_ao(rp__engine *e) {
   rp_ao_destroy(ao);
   drop_ao_run(s);
   publish_ao_bytes(e);
+  /* The AO the devices held before is replaced (or, failed, unknown). */
+  rp_tf_destroy(s->ao_tf);
+  s->ao_tf = NULL;
+  s->ao_tf_id = 0;
   if (err != 0) {
     /* Tried again from the start next frame: a lost device is dropped
      * by now, and the others may finish it. */
     s->stale |= STALE_AO;
     return err;
   }
+  s->ao_tf_id = s->tf->id;
   s->ao_ready = 1;
   count(e, &e->counters.ao_computes);
   return 0;
@@ -548,9 +579,11 @@ static int render_pass(rp__engine *e, double rho, double *pass_ms) {
   e->train.step = st->step;
   e->train.scale = st->scale;
   e->train.pass_ms = ms;
-  /* What rp_device_group_train will learn from: the pass without its
-   * brick uploads, never under its raycast. */
-  st->learn_ms = e->train.valid ? fmax(ms - upload, st->raycast_ms) : NAN;
+  /* What rp_device_group_train will learn from: the pass, without its
+   * brick uploads when it had some (never under its raycast then). */
+  st->learn_ms = !e->train.valid ? NAN
+                 : upload > 0.0  ? fmax(ms - upload, st->raycast_ms)
+                                 : ms;
   *pass_ms = fmax(ms - upload, 0.0);
   return 0;
 }
@@ -579,12 +612,12 @@ static void predict_pass(rp__engine *e, double rho) {
   rp_space_map(&e->space, rho, &step, &scale);
   if (rp_device_group_predict(e->group, &e->s.probe, step, scale, &est) ==
       0) {
-    st->predicted_ms = est.ms;
+    st->predicted_ms = st->pass_predicted_ms = est.ms;
     st->samples_predicted = est.samples * est.sample_ratio;
     st->fetches = est.fetches;
     st->sigma_predicted_ns = est.sigma_ns;
   } else {
-    st->predicted_ms = st->samples_predicted = NAN;
+    st->predicted_ms = st->pass_predicted_ms = st->samples_predicted = NAN;
     st->fetches = st->sigma_predicted_ns = NAN;
   }
   st->predict_ms += rp__engine_now_ms(e) - t0;
@@ -652,6 +685,7 @@ void rp__engine_frame(rp__engine *e, rp__events *in, uint64_t frame_no,
   st->events = events;
   st->predicted_ms = st->delta = st->learn_ms = NAN;
   st->samples_predicted = st->fetches = st->sigma_predicted_ns = NAN;
+  st->pass_predicted_ms = NAN;
   e->out_rgba = NULL;
   e->train.valid = 0;
   rp__clear_error(e->ctx);
@@ -746,6 +780,7 @@ void rp__engine_destroy(rp__engine *e) {
   rp_occupancy_destroy(s->occ);
   rp_histograms_destroy(s->h);
   rp_tf_destroy(s->tf);
+  rp_tf_destroy(s->ao_tf);
   rp_volume_destroy(s->vol);
   rp_device_group_destroy(e->group);
   rp__free(ctx, e->scaled);

@@ -194,6 +194,9 @@ static inline double rp__value_to_x(double v, double min, double max) {
 /* The TF at x (clamped to [0, 1]), linear between LUT entries. */
 /* A copy of `src` owned by `ctx`, with an id of its own. */
 int rp__tf_clone(rp_context *ctx, const rp_tf *src, rp_tf **out);
+/* Whether two TFs map every value alike: the same table and reference
+ * step (ids aside). */
+int rp__tf_same(const rp_tf *a, const rp_tf *b);
 /* rp__raygen_init's checks of the camera alone (no volume, no
  * viewport), eye == center included. */
 int rp__camera_check(rp_context *ctx, const rp_camera *cam);

@@ -222,6 +222,13 @@ int rp__tf_clone(rp_context *ctx, const rp_tf *src, rp_tf **out) {
   return 0;
 }
 
+int rp__tf_same(const rp_tf *a, const rp_tf *b) {
+  return a->lut_size == b->lut_size &&
+         a->reference_step == b->reference_step &&
+         memcmp(a->lut, b->lut, (size_t)a->lut_size * 4 * sizeof(float)) ==
+             0;
+}
+
 void rp_tf_destroy(rp_tf *tf) {
   if (tf == NULL)
     return;

@@ -87,22 +87,7 @@ static rp_tf *post_scene(rp_runtime *rt, rp_context *ctx, rp_volume *vol,
 static void expect_reference_ao(rp_context *ctx, const rp_volume *vol,
                                 const rp_tf *tf, const rp_ao *ao,
                                 const rp_camera *cam, const uint8_t *got) {
-  rp_histograms *h = NULL;
-  rp_occupancy *occ = NULL;
-  rp_render_desc rd = {0};
-  uint8_t *want = malloc(W * H * 4);
-  assert_non_null(want);
-  assert_int_equal(rp_histograms_build(ctx, vol, &h), 0);
-  assert_int_equal(rp_occupancy_build(ctx, h, tf, &occ), 0);
-  rd.width = W;
-  rd.height = H;
-  rd.effects = EFFECTS | (ao != NULL ? RP_EFFECT_AO : 0u);
-  assert_int_equal(
-      rp_render_reference(ctx, vol, tf, occ, ao, cam, &rd, want, NULL), 0);
-  assert_memory_equal(got, want, W * H * 4);
-  free(want);
-  rp_occupancy_destroy(occ);
-  rp_histograms_destroy(h);
+  rp_test_expect_reference(ctx, vol, tf, ao, cam, W, H, EFFECTS, got);
 }
 
 static void expect_reference(rp_context *ctx, const rp_volume *vol,

@@ -1,8 +1,8 @@
 #!/bin/sh
 # raypace replay --trace and bench_costmodel together: the trace holds
-# everything the replay's cost model learned from, so a fresh model fed
+# everything the runtime's cost model learned from, so a fresh model fed
 # the trace with the same settings must predict every frame exactly as the
-# replay's did (its CSV, to the CSV's 4 decimals). Then the refusals.
+# runtime's did (the CSV's pass_predicted_ms). Then the refusals.
 # usage: test_costmodel.sh RAYPACE BENCH_COSTMODEL SCRATCH_DIR
 set -u
 rp=$1
@@ -21,8 +21,9 @@ if ! "$rp" replay gen:phantom:24 --backend reference --sequence mixed \
 fi
 [ "$(head -1 "$dir/t.csv" | cut -d, -f1-3)" = "controller,frame,width" ] ||
   fail "trace header: $(head -1 "$dir/t.csv")"
-# One row per pass: 62 frames of one pass each (settle included).
-[ "$(grep -c '^predicted,' "$dir/t.csv")" -eq 62 ] ||
+# One row per frame the model learned from: the warm-up's (frame -1),
+# then 62 frames of one pass each (settle included, frames 0..61).
+[ "$(awk -F, '$1 == "predicted" && $2 >= 0' "$dir/t.csv" | wc -l)" -eq 62 ] ||
   fail "trace rows: $(grep -c '^predicted,' "$dir/t.csv")"
 
 if ! "$bench" --trace "$dir/t.csv" --ratios 0.05 --skip 0 \
@@ -30,14 +31,22 @@ if ! "$bench" --trace "$dir/t.csv" --ratios 0.05 --skip 0 \
   fail "bench_costmodel"; cat "$dir/out"
 fi
 grep -q '^predicted ' "$dir/out" || { fail "bench table"; cat "$dir/out"; }
-# CSV frame f is trace row f + 2 (the settle frames come first); the
-# replay's prediction adds the predicted brick uploads (column 20), which
-# the cost model does not price.
-bad=$(awk -F, 'NR == FNR { if (FNR > 1) p[$3] = $9; next }
-  FNR > 1 { r = $2 + 2; d = p[r] - ($5 - $20); if (d < 0) d = -d;
-            n++; if (!(r in p) || d > 2e-4) { bad++; print "frame " $2 ": replay " $5 ", bench " p[r] > "/dev/stderr" } }
-  END { print (n == 60 ? bad + 0 : "rows " n) }' "$dir/rows.csv" "$dir/r.csv")
-[ "$bad" = "0" ] || fail "predictions differ from the replay's: $bad"
+# The trace's row for CSV frame f is the one whose frame is f + 2 (the
+# settle frames come first); bench_costmodel numbers the rows it fed
+# from 0. The replay's pass_predicted_ms is the model's t' alone.
+col=$(head -1 "$dir/r.csv" | tr ',' '\n' | grep -nx pass_predicted_ms |
+      cut -d: -f1)
+bad=$(awk -F, -v c="$col" '
+  FILENAME == ARGV[1] { if (FNR > 1 && $1 == "predicted") {
+                          if ($2 >= 0) row[$2] = n; n++ } next }
+  FILENAME == ARGV[2] { if (FNR > 1) p[$3] = $9; next }
+  FNR > 1 { r = row[$2 + 2]; d = p[r] - $c; if (d < 0) d = -d; k++
+            if (!(($2 + 2) in row) || !(r in p) || d > 2e-4) { bad++
+              print "frame " $2 ": replay " $c ", bench " p[r] > "/dev/stderr" } }
+  END { print (k == 60 ? bad + 0 : "rows " k) }' \
+  "$dir/t.csv" "$dir/rows.csv" "$dir/r.csv")
+[ -n "$col" ] && [ "$bad" = "0" ] ||
+  fail "predictions differ from the replay's: $bad"
 
 # Refusals: a clear message, never a crash.
 if "$bench" --trace "$dir/none.csv" >"$dir/out" 2>&1 ||

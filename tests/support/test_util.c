@@ -136,3 +136,25 @@ rp_tf *rp_test_preset(rp_context *ctx, const char *name) {
   assert_int_equal(rp_tf_create_preset(ctx, name, &tf), 0);
   return tf;
 }
+
+void rp_test_expect_reference(rp_context *ctx, const rp_volume *vol,
+                              const rp_tf *tf, const rp_ao *ao,
+                              const rp_camera *cam, uint32_t w, uint32_t h,
+                              uint32_t effects, const uint8_t *got) {
+  rp_histograms *hist = NULL;
+  rp_occupancy *occ = NULL;
+  rp_render_desc rd = {0};
+  uint8_t *want = malloc((size_t)w * h * 4);
+  assert_non_null(want);
+  assert_int_equal(rp_histograms_build(ctx, vol, &hist), 0);
+  assert_int_equal(rp_occupancy_build(ctx, hist, tf, &occ), 0);
+  rd.width = w;
+  rd.height = h;
+  rd.effects = effects | (ao != NULL ? RP_EFFECT_AO : 0u);
+  assert_int_equal(
+      rp_render_reference(ctx, vol, tf, occ, ao, cam, &rd, want, NULL), 0);
+  assert_memory_equal(got, want, (size_t)w * h * 4);
+  free(want);
+  rp_occupancy_destroy(occ);
+  rp_histograms_destroy(hist);
+}

@@ -56,6 +56,15 @@ void rp_test_check_fetches(const char *what, const rp_tile_stats *got,
                            unsigned per_visible, uint64_t *total,
                            uint64_t *off);
 
+/* Asserts that `got` (w x h RGBA8) is, bit for bit, the reference
+ * raycaster's image of `vol` under `tf` from `cam` with `effects` at full
+ * quality, with `ao` (RP_EFFECT_AO added) or without (NULL): the oracle
+ * outside the runtime that runtime tests hold frames to. */
+void rp_test_expect_reference(rp_context *ctx, const rp_volume *vol,
+                              const rp_tf *tf, const rp_ao *ao,
+                              const rp_camera *cam, uint32_t w, uint32_t h,
+                              uint32_t effects, const uint8_t *got);
+
 /* The per_visible of rp_test_check_fetches for an effects set. */
 unsigned rp_test_visible_fetches(uint32_t effects);
 

@@ -1,0 +1,123 @@
+/* raypace replay, shared between the driver (replay.c: plays the
+ * sequence through rp_runtime) and its report (replay_report.c: the
+ * summaries, the goals, the table, JSON, CSV and plots). */
+#ifndef RP_CLI_REPLAY_H
+#define RP_CLI_REPLAY_H
+
+#include <stdint.h>
+#include <stdio.h>
+
+#include "cli_util.h"
+#include "commands.h"
+#include "raypace.h"
+#include "raypace_group.h"
+#include "raypace_pace.h"
+#include "raypace_runtime.h"
+#include "raypace_sequence.h"
+
+typedef struct replay_opts {
+  const char *volume, *sequence, *controller, *backend, *csv, *plot;
+  const char *trace, *noise_csv;
+  double target_ms, target_fraction;
+  uint32_t device, width, height, settle, frames, seed;
+  int no_noise; /* --no-noise: no still frame */
+  float base_step;
+  float min_step; /* 0: base_step */
+  rp_space space;
+  int json, list, quiet;
+  int device_given;
+  const char *devices_spec;
+  rp_device_desc devices[RP_GROUP_MAX_DEVICES];
+  uint32_t ndevices; /* 0: one device, no group */
+  cli_memory mem;
+} replay_opts;
+
+/* One device's part of a frame (--devices): its share and region are the
+ * last pass's, its times and samples the frame's. */
+typedef struct device_row {
+  double share, busy_ms, raycast_ms;
+  uint64_t samples;
+  double strip_share; /* the tail strips it took (rp_group_desc) */
+} device_row;
+
+/* One recorded frame of one controller: what its runtime reported
+ * (rp_frame_stats). */
+typedef struct frame_row {
+  uint32_t frame;
+  int passes, tf_changed;
+  double target_ms, measured_ms, predicted_ms;
+  double pass_predicted_ms; /* the cost model's t' of the last pass */
+  double probe_ms;  /* the probe and the controller's decision */
+  double ao_ms;     /* the AO step (in measured_ms) */
+  int ao;           /* rendered with AO */
+  double upload_ms, upload_pred_ms; /* out of core: bricks uploaded, and
+                                       predicted */
+  double rho;
+  float step, scale;
+  double samples_est;
+  uint64_t samples;
+  double sigma_pred_ns, sigma_ns;
+  double imbalance; /* --devices: the last pass's */
+  device_row dev[RP_GROUP_MAX_DEVICES];
+} frame_row;
+
+/* The machine's timing noise, from the still frame's times (natural
+ * logs), within each stretch of frames that rendered the same TF and
+ * effects (a segment): about what a controller's error cannot go
+ * under, whatever its model. */
+typedef struct noise_floor {
+  uint32_t frames; /* 0: not measured */
+  uint32_t segments;
+  double rho, median_ms;
+  double sd;       /* against the segment's median: a model that knew
+                      each frame's cost exactly (an oracle) */
+  double sd_last;  /* against the frame before: last-frame's rule */
+  double sd_best;  /* the least of sd, sd_last and the EWMAs of
+                      NOISE_ALPHAS: the best of these predictors */
+  double max_over; /* slowest frame / its segment's median - 1 */
+} noise_floor;
+
+typedef struct summary {
+  rp_controller_kind kind;
+  uint32_t frames;
+  double rmse_ms, rmse_rel, max_over, share_over_20, mean_density;
+  double rmse_open_ms; /* over frames where the target was reachable */
+  double switch_over;  /* max overshoot on a TF switch and SWITCH_AFTER
+                          frames after it; 0 without switches */
+  double pred_rmse_ms, sigma_err_30, overhead_ms, mean_ms, mean_target;
+  double mean_imbalance; /* --devices */
+  uint32_t devices_alive; /* --devices: at the end of the run */
+} summary;
+
+/* What the report needs of a finished replay. */
+typedef struct replay_result {
+  const replay_opts *o;
+  const rp_sequence *seq;
+  uint32_t frames;
+  rp_space_desc space;
+  double full_ms;        /* the frame without adaptation, at the start */
+  noise_floor noise;
+  char device_names[RP_GROUP_MAX_DEVICES][168]; /* --devices */
+  const double *still_ms;      /* per recorded frame, or NULL */
+  const uint32_t *still_seg;
+} replay_result;
+
+/* ---- replay_report.c ---------------------------------------------------- */
+
+/* The spread of n still-frame times `ms` in segments `seg` into *out
+ * (its rho kept); `work` holds n doubles. */
+void replay_noise_stats(const double *ms, const uint32_t *seg, uint32_t n,
+                        double *work, noise_floor *out);
+void replay_summarise(rp_controller_kind kind, const frame_row *rows,
+                      uint32_t n, double rho_max, summary *s);
+/* The goals as ratios within this run; NaN where the controllers a
+ * figure compares were not played. */
+void replay_goals(const replay_result *r, const summary *sums, int nctl,
+                  cli_pacing_goals *g);
+void replay_goals_clear(cli_pacing_goals *g);
+/* The outputs the options ask for: table and goal line, or JSON; the
+ * CSV, the noise CSV and the plots. 0, or 1 (printed). */
+int replay_report(const replay_result *r, const summary *sums,
+                  frame_row *const *rows, int nctl);
+
+#endif

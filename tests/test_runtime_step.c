@@ -1,0 +1,308 @@
+/* The runtime in manual pacing (RP_PACE_MANUAL, rp_runtime_step): the
+ * same engine frame as on a loop, run on the caller's thread. Frames
+ * render on the reference device, checked against rp_render_reference
+ * (an oracle outside the runtime); the loop-driven runtime on the same
+ * events is the second witness: it must deliver the same images and run
+ * the same passes. Also the controller's density (rp_runtime_set_density)
+ * and a TF switched away and back while AO is being computed. */
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+#include <uv.h>
+
+#include "raypace_ao.h"
+#include "raypace_runtime.h"
+#include "test_util.h"
+
+#define W 40
+#define H 32
+#define EFFECTS (RP_EFFECT_ERT | RP_EFFECT_SKIP)
+#define FRAMES 6
+
+typedef struct seen {
+  int frames;
+  rp_frame_stats last;
+  uint8_t image[FRAMES + 1][W * H * 4];
+  uint8_t latest[W * H * 4];
+  int has_image;
+  int step_in_callback; /* tries rp_runtime_step from the callback */
+  int step_err;
+} seen;
+
+static void on_frame(rp_runtime *rt, const rp_frame *f, void *user) {
+  seen *s = user;
+  s->last = *f->stats;
+  s->has_image = f->rgba != NULL;
+  if (f->rgba != NULL && s->frames <= FRAMES)
+    memcpy(s->image[s->frames], f->rgba, W * H * 4);
+  if (f->rgba != NULL)
+    memcpy(s->latest, f->rgba, W * H * 4);
+  s->frames++;
+  if (s->step_in_callback)
+    s->step_err = rp_runtime_step(rt);
+}
+
+static rp_volume *make_volume(rp_context *ctx, uint32_t n) {
+  rp_generate_desc g = {0};
+  rp_volume *vol = NULL;
+  g.kind = RP_GEN_PHANTOM;
+  g.dims[0] = g.dims[1] = g.dims[2] = n;
+  assert_int_equal(rp_volume_generate(ctx, &g, &vol), 0);
+  return vol;
+}
+
+static rp_camera orbit(const rp_volume *vol, float az) {
+  rp_camera cam = {0};
+  rp_camera_orbit(&cam, vol, az, 20.0f, 2.2f);
+  return cam;
+}
+
+static void base_desc(rp_runtime_desc *d, seen *s, rp_pacing pacing) {
+  memset(d, 0, sizeof *d);
+  d->device.backend = "reference";
+  d->pacing = pacing;
+  d->on_frame = on_frame;
+  d->user = s;
+  d->width = W;
+  d->height = H;
+  d->effects = EFFECTS;
+  d->target_ms = 1000.0;
+}
+
+static void expect_reference_ao(rp_context *ctx, const rp_volume *vol,
+                                const rp_tf *tf, const rp_ao *ao,
+                                const rp_camera *cam, const uint8_t *got) {
+  rp_test_expect_reference(ctx, vol, tf, ao, cam, W, H, EFFECTS, got);
+}
+
+/* The events of frame i of a short script: a volume and TF at 0, the
+ * camera every frame, a TF switch at 3. */
+static void post_events(rp_runtime *rt, rp_context *ctx, int i,
+                        rp_tf *const *tfs) {
+  rp_volume *vol = make_volume(ctx, 24);
+  rp_camera cam = orbit(vol, 20.0f + 7.0f * (float)i);
+  if (i == 0) {
+    assert_int_equal(rp_runtime_set_volume(rt, vol), 0);
+    vol = NULL;
+  }
+  if (i == 0 || i == 3)
+    assert_int_equal(rp_runtime_set_tf(rt, tfs[i == 3]), 0);
+  assert_int_equal(rp_runtime_set_camera(rt, &cam), 0);
+  rp_volume_destroy(vol);
+}
+
+/* Manual pacing runs a frame inside rp_runtime_step and nowhere else:
+ * refusals first, then FRAMES frames, each the reference's image, with
+ * the passes its events ask for. */
+static void test_step(void **state) {
+  rp_context *ctx = rp_test_context();
+  rp_runtime_desc d;
+  rp_runtime *rt = NULL;
+  rp_tf *tfs[2] = {NULL, NULL};
+  rp_volume *oracle = make_volume(ctx, 24);
+  uv_loop_t loop;
+  seen *s = calloc(1, sizeof *s);
+  int i;
+  (void)state;
+  assert_non_null(s);
+  assert_int_equal(rp_tf_create_preset(ctx, "ct-soft", &tfs[0]), 0);
+  assert_int_equal(rp_tf_create_preset(ctx, "ct-bone", &tfs[1]), 0);
+  /* Manual pacing has no loop to be given. */
+  assert_int_equal(uv_loop_init(&loop), 0);
+  base_desc(&d, s, RP_PACE_MANUAL);
+  d.loop = &loop;
+  assert_int_equal(rp_runtime_create(ctx, &d, &rt), RP_EINVAL);
+  assert_non_null(strstr(rp_last_error(ctx), "desc->loop"));
+  assert_int_equal(uv_loop_close(&loop), 0);
+  base_desc(&d, s, RP_PACE_MANUAL);
+  assert_int_equal(rp_runtime_create(ctx, &d, &rt), 0);
+  /* Nothing to render yet; the other pacings' calls are refused. */
+  assert_int_equal(rp_runtime_step(rt), RP_ESTATE);
+  assert_int_equal(rp_runtime_request_frame(rt), RP_ESTATE);
+  assert_int_equal(rp_runtime_close(rt, NULL, NULL), RP_ESTATE);
+  assert_int_equal(s->frames, 0);
+  for (i = 0; i < FRAMES; i++) {
+    rp_camera cam = orbit(oracle, 20.0f + 7.0f * (float)i);
+    post_events(rt, ctx, i, tfs);
+    assert_int_equal(s->frames, i); /* posting runs nothing */
+    assert_int_equal(rp_runtime_step(rt), 0);
+    assert_int_equal(s->frames, i + 1); /* delivered before returning */
+    assert_int_equal(s->last.frame, (uint64_t)i);
+    assert_int_equal(s->last.status, 0);
+    assert_int_equal(s->last.counters.frames, (uint64_t)i + 1);
+    assert_int_equal(s->last.counters.histograms, 1);
+    assert_int_equal(s->last.counters.occupancies, i < 3 ? 1 : 2);
+    assert_int_equal(s->last.counters.probes, (uint64_t)i + 1);
+    assert_true(s->last.dispatch_ms == 0.0);
+    expect_reference_ao(ctx, oracle, tfs[i >= 3], NULL, &cam,
+                        s->image[i]);
+  }
+  /* No step inside a step. */
+  s->step_in_callback = 1;
+  s->step_err = 0;
+  assert_int_equal(rp_runtime_step(rt), 0);
+  assert_int_equal(s->step_err, RP_ESTATE);
+  assert_int_equal(s->frames, FRAMES + 1);
+  assert_int_equal(rp_runtime_destroy(rt), 0);
+  rp_tf_destroy(tfs[0]);
+  rp_tf_destroy(tfs[1]);
+  rp_volume_destroy(oracle);
+  rp_context_destroy(ctx);
+  free(s);
+}
+
+/* The same events through an app loop (on-request pacing) and through
+ * rp_runtime_step: the same images, bit for bit, and the same passes. */
+static void test_step_as_loop(void **state) {
+  rp_context *ctx = rp_test_context();
+  rp_runtime_desc d;
+  rp_runtime *manual = NULL, *looped = NULL;
+  rp_tf *tfs[2] = {NULL, NULL};
+  uv_loop_t loop;
+  seen *a = calloc(1, sizeof *a), *b = calloc(1, sizeof *b);
+  int i;
+  (void)state;
+  assert_non_null(a);
+  assert_non_null(b);
+  assert_int_equal(rp_tf_create_preset(ctx, "ct-soft", &tfs[0]), 0);
+  assert_int_equal(rp_tf_create_preset(ctx, "ct-bone", &tfs[1]), 0);
+  assert_int_equal(uv_loop_init(&loop), 0);
+  base_desc(&d, a, RP_PACE_MANUAL);
+  d.controller = RP_CONTROL_LAST_FRAME;
+  assert_int_equal(rp_runtime_create(ctx, &d, &manual), 0);
+  base_desc(&d, b, RP_PACE_ON_REQUEST);
+  d.controller = RP_CONTROL_LAST_FRAME;
+  d.loop = &loop;
+  assert_int_equal(rp_runtime_create(ctx, &d, &looped), 0);
+  for (i = 0; i < FRAMES; i++) {
+    post_events(manual, ctx, i, tfs);
+    post_events(looped, ctx, i, tfs);
+    assert_int_equal(rp_runtime_step(manual), 0);
+    assert_int_equal(rp_runtime_request_frame(looped), 0);
+    while (b->frames == i)
+      uv_run(&loop, UV_RUN_ONCE);
+    assert_int_equal(b->last.status, 0);
+    /* The target is far above a 40x32 frame: last-frame holds the top
+     * density on both, so the images compare. */
+    assert_true(a->last.rho == b->last.rho);
+    assert_memory_equal(a->image[i], b->image[i], W * H * 4);
+    assert_int_equal(a->last.counters.probes, b->last.counters.probes);
+    assert_int_equal(a->last.counters.occupancies,
+                     b->last.counters.occupancies);
+    assert_int_equal(a->last.counters.renders, b->last.counters.renders);
+  }
+  assert_int_equal(rp_runtime_destroy(manual), 0);
+  assert_int_equal(rp_runtime_close(looped, NULL, NULL), 0);
+  while (uv_run(&loop, UV_RUN_ONCE) != 0)
+    ;
+  assert_int_equal(uv_loop_close(&loop), 0);
+  rp_tf_destroy(tfs[0]);
+  rp_tf_destroy(tfs[1]);
+  rp_context_destroy(ctx);
+  free(a);
+  free(b);
+}
+
+/* The controller none renders the density it is given, from the desc and
+ * then from rp_runtime_set_density; densities outside the space's range
+ * are refused naming the value. */
+static void test_density(void **state) {
+  rp_context *ctx = rp_test_context();
+  rp_runtime_desc d;
+  rp_runtime *rt = NULL;
+  rp_tf *tfs[2] = {NULL, NULL};
+  seen *s = calloc(1, sizeof *s);
+  float step, scale;
+  (void)state;
+  assert_non_null(s);
+  assert_int_equal(rp_tf_create_preset(ctx, "ct-soft", &tfs[0]), 0);
+  base_desc(&d, s, RP_PACE_MANUAL);
+  d.space.space = RP_SPACE_HYBRID;
+  d.density = 2.0; /* over the hybrid space's top density, 1 */
+  assert_int_equal(rp_runtime_create(ctx, &d, &rt), RP_ERANGE);
+  assert_non_null(strstr(rp_last_error(ctx), "desc->density is 2"));
+  d.density = NAN;
+  assert_int_equal(rp_runtime_create(ctx, &d, &rt), RP_ENOTFINITE);
+  d.density = 0.25;
+  assert_int_equal(rp_runtime_create(ctx, &d, &rt), 0);
+  post_events(rt, ctx, 0, tfs);
+  assert_int_equal(rp_runtime_step(rt), 0);
+  assert_true(s->last.rho == 0.25);
+  rp_space_map(&d.space, 0.25, &step, &scale);
+  assert_true(s->last.step == step && s->last.scale == scale);
+  assert_int_equal(rp_runtime_set_density(rt, 0.5), 0);
+  assert_int_equal(rp_runtime_step(rt), 0);
+  assert_true(s->last.rho == 0.5);
+  assert_int_equal(rp_runtime_set_density(rt, 0.0), RP_ERANGE);
+  assert_int_equal(rp_runtime_set_density(rt, INFINITY), RP_ENOTFINITE);
+  assert_int_equal(rp_runtime_set_density(rt, 1.5), RP_ERANGE);
+  assert_int_equal(rp_runtime_step(rt), 0);
+  assert_true(s->last.rho == 0.5); /* refused: nothing changed */
+  assert_int_equal(rp_runtime_destroy(rt), 0);
+  rp_tf_destroy(tfs[0]);
+  rp_context_destroy(ctx);
+  free(s);
+}
+
+/* AO held for a TF, a switch to another whose AO takes several frames,
+ * and back (a copy of the first, as an app posts it) before that is
+ * done: the devices still hold the first TF's AO, so the frame renders
+ * with it at once, the reference's image with the reference's AO, and no
+ * AO is computed again. */
+static void test_ao_switch_back(void **state) {
+  rp_context *ctx = rp_test_context();
+  rp_runtime_desc d;
+  rp_runtime *rt = NULL;
+  rp_tf *tfs[2] = {NULL, NULL}, *copy = NULL;
+  rp_volume *oracle = make_volume(ctx, 24);
+  rp_camera cam = orbit(oracle, 20.0f);
+  rp_runtime_counters c;
+  rp_ao *ao = NULL;
+  seen *s = calloc(1, sizeof *s);
+  int n;
+  (void)state;
+  assert_non_null(s);
+  assert_int_equal(rp_tf_create_preset(ctx, "ct-soft", &tfs[0]), 0);
+  assert_int_equal(rp_tf_create_preset(ctx, "ct-bone", &tfs[1]), 0);
+  assert_int_equal(rp_tf_create_preset(ctx, "ct-soft", &copy), 0);
+  base_desc(&d, s, RP_PACE_MANUAL);
+  d.effects = EFFECTS | RP_EFFECT_AO;
+  d.ao_frame_share = 0.002; /* 2 ms of the target: a block a frame */
+  assert_int_equal(rp_runtime_create(ctx, &d, &rt), 0);
+  post_events(rt, ctx, 0, tfs);
+  for (n = 0; n < 300 && !(s->last.effects & RP_EFFECT_AO); n++)
+    assert_int_equal(rp_runtime_step(rt), 0);
+  assert_true(s->last.effects & RP_EFFECT_AO);
+  assert_int_equal(rp_runtime_set_tf(rt, tfs[1]), 0);
+  assert_int_equal(rp_runtime_step(rt), 0);
+  assert_false(s->last.effects & RP_EFFECT_AO); /* the run has begun */
+  assert_true(s->last.ao_progress > 0.0 && s->last.ao_progress < 1.0);
+  assert_int_equal(rp_runtime_set_tf(rt, copy), 0);
+  assert_int_equal(rp_runtime_step(rt), 0);
+  assert_true(s->last.effects & RP_EFFECT_AO);
+  assert_true(s->last.ao_progress == 0.0); /* no run */
+  rp_runtime_get_counters(rt, &c);
+  assert_int_equal(c.ao_computes, 1);
+  assert_int_equal(rp_ao_compute_reference(ctx, oracle, tfs[0], NULL, NULL,
+                                           NULL, &ao),
+                   0);
+  expect_reference_ao(ctx, oracle, tfs[0], ao, &cam, s->latest);
+  rp_ao_destroy(ao);
+  assert_int_equal(rp_runtime_destroy(rt), 0);
+  rp_tf_destroy(tfs[0]);
+  rp_tf_destroy(tfs[1]);
+  rp_tf_destroy(copy);
+  rp_volume_destroy(oracle);
+  rp_context_destroy(ctx);
+  free(s);
+}
+
+int main(void) {
+  const struct CMUnitTest tests[] = {
+      cmocka_unit_test(test_step),
+      cmocka_unit_test(test_step_as_loop),
+      cmocka_unit_test(test_density),
+      cmocka_unit_test(test_ao_switch_back),
+  };
+  return cmocka_run_group_tests(tests, NULL, NULL);
+}
