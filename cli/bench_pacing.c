@@ -180,7 +180,45 @@ static int print_json(const char *sequence, int runs,
   return 0;
 }
 
-int cli_cmd_bench_pacing(int argc, char **argv) {
+/* What the command line asks for. */
+typedef struct pacing_opts {
+  const char *seqs[MAX_SEQUENCES], *volume;
+  int nseq;
+  char *passed[2 * MAX_PASSED]; /* option, value pairs for replay */
+  char names[MAX_PASSED][24];   /* "--" and a name of the options */
+  int npassed;
+  char seq_list[4096];
+  uint32_t runs;
+  int json, quiet;
+} pacing_opts;
+
+/* The sequences to play: --sequences, or every built-in. 0 or 2. */
+static int sequences_of(pacing_opts *o) {
+  char *tok, *save = NULL;
+  if (o->seq_list[0] == '\0') {
+    const char *const *builtins = rp_sequence_builtin_names();
+    for (; builtins[o->nseq] != NULL && o->nseq < MAX_SEQUENCES; o->nseq++)
+      o->seqs[o->nseq] = builtins[o->nseq];
+    return 0;
+  }
+  for (tok = strtok_r(o->seq_list, ",", &save); tok != NULL;
+       tok = strtok_r(NULL, ",", &save)) {
+    if (o->nseq == MAX_SEQUENCES) {
+      fprintf(stderr, "raypace bench pacing: more than %d sequences\n",
+              MAX_SEQUENCES);
+      return 2;
+    }
+    o->seqs[o->nseq++] = tok;
+  }
+  if (o->nseq == 0) {
+    fprintf(stderr, "raypace bench pacing: --sequences names none\n");
+    return 2;
+  }
+  return 0;
+}
+
+/* 0, 1 after --help (printed), or 2 (printed). */
+static int parse_opts(int argc, char **argv, pacing_opts *o) {
   static const struct option opts[] = {
       {"sequences", required_argument, 0, 'q'},
       {"runs", required_argument, 0, 'r'},
@@ -200,46 +238,40 @@ int cli_cmd_bench_pacing(int argc, char **argv) {
       {"frames", required_argument, 0, 'p'},
       {"seed", required_argument, 0, 'p'},
       {0, 0, 0, 0}};
-  const char *seqs[MAX_SEQUENCES], *volume;
-  char *passed[2 * MAX_PASSED];
-  char names[MAX_PASSED][24]; /* "--" and a name of opts */
-  char seq_list[4096] = "";
-  char *args[9 + 2 * MAX_PASSED];
-  double(*each)[FIGURES] = NULL;
-  double median[FIGURES], column[MAX_RUNS];
-  uint32_t runs = 3;
-  int nseq = 0, npassed = 0, json = 0, quiet = 0, c, li = 0, rc = 0;
-  int s, i, k;
+  int c, li = 0;
+  memset(o, 0, sizeof *o);
+  o->runs = 3;
   optind = 0; /* as replay's: forget any scan before */
   while ((c = getopt_long(argc, argv, "h", opts, &li)) != -1) {
     switch (c) {
     case 'q':
-      if (strlen(optarg) >= sizeof seq_list) {
+      if (strlen(optarg) >= sizeof o->seq_list) {
         fprintf(stderr, "raypace bench pacing: --sequences too long\n");
         return 2;
       }
-      strcpy(seq_list, optarg);
+      strcpy(o->seq_list, optarg);
       break;
     case 'r':
-      if (cli_parse_u32(optarg, MAX_RUNS, &runs) != 0 || runs == 0) {
+      if (cli_parse_u32(optarg, MAX_RUNS, &o->runs) != 0 || o->runs == 0) {
         fprintf(stderr, "raypace bench pacing: bad value '%s' for --runs "
                         "(1..%d)\n", optarg, MAX_RUNS);
         return 2;
       }
       break;
-    case 'j': json = 1; break;
-    case 'Q': quiet = 1; break;
-    case 'h': usage(stdout); return 0;
+    case 'j': o->json = 1; break;
+    case 'Q': o->quiet = 1; break;
+    case 'h': usage(stdout); return 1;
     case 'p':
-      if (npassed == MAX_PASSED) {
+      if (o->npassed == MAX_PASSED) {
         fprintf(stderr, "raypace bench pacing: more than %d options to "
                         "pass to replay\n", MAX_PASSED);
         return 2;
       }
-      snprintf(names[npassed], sizeof names[0], "--%s", opts[li].name);
-      passed[2 * npassed] = names[npassed];
-      passed[2 * npassed + 1] = optarg;
-      npassed++;
+      snprintf(o->names[o->npassed], sizeof o->names[0], "--%s",
+               opts[li].name);
+      o->passed[2 * o->npassed] = o->names[o->npassed];
+      o->passed[2 * o->npassed + 1] = optarg;
+      o->npassed++;
       break;
     default: usage(stderr); return 2;
     }
@@ -249,98 +281,100 @@ int cli_cmd_bench_pacing(int argc, char **argv) {
     return 2;
   }
   /* Each replay parses its own options: optind is not ours after. */
-  volume = argv[optind];
-  if (seq_list[0] != '\0') {
-    char *tok, *save = NULL;
-    for (tok = strtok_r(seq_list, ",", &save); tok != NULL;
-         tok = strtok_r(NULL, ",", &save)) {
-      if (nseq == MAX_SEQUENCES) {
-        fprintf(stderr, "raypace bench pacing: more than %d sequences\n",
-                MAX_SEQUENCES);
-        return 2;
-      }
-      seqs[nseq++] = tok;
-    }
-    if (nseq == 0) {
-      fprintf(stderr, "raypace bench pacing: --sequences names none\n");
-      return 2;
-    }
-  } else {
-    const char *const *builtins = rp_sequence_builtin_names();
-    for (; builtins[nseq] != NULL && nseq < MAX_SEQUENCES; nseq++)
-      seqs[nseq] = builtins[nseq];
+  o->volume = argv[optind];
+  return sequences_of(o);
+}
+
+/* Run i of sequence `seq`: one replay of every controller, its figures
+ * into f. */
+static int play_run(const pacing_opts *o, const char *seq, int i,
+                    double *f) {
+  char *args[9 + 2 * MAX_PASSED];
+  cli_pacing_goals g;
+  int n = 0, k, rc;
+  args[n++] = "replay";
+  args[n++] = "--sequence";
+  args[n++] = (char *)seq;
+  args[n++] = "--controller";
+  args[n++] = "all";
+  args[n++] = "--quiet";
+  for (k = 0; k < 2 * o->npassed; k++)
+    args[n++] = o->passed[k];
+  /* A volume named like an option is still the volume. */
+  args[n++] = "--";
+  args[n++] = (char *)o->volume;
+  args[n] = NULL;
+  if ((rc = cli_replay_goals(n, args, &g)) != 0) {
+    fprintf(stderr, "raypace bench pacing: %s, run %d failed\n", seq,
+            i + 1);
+    return rc;
   }
-  each = malloc((size_t)nseq * runs * sizeof *each);
+  figures_of(&g, f);
+  if (!o->quiet) {
+    fprintf(stderr, "bench pacing: %s run %d/%u:", seq, i + 1, o->runs);
+    progress_figure(" ratio", g.ratio, 1, "");
+    progress_figure(", reachable", g.ratio_open, 1, "");
+    progress_figure(", from noise", g.ratio_noise, 1, "");
+    progress_figure(", max overshoot", g.max_over, 100, "%");
+    fputc('\n', stderr);
+  }
+  return 0;
+}
+
+/* Every run of sequence s, then its medians' row (or JSON). */
+static int play_sequence(const pacing_opts *o, int s,
+                         double (*run)[FIGURES]) {
+  double median[FIGURES], column[MAX_RUNS];
+  char met[5];
+  int i, k, rc;
+  for (i = 0; i < (int)o->runs; i++)
+    if ((rc = play_run(o, o->seqs[s], i, run[i])) != 0)
+      return rc;
+  for (k = 0; k < FIGURES; k++) {
+    for (i = 0; i < (int)o->runs; i++)
+      column[i] = run[i][k];
+    median[k] = finite_median(column, (int)o->runs);
+  }
+  if (o->json)
+    return print_json(o->seqs[s], (int)o->runs, run, median);
+  print_row(o->seqs[s], median);
+  goals_met(median, met);
+  printf("  met %s\n", met);
+  fflush(stdout);
+  return 0;
+}
+
+int cli_cmd_bench_pacing(int argc, char **argv) {
+  pacing_opts o;
+  double(*each)[FIGURES] = NULL;
+  int rc, s, i, k;
+  if ((rc = parse_opts(argc, argv, &o)) != 0)
+    return rc == 1 ? 0 : rc;
+  each = malloc((size_t)o.nseq * o.runs * sizeof *each);
   if (each == NULL) {
     fprintf(stderr, "raypace bench pacing: out of memory\n");
     return 1;
   }
-  if (!json) {
+  if (!o.json) {
     printf("bench pacing: %s, %u run%s per sequence, every controller",
-           volume, runs, runs == 1 ? "" : "s");
-    for (k = 0; k < npassed; k++)
-      printf("%s%s %s", k == 0 ? " (" : " ", passed[2 * k],
-             passed[2 * k + 1]);
-    printf("%s; medians over the runs\n", npassed > 0 ? ")" : "");
+           o.volume, o.runs, o.runs == 1 ? "" : "s");
+    for (k = 0; k < o.npassed; k++)
+      printf("%s%s %s", k == 0 ? " (" : " ", o.passed[2 * k],
+             o.passed[2 * k + 1]);
+    printf("%s; medians over the runs\n", o.npassed > 0 ? ")" : "");
     print_header();
   }
-  for (s = 0; s < nseq; s++) {
-    double(*run)[FIGURES] = each + (size_t)s * runs;
-    char met[5];
-    for (i = 0; i < (int)runs; i++) {
-      cli_pacing_goals g;
-      int n = 0;
-      args[n++] = "replay";
-      args[n++] = "--sequence";
-      args[n++] = (char *)seqs[s];
-      args[n++] = "--controller";
-      args[n++] = "all";
-      args[n++] = "--quiet";
-      for (k = 0; k < 2 * npassed; k++)
-        args[n++] = passed[k];
-      /* A volume named like an option is still the volume. */
-      args[n++] = "--";
-      args[n++] = (char *)volume;
-      args[n] = NULL;
-      if ((rc = cli_replay_goals(n, args, &g)) != 0) {
-        fprintf(stderr, "raypace bench pacing: %s, run %d failed\n",
-                seqs[s], i + 1);
-        goto out;
-      }
-      figures_of(&g, run[i]);
-      if (!quiet) {
-        fprintf(stderr, "bench pacing: %s run %d/%u:", seqs[s], i + 1,
-                runs);
-        progress_figure(" ratio", g.ratio, 1, "");
-        progress_figure(", reachable", g.ratio_open, 1, "");
-        progress_figure(", from noise", g.ratio_noise, 1, "");
-        progress_figure(", max overshoot", g.max_over, 100, "%");
-        fputc('\n', stderr);
-      }
-    }
-    for (k = 0; k < FIGURES; k++) {
-      for (i = 0; i < (int)runs; i++)
-        column[i] = run[i][k];
-      median[k] = finite_median(column, (int)runs);
-    }
-    if (json) {
-      if ((rc = print_json(seqs[s], (int)runs, run, median)) != 0)
-        goto out;
-      continue;
-    }
-    print_row(seqs[s], median);
-    goals_met(median, met);
-    printf("  met %s\n", met);
-    fflush(stdout);
-  }
-  if (!json && runs > 1) {
+  for (s = 0; s < o.nseq; s++)
+    if ((rc = play_sequence(&o, s, each + (size_t)s * o.runs)) != 0)
+      goto out;
+  if (!o.json && o.runs > 1) {
     printf("each run:\n");
     print_header();
-    for (s = 0; s < nseq; s++)
-      for (i = 0; i < (int)runs; i++) {
+    for (s = 0; s < o.nseq; s++)
+      for (i = 0; i < (int)o.runs; i++) {
         char name[80];
-        snprintf(name, sizeof name, "%.56s #%d", seqs[s], i + 1);
-        print_row(name, each[(size_t)s * runs + i]);
+        snprintf(name, sizeof name, "%.56s #%d", o.seqs[s], i + 1);
+        print_row(name, each[(size_t)s * o.runs + i]);
         printf("\n");
       }
   }

@@ -138,6 +138,44 @@ static void usage(FILE *f) {
       "controllers\n");
 }
 
+/* The options' combinations; 0, or 2 (printed). */
+static int check_opts(replay_opts *o) {
+  uint32_t i;
+  if (o->target_ms > 0 && o->target_fraction > 0) {
+    fprintf(stderr, "raypace replay: --target-ms and --target-fraction "
+                    "exclude each other\n");
+    return 2;
+  }
+  if (o->min_step > o->base_step) {
+    fprintf(stderr, "raypace replay: --min-step %g is over the base step "
+                    "%g\n", (double)o->min_step, (double)o->base_step);
+    return 2;
+  }
+  if (o->devices_spec != NULL && o->device_given) {
+    fprintf(stderr, "raypace replay: --devices excludes --backend and "
+                    "--device\n");
+    return 2;
+  }
+  if (o->noise_csv != NULL && (o->no_noise || o->devices_spec != NULL)) {
+    fprintf(stderr, "raypace replay: --noise-csv needs the still frame, "
+                    "which %s\n", o->no_noise ? "--no-noise turns off"
+                                              : "a group does not render "
+                                                "(not with --devices)");
+    return 2;
+  }
+  if (o->devices_spec != NULL && o->trace != NULL) {
+    fprintf(stderr, "raypace replay: --trace records one device's cost "
+                    "model; a group has one per device (not with "
+                    "--devices)\n");
+    return 2;
+  }
+  for (i = 0; i < o->ndevices; i++) {
+    o->devices[i].budget_bytes = o->mem.budget_bytes;
+    o->devices[i].brick_size = o->mem.brick_size;
+  }
+  return 0;
+}
+
 static int parse_opts(int argc, char **argv, replay_opts *o) {
   static const struct option opts[] = {
       {"sequence", required_argument, 0, 'q'},
@@ -233,38 +271,8 @@ static int parse_opts(int argc, char **argv, replay_opts *o) {
       return 2;
     }
   }
-  if (o->target_ms > 0 && o->target_fraction > 0) {
-    fprintf(stderr, "raypace replay: --target-ms and --target-fraction "
-                    "exclude each other\n");
+  if (check_opts(o) != 0)
     return 2;
-  }
-  if (o->min_step > o->base_step) {
-    fprintf(stderr, "raypace replay: --min-step %g is over the base step "
-                    "%g\n", (double)o->min_step, (double)o->base_step);
-    return 2;
-  }
-  if (o->devices_spec != NULL && o->device_given) {
-    fprintf(stderr, "raypace replay: --devices excludes --backend and "
-                    "--device\n");
-    return 2;
-  }
-  if (o->noise_csv != NULL && (o->no_noise || o->devices_spec != NULL)) {
-    fprintf(stderr, "raypace replay: --noise-csv needs the still frame, "
-                    "which %s\n", o->no_noise ? "--no-noise turns off"
-                                              : "a group does not render "
-                                                "(not with --devices)");
-    return 2;
-  }
-  if (o->devices_spec != NULL && o->trace != NULL) {
-    fprintf(stderr, "raypace replay: --trace records one device's cost "
-                    "model; a group has one per device (not with "
-                    "--devices)\n");
-    return 2;
-  }
-  for (c = 0; c < (int)o->ndevices; c++) {
-    o->devices[c].budget_bytes = o->mem.budget_bytes;
-    o->devices[c].brick_size = o->mem.brick_size;
-  }
   if (o->list)
     return optind == argc ? 0 : (usage(stderr), 2);
   if (optind + 1 != argc) {
