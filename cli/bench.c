@@ -419,6 +419,78 @@ static int print_json(const quality_opts *o, const rp_caps *caps,
   return ok ? 0 : 1;
 }
 
+/* Every density of the grid in every space: its median time over the
+ * runs, and its image against the reference. */
+static int sweep(bench *b, rp_device *dev, const quality_opts *o,
+                 const double *grid, int per_space, const uint8_t *ref,
+                 sweep_point *pts) {
+  int i, s, err;
+  /* Densities outermost, so that a slow drift of the machine (a neighbour
+   * starting a build) shifts every space alike rather than one. */
+  for (i = 0; i < per_space; i++)
+    for (s = 0; s < SPACES; s++) {
+      rp_space_desc sd = {0};
+      sweep_point *p = &pts[s * per_space + i];
+      sd.space = spaces[s];
+      sd.base_step = o->base_step;
+      p->space = spaces[s];
+      p->rho = grid[i];
+      rp_space_map(&sd, p->rho, &p->step, &p->scale);
+      if (measure(b, dev, p->step, p->scale, o->runs, &p->sw, &p->sh,
+                  &p->ms) != 0)
+        return 1;
+      if ((err = rp_image_compare(b->ctx, b->out, ref, o->width, o->height,
+                                  &p->m)) != 0)
+        return cli_error(b->ctx, "compare", err);
+    }
+  return 0;
+}
+
+/* The best image each space gives within each budget; returns the
+ * budgets' base, the frame at rho = 1: the same setting in every space,
+ * so the median of its three measurements. */
+static double budgets_of(const sweep_point *pts, int per_space,
+                         budget_point budgets[BUDGETS][SPACES]) {
+  double t1s[SPACES], t1;
+  int i, s;
+  for (s = 0; s < SPACES; s++)
+    t1s[s] = pts[s * per_space].ms;
+  t1 = cli_median(t1s, SPACES);
+  for (i = 0; i < BUDGETS; i++)
+    for (s = 0; s < SPACES; s++)
+      budgets[i][s] = at_budget(&pts[s * per_space], per_space,
+                                budget_fractions[i] * t1);
+  return t1;
+}
+
+/* The table or JSON, then --csv (closing *csv) and --plot. */
+static int report_quality(const quality_opts *o, const rp_caps *caps,
+                          const char *ref_backend, double ref_ms,
+                          const sweep_point *pts, int per_space,
+                          budget_point budgets[BUDGETS][SPACES], double t1,
+                          FILE **csv) {
+  int n = SPACES * per_space, rc = 0;
+  if (o->json)
+    rc = print_json(o, caps, ref_backend, ref_ms, pts, n, budgets, t1);
+  else
+    print_budgets(budgets, t1);
+  if (*csv != NULL) {
+    FILE *f = *csv;
+    *csv = NULL;
+    if (write_csv(f, o->csv, pts, n) != 0)
+      rc = 1;
+    else if (!o->json)
+      printf("\nwrote %s\n", o->csv);
+  }
+  if (o->plot != NULL) {
+    if (write_plot(o, caps->backend, pts, per_space) != 0)
+      rc = 1;
+    else if (!o->json)
+      printf("wrote %s\n", o->plot);
+  }
+  return rc;
+}
+
 static int bench_quality(int argc, char **argv) {
   quality_opts o;
   bench b;
@@ -431,8 +503,8 @@ static int bench_quality(int argc, char **argv) {
   const double *grid;
   uint8_t *ref = NULL;
   uint32_t sw, sh;
-  double ref_ms = 0, t1, t1s[SPACES];
-  int per_space, n, s, i, err, rc;
+  double ref_ms = 0, t1;
+  int per_space, n, i, err, rc;
   if ((rc = parse_quality(argc, argv, &o)) != 0)
     return rc == 1 ? 0 : rc;
   rc = 1;
@@ -506,59 +578,15 @@ static int bench_quality(int argc, char **argv) {
     printf("%-7s %7s %6s %6s %11s %9s %10s %7s %7s\n", "space", "rho",
            "step", "scale", "rays", "ms", "MSE", "PSNR", "SSIM");
   }
-  /* Densities outermost, so that a slow drift of the machine (a neighbour
-   * starting a build) shifts every space alike rather than one. */
-  for (i = 0; i < per_space; i++)
-    for (s = 0; s < SPACES; s++) {
-      rp_space_desc sd = {0};
-      sweep_point *p = &pts[s * per_space + i];
-      sd.space = spaces[s];
-      sd.base_step = o.base_step;
-      p->space = spaces[s];
-      p->rho = grid[i];
-      rp_space_map(&sd, p->rho, &p->step, &p->scale);
-      if (measure(&b, dev, p->step, p->scale, o.runs, &p->sw, &p->sh,
-                  &p->ms) != 0)
-        goto out;
-      if ((err = rp_image_compare(b.ctx, b.out, ref, o.width, o.height,
-                                  &p->m)) != 0) {
-        cli_error(b.ctx, "compare", err);
-        goto out;
-      }
-    }
+  if (sweep(&b, dev, &o, grid, per_space, ref, pts) != 0)
+    goto out;
   n = SPACES * per_space;
   if (!o.json)
     for (i = 0; i < n; i++)
       print_row(&pts[i]);
-  /* rho = 1 is the same setting in every space: the budgets' base is the
-   * median of its three measurements. */
-  for (s = 0; s < SPACES; s++)
-    t1s[s] = pts[s * per_space].ms;
-  t1 = cli_median(t1s, SPACES);
-  for (i = 0; i < BUDGETS; i++)
-    for (s = 0; s < SPACES; s++)
-      budgets[i][s] = at_budget(&pts[s * per_space], per_space,
-                                budget_fractions[i] * t1);
-  rc = 0;
-  if (o.json)
-    rc = print_json(&o, &caps, ref_caps.backend, ref_ms, pts, n, budgets,
-                    t1);
-  else
-    print_budgets(budgets, t1);
-  if (csv != NULL) {
-    FILE *f = csv;
-    csv = NULL;
-    if (write_csv(f, o.csv, pts, n) != 0)
-      rc = 1;
-    else if (!o.json)
-      printf("\nwrote %s\n", o.csv);
-  }
-  if (o.plot != NULL) {
-    if (write_plot(&o, caps.backend, pts, per_space) != 0)
-      rc = 1;
-    else if (!o.json)
-      printf("wrote %s\n", o.plot);
-  }
+  t1 = budgets_of(pts, per_space, budgets);
+  rc = report_quality(&o, &caps, ref_caps.backend, ref_ms, pts, per_space,
+                      budgets, t1, &csv);
 out:
   if (csv != NULL)
     fclose(csv);
