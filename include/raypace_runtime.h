@@ -1,4 +1,6 @@
-/* raypace runtime: the frame pipeline an app embeds (DESIGN section 1).
+/* Product tier (README, "Headers"): the interface an app is supported on.
+ *
+ * raypace runtime: the frame pipeline an app embeds (DESIGN section 1).
  *
  * An rp_runtime lives on a libuv loop: the app's own (desc.loop), or one
  * the runtime makes and runs on a thread of its own (desc.loop NULL). The
@@ -45,8 +47,6 @@
 
 #include "raypace.h"
 #include "raypace_ao.h"
-#include "raypace_balance.h"
-#include "raypace_pace.h"
 
 #ifdef __cplusplus
 extern "C" {

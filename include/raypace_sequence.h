@@ -1,4 +1,8 @@
-/* raypace sequences: scripted interaction, replayed frame by frame.
+/* Lab tier (README, "Headers"): public for research use, and may change
+ * between minor versions. An app embedding the runtime needs none of it:
+ * every setting it makes is declared in the product headers.
+ *
+ * raypace sequences: scripted interaction, replayed frame by frame.
  *
  * A sequence is a JSON document (docs/sequences.md) that says, for every
  * frame of a fixed count, where the camera is, which transfer function is
