@@ -1,6 +1,7 @@
-# Installs the library alone into a scratch prefix, then builds a tiny
-# consumer against it twice: through find_package(raypace) and through
-# pkg-config; then compiles each installed header on its own.
+# Installs the library alone into a scratch prefix, checks that nothing
+# installed needs cJSON, then builds a tiny consumer against it twice:
+# through find_package(raypace) and through pkg-config; then compiles
+# each installed header on its own.
 file(REMOVE_RECURSE ${BIN})
 file(MAKE_DIRECTORY ${BIN})
 set(prefix ${BIN}/prefix)
@@ -20,6 +21,19 @@ run(${CMAKE_COMMAND} -S ${SRC} -B ${BIN}/lib -G ${GENERATOR}
   -DCMAKE_INSTALL_PREFIX=${prefix})
 run(${CMAKE_COMMAND} --build ${BIN}/lib -j2)
 run(${CMAKE_COMMAND} --install ${BIN}/lib)
+
+# 0. The library stands without cJSON (sequences are the raypace
+# command's): no installed file names it, neither as a dependency in the
+# package files nor as a needed library or symbol in the binaries, whose
+# dynamic string tables and archive symbol tables file(STRINGS) reads.
+file(GLOB_RECURSE files ${prefix}/*)
+foreach(f ${files})
+  file(STRINGS ${f} hits REGEX "[cC][jJ][sS][oO][nN]")
+  if(hits)
+    list(GET hits 0 hit)
+    message(FATAL_ERROR "${f} still names cJSON: ${hit}")
+  endif()
+endforeach()
 
 # 1. CMake package, static and shared targets.
 run(${CMAKE_COMMAND} -S ${SRC}/tests/install/consumer -B ${BIN}/consumer
