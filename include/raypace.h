@@ -1,4 +1,6 @@
-/* raypace: volume raycasting held at a fixed frame rate.
+/* Product tier (README, "Headers"): the interface an app is supported on.
+ *
+ * raypace: volume raycasting held at a fixed frame rate.
  *
  * Conventions used throughout this header:
  * - Every object is an opaque handle made by rp_X_create (or a loader) and
@@ -563,6 +565,104 @@ RP_API int rp_image_compare(rp_context *ctx, const uint8_t *a,
 RP_API int rp_write_png(rp_context *ctx, const char *path,
                         const uint8_t *rgba, uint32_t width,
                         uint32_t height, const float *background);
+
+/* ---- Pacing settings -------------------------------------------------- */
+
+/* What an app chooses for the runtime (rp_runtime_desc,
+ * raypace_runtime.h): where quality is traded for time, which rule picks
+ * each frame's density, the cost model's knobs and how device shares
+ * move. The machinery behind them (the density mapping, the tuner, the
+ * controller objects, the cost model, the balancer) is the lab tier:
+ * raypace_pace.h and raypace_balance.h. */
+
+/** Where quality is traded for time. Density rho = scale^2 * base_step /
+ *  step: 1 is the base step at full resolution; frame time is close to
+ *  linear in it (rays x samples per ray). Above 1 (min_step under
+ *  base_step), only the step refines: the image is never rendered above
+ *  the output's resolution, and pure image space stops at 1. */
+typedef enum rp_space {
+  RP_SPACE_RAY = 0,    /* step changes, full resolution */
+  RP_SPACE_IMAGE = 1,  /* image scale changes (upscaled to the output) */
+  RP_SPACE_HYBRID = 2  /* both */
+} rp_space;
+
+/** Bounds of the tuning spaces; zero fields take the defaults. */
+typedef struct rp_space_desc {
+  rp_space space;
+  float base_step;   /* step at rho = 1, voxels; 0: 1.0 */
+  float max_step;    /* coarsest step; 0: 16 * base_step */
+  float min_scale;   /* smallest image scale; 0: 0.125 */
+  float min_step;    /* finest step; 0 (or above base_step): base_step,
+                        no density above 1. The cost model's step
+                        feature stops at 1/8 voxel (S' does not).
+                        \since 0.2 */
+} rp_space_desc;
+
+/** "ray", "image", "hybrid"; and the reverse (RP_EINVAL if unknown).
+ *  \since 0.1 */
+RP_API const char *rp_space_name(rp_space space);
+RP_API int rp_space_from_name(const char *name, rp_space *out);
+
+/** The rules; runtime/control.c states each one exactly and cites its
+ *  source. Every rule decides at rp_controller_begin_frame from the
+ *  frames before and this frame's target, and never emits NaN or a rho
+ *  outside [rho_min, rho_max]. */
+typedef enum rp_controller_kind {
+  RP_CONTROL_NONE = 0,       /* rho_start every frame */
+  RP_CONTROL_LAST_FRAME = 1, /* rho_last * target / t_last, damped */
+  RP_CONTROL_TWO_PASS = 2,   /* pass at rho_last / 4; if under half the
+                                target, extrapolate to the rest and
+                                render again */
+  RP_CONTROL_PREDICTED = 3,  /* ours: rp_tune on the caller's model;
+                                no rise after a frame that took over
+                                1.5x its prediction; a damped rise
+                                lifted at half the target (lift 0.5)
+                                after one within 1.2x of it, on a
+                                scene still priced within 1.2x */
+  RP_CONTROL_VTK = 4,        /* isd' = isd sqrt(t_last f / target),
+                                isd in [1, 10], rho = 1 / isd^2 */
+  RP_CONTROL_UE5 = 5,        /* UE5 dynamic resolution, rho = s^2 */
+  RP_CONTROL_VALVE = 6,      /* Valve's adaptive quality: a ladder of
+                                15 % fill-rate steps */
+  RP_CONTROL_COUNT = 7
+} rp_controller_kind;
+
+/** "none", "last-frame", "two-pass", "predicted", "vtk", "ue5", "valve"
+ *  ("unknown" out of range); from_name is its reverse (RP_EINVAL if
+ *  unknown). \since 0.1 */
+RP_API const char *rp_controller_name(rp_controller_kind kind);
+RP_API int rp_controller_from_name(const char *name,
+                                   rp_controller_kind *out);
+
+/** The cost model's knobs (DESIGN section 5, raypace_pace.h); zero
+ *  fields take the defaults. */
+typedef struct rp_cost_model_desc {
+  double gamma;      /* KRLS RBF width on features in [0, 1]; 0: 2 */
+  double nu;         /* ALD tolerance; 0: 1e-3 */
+  int max_dict;      /* dictionary bound; 0: 32 */
+  double forget;     /* KRLS forgetting factor; 0: 0.995 */
+  double clip;       /* KRLS residual clamp; 0: 4 */
+  double sigma0_ns;  /* cost per fetch before any training; 0: 5 */
+  /* KRLS prior on a new dictionary element: the timing noise's variance
+   * over that of what the model learns (runtime/krls.h), so that one
+   * noisy frame is not taken as the cost of every view beside it.
+   * 0: 0.05; negative: none (each new element takes its frame's value).
+   * \since 0.2 */
+  double noise_ratio;
+} rp_cost_model_desc;
+
+/** How the devices' shares move from frame to frame (DESIGN section 7,
+ *  rp_balance_damp in raypace_balance.h). */
+typedef enum rp_damping {
+  /* Ours (default): exponential smoothing toward the previous frame's
+   * shares, w = (1 - lambda) w_prev + lambda w_new. Converges to w_new
+   * when it holds still: the error shrinks by (1 - lambda) per frame. */
+  RP_DAMP_SMOOTH = 0,
+  /* The paper's: a mix with the even split, w = (1 - zeta) / n +
+   * zeta w_new. Needs no history, but never reaches w_new: a device's
+   * share stays within [(1 - zeta) / n, (1 - zeta) / n + zeta]. */
+  RP_DAMP_EVEN = 1
+} rp_damping;
 
 #ifdef __cplusplus
 }

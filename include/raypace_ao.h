@@ -1,4 +1,6 @@
-/* raypace ambient occlusion (DESIGN section 8, seed 004).
+/* Product tier (README, "Headers"): the interface an app is supported on.
+ *
+ * raypace ambient occlusion (DESIGN section 8, seed 004).
  *
  * Local ambient occlusion per voxel, computed only when a scene asks for
  * it and stored as an 8-bit volume the raycast reads with one extra fetch

@@ -1,4 +1,7 @@
-/* raypace backend interface: what a device backend implements.
+/* Product tier (README, "Headers"): the interface a device backend is
+ * written against, versioned by RP_BACKEND_ABI.
+ *
+ * raypace backend interface: what a device backend implements.
  *
  * The front end (runtime/backend.c) validates every call and resolves all
  * defaults before it reaches a backend, so a backend trusts its inputs

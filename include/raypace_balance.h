@@ -1,4 +1,8 @@
-/* raypace load balancing: one frame's image split across several devices
+/* Lab tier (README, "Headers"): public for research use, and may change
+ * between minor versions. An app embedding the runtime needs none of it:
+ * every setting it makes is declared in the product headers.
+ *
+ * raypace load balancing: one frame's image split across several devices
  * (DESIGN section 7, milestone M6). Pure host arithmetic, no device:
  * - shares: each device's fraction of the frame's work from its cost per
  *   unit of work sigma, w_i = (1 / sigma_i) / sum_j (1 / sigma_j), and
@@ -80,16 +84,7 @@ RP_API int rp_balance_shares_eq3(const double *sigma, uint32_t n,
 
 /* ---- Damping ------------------------------------------------------------ */
 
-typedef enum rp_damping {
-  /* Ours (default): exponential smoothing toward the previous frame's
-   * shares, w = (1 - lambda) w_prev + lambda w_new. Converges to w_new
-   * when it holds still: the error shrinks by (1 - lambda) per frame. */
-  RP_DAMP_SMOOTH = 0,
-  /* The paper's: a mix with the even split, w = (1 - zeta) / n +
-   * zeta w_new. Needs no history, but never reaches w_new: a device's
-   * share stays within [(1 - zeta) / n, (1 - zeta) / n + zeta]. */
-  RP_DAMP_EVEN = 1
-} rp_damping;
+/* rp_damping, the two rules, is in raypace.h (the runtime's setting). */
 
 /** One frame's damping step from this frame's target shares (e.g.
  *  rp_balance_shares()) and, for RP_DAMP_SMOOTH, the previous frame's

@@ -1,4 +1,8 @@
-/* raypace device groups: one frame rendered by several devices at once
+/* Lab tier (README, "Headers"): public for research use, and may change
+ * between minor versions. An app embedding the runtime needs none of it:
+ * every setting it makes is declared in the product headers.
+ *
+ * raypace device groups: one frame rendered by several devices at once
  * (DESIGN section 7, milestone M6).
  *
  * A group opens its devices, gives each a worker thread, keeps a cost

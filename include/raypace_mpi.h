@@ -1,4 +1,6 @@
-/* raypace across machines: devices on other MPI ranks (DESIGN section 9,
+/* Product tier (README, "Headers"): the interface an app is supported on.
+ *
+ * raypace across machines: devices on other MPI ranks (DESIGN section 9,
  * milestone M8).
  *
  * Started under an MPI launcher (mpirun -np N app ...), rank 0 runs the

@@ -1,4 +1,8 @@
-/* raypace pacing: hold a frame-time target (DESIGN sections 5 and 6).
+/* Lab tier (README, "Headers"): public for research use, and may change
+ * between minor versions. An app embedding the runtime needs none of it:
+ * every setting it makes is declared in the product headers.
+ *
+ * raypace pacing: hold a frame-time target (DESIGN sections 5 and 6).
  *
  * Three parts, usable on their own:
  * - sampling density and the tuning spaces: one number rho (1: the base
@@ -26,28 +30,8 @@ extern "C" {
 
 /* ---- Sampling density and tuning spaces -------------------------------- */
 
-/** Where quality is traded for time. Density rho = scale^2 * base_step /
- *  step: 1 is the base step at full resolution; frame time is close to
- *  linear in it (rays x samples per ray). Above 1 (min_step under
- *  base_step), only the step refines: the image is never rendered above
- *  the output's resolution, and pure image space stops at 1. */
-typedef enum rp_space {
-  RP_SPACE_RAY = 0,    /* step changes, full resolution */
-  RP_SPACE_IMAGE = 1,  /* image scale changes (upscaled to the output) */
-  RP_SPACE_HYBRID = 2  /* both */
-} rp_space;
-
-/** Bounds of the tuning spaces; zero fields take the defaults. */
-typedef struct rp_space_desc {
-  rp_space space;
-  float base_step;   /* step at rho = 1, voxels; 0: 1.0 */
-  float max_step;    /* coarsest step; 0: 16 * base_step */
-  float min_scale;   /* smallest image scale; 0: 0.125 */
-  float min_step;    /* finest step; 0 (or above base_step): base_step,
-                        no density above 1. The cost model's step
-                        feature stops at 1/8 voxel (S' does not).
-                        \since 0.2 */
-} rp_space_desc;
+/* rp_space, rp_space_desc and their names are in raypace.h (the runtime's
+ * settings); the mapping is here. */
 
 /** The step and image scale that give density rho in d's space (rho
  *  clamped to [rp_space_min_density(d), rp_space_max_density(d)]).
@@ -59,10 +43,6 @@ RP_API double rp_space_min_density(const rp_space_desc *d);
 /** The largest: base_step / min_step in ray and hybrid space, 1 in image
  *  space. \since 0.2 */
 RP_API double rp_space_max_density(const rp_space_desc *d);
-/** "ray", "image", "hybrid"; and the reverse (RP_EINVAL if unknown).
- *  \since 0.1 */
-RP_API const char *rp_space_name(rp_space space);
-RP_API int rp_space_from_name(const char *name, rp_space *out);
 
 /* ---- Tuner: Eq. 2 ------------------------------------------------------- */
 
@@ -131,29 +111,8 @@ RP_API int rp_tune(const rp_tune_desc *d, rp_predict_fn predict,
 
 /* ---- Controllers -------------------------------------------------------- */
 
-/** The rules; runtime/control.c states each one exactly and cites its
- *  source. Every rule decides at rp_controller_begin_frame from the
- *  frames before and this frame's target, and never emits NaN or a rho
- *  outside [rho_min, rho_max]. */
-typedef enum rp_controller_kind {
-  RP_CONTROL_NONE = 0,       /* rho_start every frame */
-  RP_CONTROL_LAST_FRAME = 1, /* rho_last * target / t_last, damped */
-  RP_CONTROL_TWO_PASS = 2,   /* pass at rho_last / 4; if under half the
-                                target, extrapolate to the rest and
-                                render again */
-  RP_CONTROL_PREDICTED = 3,  /* ours: rp_tune on the caller's model;
-                                no rise after a frame that took over
-                                1.5x its prediction; a damped rise
-                                lifted at half the target (lift 0.5)
-                                after one within 1.2x of it, on a
-                                scene still priced within 1.2x */
-  RP_CONTROL_VTK = 4,        /* isd' = isd sqrt(t_last f / target),
-                                isd in [1, 10], rho = 1 / isd^2 */
-  RP_CONTROL_UE5 = 5,        /* UE5 dynamic resolution, rho = s^2 */
-  RP_CONTROL_VALVE = 6,      /* Valve's adaptive quality: a ladder of
-                                15 % fill-rate steps */
-  RP_CONTROL_COUNT = 7
-} rp_controller_kind;
+/* rp_controller_kind and its names are in raypace.h (the runtime's
+ * setting); the controller objects are here. */
 
 typedef struct rp_controller rp_controller;
 
@@ -179,13 +138,6 @@ typedef struct rp_controller_desc {
                           frame (rp_tune_desc.max_time_us), >= 0; 0: its
                           default, 200 */
 } rp_controller_desc;
-
-/** "none", "last-frame", "two-pass", "predicted", "vtk", "ue5", "valve"
- *  ("unknown" out of range); from_name is its reverse (RP_EINVAL if
- *  unknown). \since 0.1 */
-RP_API const char *rp_controller_name(rp_controller_kind kind);
-RP_API int rp_controller_from_name(const char *name,
-                                   rp_controller_kind *out);
 
 /** `ctx` is kept: failed calls on the controller leave their message in
  *  rp_last_error(ctx). `desc` may be NULL (all defaults).
@@ -284,23 +236,8 @@ RP_API uint32_t rp_fetches_per_sample(uint32_t effects);
 
 #define RP_COST_FEATURES 8
 
+/* rp_cost_model_desc is in raypace.h (the runtime's setting). */
 typedef struct rp_cost_model rp_cost_model;
-
-/** Zero fields take the defaults. */
-typedef struct rp_cost_model_desc {
-  double gamma;      /* KRLS RBF width on features in [0, 1]; 0: 2 */
-  double nu;         /* ALD tolerance; 0: 1e-3 */
-  int max_dict;      /* dictionary bound; 0: 32 */
-  double forget;     /* KRLS forgetting factor; 0: 0.995 */
-  double clip;       /* KRLS residual clamp; 0: 4 */
-  double sigma0_ns;  /* cost per fetch before any training; 0: 5 */
-  /* KRLS prior on a new dictionary element: the timing noise's variance
-   * over that of what the model learns (runtime/krls.h), so that one
-   * noisy frame is not taken as the cost of every view beside it.
-   * 0: 0.05; negative: none (each new element takes its frame's value).
-   * \since 0.2 */
-  double noise_ratio;
-} rp_cost_model_desc;
 
 typedef struct rp_cost_estimate {
   double samples;        /* S', from the probe */

@@ -1,4 +1,6 @@
-/* raypace runtime: the frame pipeline an app embeds (DESIGN sections 1
+/* Product tier (README, "Headers"): the interface an app is supported on.
+ *
+ * raypace runtime: the frame pipeline an app embeds (DESIGN sections 1
  * and 11).
  *
  * An rp_runtime runs frames on a libuv loop -- the app's own (desc.loop),
@@ -53,8 +55,6 @@
 
 #include "raypace.h"
 #include "raypace_ao.h"
-#include "raypace_balance.h"
-#include "raypace_pace.h"
 
 #ifdef __cplusplus
 extern "C" {
@@ -216,12 +216,16 @@ typedef struct rp_frame_stats {
 /** A delivered frame. `rgba` (premultiplied RGBA8, width x height, the
  *  viewport) and `stats` are valid during the callback only. `rgba` is
  *  NULL when stats->status != 0. */
+/* What the cost model reads of a frame (lab tier, raypace_pace.h). */
+struct rp_frame_probe;
+
 typedef struct rp_frame {
   const uint8_t *rgba;
   uint32_t width, height;
   const rp_frame_stats *stats;
   /* What the cost model predicted the frame from (the host's depth pass
-   * and ERT pre-pass, raypace_pace.h); NULL when the frame failed.
+   * and ERT pre-pass; its fields are in the lab header raypace_pace.h);
+   * NULL when the frame failed.
    * \since 0.2 */
   const struct rp_frame_probe *probe;
 } rp_frame;
@@ -248,8 +252,8 @@ typedef struct rp_runtime_desc {
                              rp_runtime_set_controller */
   /* The density before the first frame (rp_controller_desc.rho_start):
    * RP_CONTROL_NONE renders it every frame, the others start from it.
-   * 0: 1, clamped to the space's range; else within
-   * [rp_space_min_density, rp_space_max_density] of `space`. See
+   * 0: 1, clamped to the space's range; else within the space's range
+   * (rp_space_min_density and rp_space_max_density, raypace_pace.h). See
    * rp_runtime_set_density. \since 0.2 */
   double density;
   double target_ms;       /* 0: 1000 / 60 */

@@ -1,4 +1,4 @@
-/* raypace version numbers. */
+/* Product tier (README, "Headers"): raypace version numbers. */
 #ifndef RAYPACE_VERSION_H
 #define RAYPACE_VERSION_H
 

@@ -14,11 +14,9 @@
 
 #include "ao.h"
 
-/* L and M: measured on bonsai, engine and headsq_ct against L 64, M 32
- * (bench_ao --sweep), 8 x 16 has about the cost of 16 x 8 and 0.6 of its
- * error (RMSE 5.2-6.1 against 6.6-9.3 /255): at R = 8 four or eight
- * samples step over thin structures, and more directions cannot mend
- * that. */
+/* L and M: 8 x 16 costs about what 16 x 8 does at 0.6 of its error: at
+ * R = 8 four or eight samples step over thin structures, and more
+ * directions cannot mend that (docs/ao.md, "Measured"). */
 #define AO_DEFAULT_DIRECTIONS 8u
 #define AO_DEFAULT_SAMPLES 16u
 #define AO_DEFAULT_RADIUS 8.0f

@@ -59,12 +59,10 @@
  * shows the model wrong for the scene at hand (an effect toggled, a TF
  * it has not learned), and the next frame does not raise the density.
  * The model's log residual has a standard deviation of about 0.17 on a
- * trusted scene (docs/pacing.md), so ln 1.5 = 0.41 is 2.4 of them: a
- * hold after a stall costs one frame's rise, a hold after a wrong model
- * stops the damped climb from compounding its error. Measured on the
- * mixed sequence (bonsai, 256^2): shading switched off, the model gave
- * 2.0 and 2.8 ms for frames of 4.7 and 6.0 ms, rose 1.25x on each, and
- * the third frame took 10.6 ms against a 6.2 ms target. */
+ * trusted scene, so ln 1.5 = 0.41 is 2.4 of them: a hold after a stall
+ * costs one frame's rise, a hold after a wrong model stops the damped
+ * climb from compounding its error (docs/pacing.md, "Tuner and
+ * controllers"). */
 #define PREDICT_TRUST 1.5
 /* predicted: a frame that came in within this factor of its t' (either
  * way), on a scene that the model still prices within this factor of
@@ -74,15 +72,8 @@
  * overshoot, the model would have to be off by 2x at the new density
  * just after it was off by under 1.2x at the old one. ln 1.2 = 0.18 is
  * one to four standard deviations of the model's log residual on a
- * scene it knows (0.174 on a 512^2 orbit, docs/pacing.md; 0.045-0.061
- * on the 256^2 orbit and zoom).
- * Measured on the mixed sequence (bonsai, 256^2): after a switch to a
- * cheap TF the model was off by 2x for three frames (a new TF's cost
- * per sample), then within 10 %, and the density climbed from 0.09 to
- * 1 by 1.25x a frame: ten frames at 30-56 % of the target, each
- * predicted within 20 %. Without the second test, a frame that turned
- * shading off was lifted from density 0.009 to 0.027 on the last
- * frame's word and took 1.13x its target (frame 140). */
+ * scene it knows. The second test catches a scene that changed since
+ * (docs/pacing.md, "Tuner and controllers", has both measured). */
 #define PREDICT_CLOSE 1.2
 #define PREDICT_LIFT 0.5
 

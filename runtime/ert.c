@@ -77,9 +77,8 @@ void rp__ert_corrected(const float *bin_alpha, float ref_step,
   double ratio = RP_ERT_COARSE_STEP / (double)ref_step;
   int k;
   /* Opacity correction to the coarse step depends only on the bin and
-   * the step ratio: once per pre-pass, not twice per draw (measured: the
-   * host probe 1.19x faster over bonsai's views, 1.4x with a nearly
-   * transparent TF, whose rays draw the most). */
+   * the step ratio: once per pre-pass, not twice per draw
+   * (docs/runtime.md, "Overhead"). */
   for (k = 0; k < RP_OPACITY_BINS; k++) {
     double a = bin_alpha != NULL ? (double)bin_alpha[k]
                                  : rp__ert_bin_alpha(k);

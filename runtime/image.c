@@ -28,8 +28,8 @@ static void source_pos(uint32_t i, uint32_t dst, uint32_t src, uint32_t *i0,
 }
 
 /* Columns whose taps are worked out once and reused for every row: the
- * per-pixel floor and division were most of the upscale's cost (2.9 ms
- * at 256x256 before, measured on the 2-core CI machine). */
+ * per-pixel floor and division were most of the upscale's cost
+ * (docs/runtime.md, "Overhead"). */
 #define UPSCALE_COLUMNS 256
 
 void rp_image_upscale(const uint8_t *src, uint32_t src_w, uint32_t src_h,

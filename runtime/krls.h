@@ -37,15 +37,11 @@
  * least-squares problem above in which theta_j stays a free parameter
  * that no later sample touches, and in function terms f becomes its best
  * approximation (in the kernel's norm) on the remaining elements; dlib's
- * krls does the same when it drops its oldest element. A re-fit that
- * re-expresses each past sample through d_j's projection on the others
- * was tried and rejected: samples near an evicted element far from the
- * rest keep their targets but lose most of their regressor, and the fit
- * inflates theta to explain them (one-step-ahead errors of several times
- * the target on a drifting stream). The dictionary keeps insertion order,
- * which makes each Cholesky pivot of K~ at least the delta > nu its
- * element had when it arrived: the rebuild below cannot meet a zero
- * pivot.
+ * krls does the same when it drops its oldest element (a re-fit through
+ * d_j's projection on the others inflates theta: docs/pacing.md, "KRLS").
+ * The dictionary keeps insertion order, which makes each Cholesky pivot
+ * of K~ at least the delta > nu its element had when it arrived: the
+ * rebuild below cannot meet a zero pivot.
  *
  * Drift of the recursive inverse. K~^-1 changes only when the dictionary
  * does, and the update that changes it checks R = K~ K~^-1 - I twice,
@@ -55,24 +51,20 @@
  * cover the two ways R grows: a growth step with delta near nu multiplies
  * the error of a by 1 / delta into the new row and column, and an
  * eviction exposes the forward error of K~^-1, about eps * cond(K~)^2, as
- * a residual close to rank one. (Checking a column in turn, one random
- * probe, or two, each let residuals 20 to 200 times the check through on
- * ill-conditioned streams; this pair stayed within 6 times.) When the
- * check is over RP__KRLS_DRIFT_REBUILD = 1e-6, or over 8 times what it
- * found right after the last rebuild should K~ be so ill conditioned that
- * Cholesky cannot do better, K~^-1 is rebuilt from the dictionary's
- * kernel matrix by Cholesky (O(m^3)) and alpha is recomputed from theta.
+ * a residual close to rank one (other checks let far more through:
+ * docs/pacing.md, "KRLS"). When the check is over
+ * RP__KRLS_DRIFT_REBUILD = 1e-6, or over 8 times what it found right
+ * after the last rebuild should K~ be so ill conditioned that Cholesky
+ * cannot do better, K~^-1 is rebuilt from the dictionary's kernel matrix
+ * by Cholesky (O(m^3)) and alpha is recomputed from theta.
  * An ALD update changes no K~^-1 and checks nothing. Why 1e-6: the
  * model's values at its own dictionary points are K~ alpha =
  * theta + R theta, so R bounds the model's own error there relative to
  * theta, and 1e-6 (times m) is far below any timing noise; the ALD test's
- * k^T K~^-1 k moves by a^T R k, small against nu. Measured over 10^5
- * updates with the dictionary of 32 turning over 4253 times
- * (tests/test_krls.c, dim 7, gamma 1, nu 1e-3): the full max |R_ij|, in
- * long double, under 4e-7 whenever the test looked, and a handful of
- * rebuilds. At nu 1e-6, gamma 0.3 nearly every eviction is followed by a
- * rebuild: a dictionary that ill conditioned is beyond the recursion,
- * and nu should be raised. stats.drift_max is the largest check, before
+ * k^T K~^-1 k moves by a^T R k, small against nu. A stream whose
+ * evictions nearly all rebuild has a dictionary too ill conditioned for
+ * the recursion, and nu should be raised (docs/pacing.md, "KRLS", has
+ * the measurements). stats.drift_max is the largest check, before
  * rebuild.
  *
  * Divisions. delta <= nu is the ALD branch (duplicates give delta = 0), so
@@ -98,16 +90,15 @@
  *   c * (s + ybar) for a novel one, since the model has no support there.
  *   The first 8 samples are not clamped. s can grow by the factor
  *   1 + (c - 1) / 16 per update, so a true step in the target is followed
- *   after a few tens of updates rather than ignored. Tested: a timing
- *   1000x off moves the model by under 1% of the target with c = 4, and
- *   by over ten times the target without.
+ *   after a few tens of updates rather than ignored (tests/test_krls.c
+ *   holds a timing 1000x off to under 1% of the target with c = 4).
  * - noise_ratio = r > 0 puts a prior on each new element. Without it a
  *   novel sample sets its element's value to its own target, noise and
  *   all, and the next sample beside it is predicted by that one noisy
  *   value: on a camera orbit, where nearly every frame is novel, the
- *   model chases each frame's timing noise (measured on bonsai: one frame
- *   21 % slow raised the next frame's sigma' by 23 %, and that frame came
- *   in 15 % under). With r, the element's value before its sample is the
+ *   model chases each frame's timing noise (docs/pacing.md, "The cost
+ *   model", the bullet on the prior). With r, the element's value before
+ *   its sample is the
  *   model's prediction a^T theta plus a deviation of variance delta / r
  *   (in units of the noise variance): delta is the share of k(x, x) the
  *   dictionary cannot express, the posterior variance of a Gaussian
@@ -126,7 +117,7 @@
  *   (theta_j - b_j^T theta)^2 r / delta_j with b_j its projection on the
  *   elements before it (tests/test_krls.c solves that directly).
  * For the cost model: forget = 0.995, clip = 4 and noise_ratio = 0.05
- * (runtime/predict.c says why).
+ * (docs/pacing.md, "The cost model", says why).
  *
  * Threading: a model belongs to one thread; predict is const and may run
  * concurrently with other predicts on the same model. */

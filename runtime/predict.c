@@ -1,5 +1,8 @@
 /* The hybrid cost model (DESIGN section 5, seed 000 section 5):
- * t' = a + sigma * k * kappa * S' + c0.
+ *   t' = (a R + sigma' * k * kappa * S' + c0) * Q,
+ *   sigma' = exp(m + f(x)) * q.
+ * What each part is for, and the measurements that chose its form:
+ * docs/pacing.md, "The cost model" (one bullet per part).
  *
  * The analytic part. S' comes from a probe of the frame: the depth pass
  * and the ERT pre-pass run on the pre-pass grid of the OUTPUT image (one
@@ -15,123 +18,73 @@
  * e_i = 1 for rays ERT ends and 1/2 for the others.
  * One probe serves every (step, s) the tuner tries.
  *
- * The learned part. sigma, the cost of one volume fetch, is learned per
- * device by KRLS (runtime/krls.h) from sigma_measured =
- * raycast time / (k * S_measured), with S_measured the frame's tile
- * sample counts: the truth, not the estimate, so an error in S' is not
- * folded into sigma. KRLS learns the residual r = ln(sigma) - m around a
- * running mean m of ln(sigma), and sigma' = exp(m + f(x)):
- * - an RBF model's prediction goes to 0 away from every dictionary
- *   element. Learning sigma itself would predict a free frame for a view
- *   never seen, and the tuner would overshoot on exactly the frames that
- *   matter (a new transfer function, a new zoom). On the residual, an
- *   unseen view falls back to the mean cost.
- * - in the logarithm the model is multiplicative, as cache effects are,
- *   and sigma' is positive whatever the fit does.
- * m is a robust running mean (below), so it follows a slow drift (a
- * warming cache, the OS) that KRLS's forgetting alone would take a
- * dictionary's worth of frames to follow, and one stalled frame does not
- * drag it. KRLS keeps a prior on each new dictionary element
- * (noise_ratio, runtime/krls.h, default 0.05: timing noise of 3-5 % in
- * the log against a residual that varies by 15-30 % over views and TFs).
- * Without it, on a camera move nearly every frame was a new element set
- * to its own noisy time, and the next frame was predicted from that one
- * value (bench_costmodel on recorded replays, one-step rms log error of
- * t': orbit 0.052 -> 0.049 under `none`, zoom-in 0.061 -> 0.053, and
- * the model no longer degrades as gamma grows).
- *
- * The sample estimate's own bias is learned too, as a ratio
- * kappa = S_measured / S' by a second KRLS on the same features, in the
- * same residual-around-a-mean form. Most of that bias was the ERT
- * pre-pass's: it drew a bin's centre opacity, and the first opacity bin
- * (0, 1/15] is coarse: a nearly transparent TF (alpha 0.004) was drawn
- * as 0.033 and its rays estimated to end after a third of the depth
- * they really take (bonsai: S' 38 % short). The probe now draws the mean
- * opacity of the volume's voxels in each bin (rp_occupancy's bin_alpha),
- * and S' is within 0.1 % of the tiles' count for both the transparent
- * and the opaque TF there; kappa is left with what the probe's 4x4 grid
- * and the lattice miss.
- *
- * The raycast's own cost per ray a (ray setup, the box entry, the walk
- * past empty blocks, the pixel write; the launch shared among the rays)
- * is taken out before sigma is learned, R the rays cast at the frame's
- * scale:
+ * sigma, the cost of one volume fetch, is learned per device by KRLS
+ * (runtime/krls.h) from the frame's raycast, R the rays cast at its
+ * scale and S_measured its tiles' sample counts (the truth, so that an
+ * error in S' is not folded into sigma):
  *   raycast time = a R + sigma * k * S_measured,
  *   sigma_measured = (raycast time - a R) / (k * S_measured).
- * Per ray, not per launch: a cost per launch fitted at one image scale
- * was carried whole to every other (mixed sequence: a = 5 ms fitted at
- * scale 0.64, then a frame at scale 0.19 whose whole raycast took 0.12
- * ms was priced at 6.1 ms, and its density dropped to the floor).
- * bench_costmodel on the replays' traces, rms of |ln(frame / t')| on the
- * predicted controller's frames, per launch against per ray: mixed 0.221
- * and 0.164, orbit, zoom-in and tf-switch unchanged (0.056, 0.074,
- * 0.080); the other controllers' frames, whose densities swing wider,
- * gain most (tf-switch two-pass 0.174 and 0.077, valve 0.219 and 0.112).
- * (Both with the prior below, and pairs within one set of effects.)
- * Without a, sigma carries a R / (k S): on bonsai at 256^2, an opaque TF
- * ends rays after two samples and its frames "cost" 30-100 ns a fetch
- * against 7-10 ns for a nearly transparent one, so every switch between
- * the two was a jump sigma had to relearn (measured there: the affine
- * fit below leaves 32 % log-rms between the two TFs, a cost per fetch
- * alone 87 %). a is the intercept of a Theil-Sen line (the median of the
- * pairwise slopes, then the median intercept) through the last
- * LAUNCH_WINDOW frames' (k S_measured / R, raycast time / R), both per
- * ray, so that frames at other scales share one line: a quarter of them
- * may be stalls without moving it, where a least-squares line follows
- * any one. Pairs closer than a factor LAUNCH_SPREAD in k S / R carry no
- * slope and are left out, and so are pairs, and frames for the
- * intercept, rendered with other effects than the newest frame: with
- * shading on, k counts the gradient's fetches, which hit the cache the
- * sample's own fetch just filled, so a fetch costs less than without,
- * and a line through both mixes two costs per fetch
- * (measured on the mixed sequence, with a per launch then: switching
- * shading off left a at 1.8-3 ms of 3-7 ms raycasts, so that no frame
- * taught sigma and sigma' sat at sigma0 for the last 57 frames). With
- * fewer than LAUNCH_PAIRS pairs left (a steady scene, where a and sigma
- * cannot be told apart and need not be) a stays as it was. a is clamped
- * to [0, LAUNCH_SHARE of the cheapest raycast per ray in the window],
- * fit or no fit: a neighbour on the machine only ever adds time, so the
- * cheapest frame is the one that bounds a, and a frame of a new scene
- * that is cheaper than the old a says so at once. The spread a pair
- * needs is wide because the noise is: on the CI machine (frames +-30 %)
- * an orbit's densities, a factor 2 apart, gave a line whose intercept
- * was half the frame. When a moves, sigma is learned again from the
- * window's frames (sigma_relearn). A frame whose fetches take under half
- * its raycast, or less than SIGMA_CLEAR times the fit's noise, does not
- * teach sigma at all (sigma_learn): its sigma is a small difference of
- * noisy times, and its own time hardly depends on sigma. The fit's noise
- * is relative (the median of |residual| / raycast), as the machine's
- * is: in ms, the noise of a window of 10 ms frames kept every frame of a
- * 0.2-2 ms scene that followed from teaching sigma until the window had
- * turned over.
+ * KRLS learns the residual r = ln(sigma) - m around a robust running
+ * mean m of ln(sigma) (below): far from every dictionary element an RBF
+ * model goes to 0, and on the residual an unseen view falls back to the
+ * mean cost instead of a free frame; in the logarithm the model is
+ * multiplicative, as cache effects are, and sigma' is positive whatever
+ * the fit does. m follows a slow drift (a warming cache, the OS) that
+ * KRLS's forgetting alone would take a dictionary's worth of frames to
+ * follow. Each new dictionary element starts from a prior
+ * (noise_ratio, runtime/krls.h), so that one noisy frame is not taken as
+ * the cost of every view beside it.
  *
- * Short-term correction q: sigma' = exp(m + f(x)) * q. When the last
- * RECENT_FRAMES frames all came in dearer than sigma' (or all cheaper),
- * q is the smallest of those ratios, bounded to [1/2, 2]; otherwise 1.
- * The shared CI machine runs slow for ten frames at a time by 30 % (its
- * neighbours); m follows that at a rate of 1/16, q from the third frame.
+ * kappa = S_measured / S', the sample estimate's own bias, is learned by
+ * a second KRLS on the same features, in the same residual-around-a-mean
+ * form. The probe draws the mean opacity of the volume's voxels in each
+ * opacity bin (rp_occupancy's bin_alpha), not the bin's centre, so kappa
+ * is left with what the probe's 4x4 grid and the lattice miss.
+ *
+ * a, the raycast's own cost per ray (ray setup, the box entry, the walk
+ * past empty blocks, the pixel write; the launch shared among the rays):
+ * per ray, not per launch, so that frames at every scale share one line.
+ * It is the intercept of a Theil-Sen line (the median of the pairwise
+ * slopes, then the median intercept) through the last LAUNCH_WINDOW
+ * frames' (k S_measured / R, raycast time / R): a quarter of them may be
+ * stalls without moving it, where a least-squares line follows any one.
+ * Left out of the fit: pairs closer than a factor LAUNCH_SPREAD in
+ * k S / R (in this noise they carry no slope), and pairs, and frames for
+ * the intercept, rendered with other effects than the newest frame (with
+ * shading, the gradient's fetches hit the cache the sample's own fetch
+ * just filled, so a fetch costs less: a line through both mixes two
+ * costs per fetch). With fewer than LAUNCH_PAIRS pairs left (a steady
+ * scene, where a and sigma cannot be told apart and need not be) a stays
+ * as it was. a is clamped to [0, LAUNCH_SHARE of the cheapest raycast per
+ * ray in the window], fit or no fit: a neighbour on the machine only ever
+ * adds time, so the cheapest frame bounds a, and a frame of a new scene
+ * cheaper than the old a says so at once. When a moves, sigma is learned
+ * again from the window's frames (sigma_relearn). A frame whose fetches
+ * take under half its raycast, or less than SIGMA_CLEAR times the fit's
+ * noise, does not teach sigma (sigma_learn): its sigma is a small
+ * difference of noisy times, and its own time hardly depends on sigma.
+ * The fit's noise is relative (the median of |residual| / raycast), as
+ * the machine's is.
+ *
+ * q, the short-term correction: when the last RECENT_FRAMES frames all
+ * came in dearer than sigma' (or all cheaper), q is the smallest of those
+ * ratios, bounded to [1/2, 2]; otherwise 1. It follows a slow spell of
+ * the machine from its third frame, where m follows at a rate of 1/16.
  * One stalled frame does not move q, and a view that the model prices
  * low next to one it prices high (alternating) leaves it at 1.
  *
- * Frame correction Q: t' is multiplied by Q, formed like q but from the
- * frames that do not teach sigma (below), as ln(frame time / t' without
- * Q), bounded to [1/4, 4]; a frame that teaches sigma sets Q back to 1.
- * Those frames are the ones whose time is mostly a and c0, and neither
- * q nor KRLS ever sees them: a t' priced too high there stayed too high.
- * Measured: zooming into bonsai at 512^2, the tuner went to steps of
- * 7-10 voxels at scale 0.33, where a raycast's fetches are under half
- * its time; over the last 30 frames t' was 13.9-14.0 ms (the target)
- * and the frames took 5.0-9.0 ms (median 6.3). With Q: 10.8-13.5 ms
- * (median 12.6) against a 12.8 ms target, at 3.2 times the samples.
- * Only frames sigma never sees feed Q, so a slow spell on frames that
- * teach sigma is not corrected twice (by q and again by Q).
+ * Q, the frame correction: formed like q, but from the frames that do
+ * not teach sigma, as ln(frame time / t' without Q), bounded to
+ * [1/4, 4]; a frame that teaches sigma sets Q back to 1. Those frames'
+ * time is mostly a and c0, and neither q nor KRLS ever sees them. Only
+ * they feed Q, so a slow spell on frames that teach sigma is not
+ * corrected twice (by q and again by Q).
  *
- * c0, the per-frame fixed cost (depth pass, readback, upscale),
- * is measured per frame as frame time - raycast time and averaged the
- * same way, apart for frames at scale 1 and frames upscaled from a
- * smaller image: the upscale is a pass over every output pixel that a
- * full-scale frame does not have (measured on PoCL at 256^2: 1.5 ms
- * against 3.5 ms), and a tuner stepping across scale 1 must see it.
+ * c0, the per-frame fixed cost (depth pass, readback, upscale), is
+ * measured per frame as frame time - raycast time and averaged the same
+ * way, apart for frames at scale 1 and frames upscaled from a smaller
+ * image: the upscale is a pass over every output pixel that a full-scale
+ * frame does not have, and a tuner stepping across scale 1 must see it.
  *
  * Robust running mean: the plain mean of the first 16 values, then an
  * exponential mean of rate 1/16; after the first 4 values a value moves
@@ -194,10 +147,9 @@ typedef struct launch_fit {
 #define RECENT_BOUND 0.6931471805599453
 #define FRAME_BOUND 1.3862943611198906
 /* How far (in [0, 1] feature units) a frame's scene features may be from
- * the last trained frame's for q and Q to apply to it whole. Measured on
- * bonsai's built-in sequences: consecutive frames of a camera move
- * differ by at most 0.061 (the zoom; orbit 0.050), a TF switch by
- * 0.149 to 1. */
+ * the last trained frame's for q and Q to apply to it whole: more than a
+ * camera move changes them in a frame, less than a TF switch does
+ * (docs/pacing.md, "The cost model", the bullet on q). */
 #define SCENE_NEAR 0.1
 
 /* The last RECENT_FRAMES log ratios (measured over predicted), the
@@ -271,11 +223,9 @@ typedef struct probe_job {
   float *span;     /* the probe's span map */
 } probe_job;
 
-/* The most pre-pass rays a probe traces. Measured on bonsai at 512 x 512
- * (36 views, three TFs, ERT and skipping on): the mean span of a 1024-ray
- * subgrid is within 1.3 % of the whole 16384-ray grid's (4096 rays: 0.45
- * %, 256 rays: 2.6 %), well inside a frame's own noise (+-10 %) and
- * corrected by kappa, at a quarter of 4096 rays' time. */
+/* The most pre-pass rays a probe traces: a subgrid of this many estimates
+ * the mean span well inside a frame's own noise, and kappa corrects the
+ * rest (docs/runtime.md, "Overhead"). */
 #define PROBE_MAX_RAYS ((uint32_t)RP_PROBE_MAX_RAYS)
 
 /* Rays in the subgrid of every sub-th ray of a gw x gh grid. */
@@ -438,9 +388,8 @@ int rp_frame_probe_compute(rp_context *ctx, const rp_volume *vol,
   job.span = out->span;
   /* On the calling thread: at most PROBE_MAX_RAYS rays are a few tenths
    * of a millisecond of work, less than starting and joining threads
-   * costs while the device's own threads hold the cores (bonsai 512^2 on
-   * PoCL, two cores: 0.41-0.42 ms a probe serial, 0.67-0.68 ms split
-   * over two threads). */
+   * costs while the device's own threads hold the cores
+   * (docs/runtime.md, "Overhead"). */
   probe_rows(0, gh, &job);
   for (y = 0; y < gh; y++) {
     out->depth_sum += job.rows[y].span;
@@ -824,11 +773,9 @@ static int same_scene(const recent_bias *r, const double *x,
  * prediction. The recent frames' errors may be the machine, which
  * carries over, or the model's error on their scene, which does not:
  * carried over, a correction that lowers the cost risks an overshoot on
- * exactly the switch frame. Measured on bonsai (mixed, frame 120): q =
- * 1/2 from three opaque-TF frames the model had priced at twice their
- * cost, applied to the first frame of the next TF, made it 65 % over
- * the target. A correction that raises it costs at most an image
- * coarser than the budget allowed. */
+ * exactly the switch frame (docs/pacing.md, "The cost model", the bullet
+ * on q). A correction that raises it costs at most an image coarser than
+ * the budget allowed. */
 static double carried(const recent_bias *r, const double *x,
                       uint32_t effects) {
   return r->log_corr > 0.0 || same_scene(r, x, effects) ? r->log_corr
@@ -872,12 +819,11 @@ int rp_cost_predict(const rp_cost_model *m, const rp_frame_probe *p,
 /* Learns one frame's cost per fetch: its raycast less the launch cost,
  * over its fetches. A frame whose fetches are under SIGMA_SHARE of its
  * raycast is left out: its time is mostly a, and its sigma is a small
- * difference of two noisy times (an opaque TF on bonsai, two samples a
- * ray, read 4 ns where the fetches of a transparent one cost 8; learned,
- * it made the next switch overshoot by half). Such a frame's time does
- * not depend on sigma much, which is why it need not teach it. KRLS
- * learns the clamped value too: a stalled frame must not reach the model
- * through the back door of a huge residual. */
+ * difference of two noisy times (docs/pacing.md, "The cost model", the
+ * bullet on a). Such a frame's time does not depend on sigma much, which
+ * is why it need not teach it. KRLS learns the clamped value too: a
+ * stalled frame must not reach the model through the back door of a huge
+ * residual. */
 static int sigma_teaches(const rp_cost_model *m, double raycast_ms) {
   double per_fetch_ms = raycast_ms - m->launch.a; /* both per ray */
   return per_fetch_ms >= SIGMA_SHARE * raycast_ms &&

@@ -26,6 +26,7 @@
 #include "frame.h"
 #include "internal.h"
 #include "passes.h"
+#include "raypace_pace.h"
 #include "raypace_runtime.h"
 
 #define MAX_VIEWPORT 16384u /* per axis, as the header states */

@@ -50,13 +50,13 @@
 /* When even rho_min is predicted over the target, no density meets it,
  * and the fastest frame is all rho_min buys. Where the fixed costs
  * dominate (launch, readback, a small image), that frame is hardly
- * faster than one at many times the density: measured on a 16^2 image
- * (PoCL), 0.12 ms at rho 0.001 against 0.13 at 0.2. So the density
- * goes to the largest predicted within TUNE_FLOOR_SLACK of rho_min's
- * time instead, for the best image that time allows; but only if that
- * is at least TUNE_FLOOR_GAIN times rho_min: where the time is all
- * samples (t' proportional to rho), 10 % more time buys 10 % more
- * density, not worth a frame that already misses its target. */
+ * faster than one at many times the density (docs/pacing.md, "Tuner and
+ * controllers"). So the density goes to the largest predicted within
+ * TUNE_FLOOR_SLACK of rho_min's time instead, for the best image that
+ * time allows; but only if that is at least TUNE_FLOOR_GAIN times
+ * rho_min: where the time is all samples (t' proportional to rho), 10 %
+ * more time buys 10 % more density, not worth a frame that already
+ * misses its target. */
 #define TUNE_FLOOR_SLACK 0.1
 #define TUNE_FLOOR_GAIN 2.0
 /* Valid predictions a search keeps, for the floor search to start from

@@ -8,10 +8,11 @@
  * a frame every target_ms on its own, holding that frame time with the
  * predicted controller, and calls on_frame on the loop thread for each.
  * The app drives the camera, transfer function, effects and target from
- * a uv_timer of its own, playing the built-in "mixed" sequence: as a UI
- * would, at its own rate; events between two frames coalesce. At the end
- * of the sequence (or after --frames N frames) it closes the runtime and
- * its timer, and uv_run returns because nothing is left on the loop. */
+ * a uv_timer of its own, playing a scripted user (the events of raypace
+ * replay's "mixed" sequence, without its pan): as a UI would, at its own
+ * rate; events between two frames coalesce. At the end of the script (or
+ * after --frames N frames) it closes the runtime and its timer, and
+ * uv_run returns because nothing is left on the loop. */
 #include <getopt.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -20,21 +21,46 @@
 
 #include "raypace.h"
 #include "raypace_runtime.h"
-#include "raypace_sequence.h"
 
 #define TICK_MS 33 /* the app's input rate: 30 Hz */
+
+/* The scripted user: SCRIPT_TICKS ticks. The camera orbits through the
+ * keys, linearly between them; the other settings change in steps, each
+ * holding until the next. */
+#define SCRIPT_TICKS 200
+typedef struct script_key {
+  uint32_t tick;
+  float azimuth, elevation, distance; /* rp_camera_orbit's */
+} script_key;
+static const script_key script_keys[] = {
+    {0, 0, 10, 3}, {80, 120, 35, 1.8f}, {160, 200, 10, 2.5f},
+    {199, 240, 10, 2.5f}};
+
+static const char *const script_tfs[] = {"ct-bone", "ct-soft", "opaque",
+                                         "nearly-transparent"};
+#define SCRIPT_TF_COUNT (sizeof script_tfs / sizeof script_tfs[0])
+#define PLAIN (RP_EFFECT_ERT | RP_EFFECT_SKIP)
+#define SHADED (RP_EFFECT_SHADING | RP_EFFECT_ERT | RP_EFFECT_SKIP)
+typedef struct script_step {
+  uint32_t tick;
+  int tf;              /* index into script_tfs */
+  uint32_t effects;
+  double target_scale; /* of --target-ms */
+} script_step;
+static const script_step script_steps[] = {
+    {0, 0, PLAIN, 1},    {40, 1, PLAIN, 1},    {60, 1, SHADED, 1},
+    {100, 2, SHADED, 0.6}, {120, 3, SHADED, 0.6}, {140, 3, PLAIN, 0.6},
+    {160, 0, PLAIN, 0.6}};
 
 typedef struct app {
   uv_loop_t loop;
   uv_timer_t tick;
   rp_runtime *rt;
-  rp_sequence *seq;
-  rp_tf **tfs;         /* one per sequence TF; the runtime copies them */
-  int tf_count;
-  rp_camera *cams;     /* one per sequence frame */
-  uint32_t next;       /* the sequence state the next tick posts */
-  uint32_t max_frames; /* 0: until the sequence ends */
-  double target_ms, fraction0;
+  rp_tf *tfs[SCRIPT_TF_COUNT]; /* the runtime copies the one it is given */
+  rp_camera cams[SCRIPT_TICKS];
+  uint32_t next;       /* the tick whose state is posted next */
+  uint32_t max_frames; /* 0: until the script ends */
+  double target_ms;
   int closing, status;
 } app;
 
@@ -63,33 +89,37 @@ static void stop(app *a, int status) {
     rp_runtime_close(a->rt, on_closed, a);
 }
 
-/* The sequence states targets as a fraction of the frame time without
- * adaptation, which this app does not measure: its first target becomes
- * --target-ms and later ones keep their ratio to it. */
-static double state_target(const app *a, const rp_sequence_state *st) {
-  if (st->target_ms > 0)
-    return st->target_ms;
-  return a->target_ms * st->target_fraction / a->fraction0;
+/* The step that holds at tick i. */
+static const script_step *step_at(uint32_t i) {
+  size_t k = 0;
+  while (k + 1 < sizeof script_steps / sizeof script_steps[0] &&
+         script_steps[k + 1].tick <= i)
+    k++;
+  return &script_steps[k];
 }
 
-/* Posts what changed in the next state of the sequence. */
+/* Posts what changed at the next tick of the script: every setting at
+ * tick 0, then the camera while it moves and a step's changes. */
 static void on_tick(uv_timer_t *t) {
   app *a = t->data;
-  rp_sequence_state st;
+  const script_step *st, *prev;
+  uint32_t i = a->next;
   int err = 0;
-  if (a->next >= rp_sequence_frames(a->seq)) {
+  if (i >= SCRIPT_TICKS) {
     stop(a, 0);
     return;
   }
-  rp_sequence_frame(a->seq, a->next, &st);
-  if (st.camera_changed)
-    err = rp_runtime_set_camera(a->rt, &a->cams[a->next]);
-  if (err == 0 && st.tf_changed)
-    err = rp_runtime_set_tf(a->rt, a->tfs[st.tf]);
-  if (err == 0 && st.effects_changed)
-    err = rp_runtime_set_effects(a->rt, st.effects);
-  if (err == 0 && st.target_changed)
-    err = rp_runtime_set_target(a->rt, state_target(a, &st));
+  st = step_at(i);
+  prev = i > 0 ? step_at(i - 1) : NULL;
+  if (prev == NULL || memcmp(&a->cams[i], &a->cams[i - 1],
+                             sizeof a->cams[i]) != 0)
+    err = rp_runtime_set_camera(a->rt, &a->cams[i]);
+  if (err == 0 && (prev == NULL || st->tf != prev->tf))
+    err = rp_runtime_set_tf(a->rt, a->tfs[st->tf]);
+  if (err == 0 && (prev == NULL || st->effects != prev->effects))
+    err = rp_runtime_set_effects(a->rt, st->effects);
+  if (err == 0 && (prev == NULL || st->target_scale != prev->target_scale))
+    err = rp_runtime_set_target(a->rt, a->target_ms * st->target_scale);
   if (err != 0) {
     fprintf(stderr, "state %u: %s\n", a->next, rp_strerror(err));
     stop(a, 1);
@@ -122,7 +152,7 @@ static void on_frame(rp_runtime *rt, const rp_frame *f, void *user) {
          s->effects_wanted);
   if (a->max_frames > 0 && s->frame + 1 >= a->max_frames)
     stop(a, 0);
-  else if (s->frame == 0) /* the sequence plays on from here */
+  else if (s->frame == 0) /* the script plays on from here */
     uv_timer_start(&a->tick, on_tick, TICK_MS, TICK_MS);
 }
 
@@ -158,29 +188,28 @@ static int parse(int argc, char **argv, rp_runtime_desc *d, app *a,
   return optind + 1 < argc;
 }
 
-/* The sequence, its transfer functions and every frame's camera: made
- * before the volume is handed over, after which it is the runtime's. */
+/* The script's transfer functions and every tick's camera: made before
+ * the volume is handed over, after which it is the runtime's. */
 static int prepare(app *a, rp_context *ctx, const rp_volume *vol) {
-  rp_sequence_state st;
-  uint32_t i;
+  uint32_t i, k = 0;
   int err;
-  if ((err = check(ctx, rp_sequence_load(ctx, "mixed", &a->seq),
-                   "sequence")) != 0)
-    return err;
-  a->tf_count = rp_sequence_tf_count(a->seq);
-  a->tfs = calloc((size_t)a->tf_count, sizeof *a->tfs);
-  a->cams = calloc(rp_sequence_frames(a->seq), sizeof *a->cams);
-  if (a->tfs == NULL || a->cams == NULL)
-    return check(NULL, RP_ENOMEM, "sequence");
-  for (i = 0; i < (uint32_t)a->tf_count; i++)
-    if ((err = check(ctx, rp_sequence_tf_create(ctx, a->seq, (int)i,
-                                                &a->tfs[i]), "tf")) != 0)
+  for (i = 0; i < SCRIPT_TF_COUNT; i++)
+    if ((err = check(ctx, rp_tf_create_preset(ctx, script_tfs[i],
+                                              &a->tfs[i]), "tf")) != 0)
       return err;
-  for (i = 0; i < rp_sequence_frames(a->seq); i++) {
-    rp_sequence_frame(a->seq, i, &st);
-    rp_sequence_camera(&st, vol, &a->cams[i]);
-    if (i == 0)
-      a->fraction0 = st.target_fraction > 0 ? st.target_fraction : 1;
+  for (i = 0; i < SCRIPT_TICKS; i++) {
+    const script_key *p, *q;
+    float t;
+    while (k + 2 < sizeof script_keys / sizeof script_keys[0] &&
+           script_keys[k + 1].tick <= i)
+      k++;
+    p = &script_keys[k];
+    q = &script_keys[k + 1];
+    t = i >= q->tick ? 1.0f : (float)(i - p->tick) / (float)(q->tick - p->tick);
+    rp_camera_orbit(&a->cams[i], vol,
+                    p->azimuth + t * (q->azimuth - p->azimuth),
+                    p->elevation + t * (q->elevation - p->elevation),
+                    p->distance + t * (q->distance - p->distance));
   }
   return 0;
 }
@@ -233,7 +262,8 @@ int main(int argc, char **argv) {
   rp_context *ctx = NULL;
   rp_volume *vol = NULL;
   const char *path;
-  int i, err;
+  size_t i;
+  int err;
 
   memset(&a, 0, sizeof a);
   a.target_ms = 30;
@@ -256,11 +286,8 @@ int main(int argc, char **argv) {
     err = prepare(&a, ctx, vol);
   if (err == 0)
     err = run(&a, ctx, &d, &vol);
-  for (i = 0; a.tfs != NULL && i < a.tf_count; i++)
+  for (i = 0; i < SCRIPT_TF_COUNT; i++)
     rp_tf_destroy(a.tfs[i]);
-  free(a.tfs);
-  free(a.cams);
-  rp_sequence_destroy(a.seq);
   rp_volume_destroy(vol);
   rp_context_destroy(ctx);
   return err == 0 && a.status == 0 ? 0 : 1;

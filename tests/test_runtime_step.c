@@ -11,6 +11,7 @@
 #include <uv.h>
 
 #include "raypace_ao.h"
+#include "raypace_pace.h"
 #include "raypace_runtime.h"
 #include "test_util.h"
 

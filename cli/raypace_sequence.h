@@ -1,5 +1,12 @@
 /* raypace sequences: scripted interaction, replayed frame by frame.
  *
+ * Not part of the library (README, "Headers"): the format belongs to the
+ * raypace command that plays it. cli/sequence.c and cli/sequence_json.c
+ * build it as the static library raypace_seq, which the command, its
+ * tests and the benchmarks link; it parses with cJSON, which the library
+ * itself does not need. An app scripts its interaction its own way
+ * (samples/embed_uv.c).
+ *
  * A sequence is a JSON document (docs/sequences.md) that says, for every
  * frame of a fixed count, where the camera is, which transfer function is
  * active, which frame-time target holds and which effects are on. Camera
@@ -79,8 +86,8 @@ typedef struct rp_sequence_state {
  *  RP_EINVAL, RP_EUNSUPPORTED or RP_ENOMEM.
  *  \threadsafety like its context.
  *  \since 0.1 */
-RP_API int rp_sequence_load(rp_context *ctx, const char *name_or_path,
-                            rp_sequence **out);
+int rp_sequence_load(rp_context *ctx, const char *name_or_path,
+                     rp_sequence **out);
 
 /** Parses a sequence from memory (`len` bytes of UTF-8 JSON; no NUL
  *  terminator needed, and none allowed inside).
@@ -89,51 +96,52 @@ RP_API int rp_sequence_load(rp_context *ctx, const char *name_or_path,
  *  \returns as rp_sequence_load, without the file errors.
  *  \threadsafety like its context.
  *  \since 0.1 */
-RP_API int rp_sequence_parse(rp_context *ctx, const char *json, size_t len,
-                             const char *name_for_errors,
-                             rp_sequence **out);
+int rp_sequence_parse(rp_context *ctx, const char *json, size_t len,
+                      const char *name_for_errors,
+                      rp_sequence **out);
 
 /** Destroys a sequence; NULL is a no-op. \since 0.1 */
-RP_API void rp_sequence_destroy(rp_sequence *s);
+void rp_sequence_destroy(rp_sequence *s);
 
 /** The built-in sequence names, NULL-terminated: "orbit", "tf-switch",
- *  "zoom-in", "mixed". \threadsafety any thread. \since 0.1 */
-RP_API const char *const *rp_sequence_builtin_names(void);
+ *  "zoom-in", "mixed", "ao-tf-switch". \threadsafety any thread.
+ *  \since 0.1 */
+const char *const *rp_sequence_builtin_names(void);
 
 /** One line about a built-in sequence, or NULL for an unknown name.
  *  \threadsafety any thread. \since 0.1 */
-RP_API const char *rp_sequence_builtin_about(const char *name);
+const char *rp_sequence_builtin_about(const char *name);
 
 /** The JSON text of a built-in sequence (an example of the format), or
  *  NULL for an unknown name. \threadsafety any thread. \since 0.1 */
-RP_API const char *rp_sequence_builtin_json(const char *name);
+const char *rp_sequence_builtin_json(const char *name);
 
 /** Number of frames; 0 for NULL. \since 0.1 */
-RP_API uint32_t rp_sequence_frames(const rp_sequence *s);
+uint32_t rp_sequence_frames(const rp_sequence *s);
 
 /** The document's "name", else the name it was loaded under (built-in
  *  name, path, or name_for_errors). Owned by the sequence. \since 0.1 */
-RP_API const char *rp_sequence_name(const rp_sequence *s);
+const char *rp_sequence_name(const rp_sequence *s);
 
 /** The document's "about" line, "" when absent. \since 0.1 */
-RP_API const char *rp_sequence_about(const rp_sequence *s);
+const char *rp_sequence_about(const rp_sequence *s);
 
 /** The resolved state of frame `i` (0-based).
  *  \returns 0, RP_EINVAL (NULL argument) or RP_ERANGE (i >= frames).
  *  \since 0.1 */
-RP_API int rp_sequence_frame(const rp_sequence *s, uint32_t i,
-                             rp_sequence_state *st);
+int rp_sequence_frame(const rp_sequence *s, uint32_t i,
+                      rp_sequence_state *st);
 
 /** Number of transfer functions the sequence defines (>= 1; 0 for NULL).
  *  \since 0.1 */
-RP_API int rp_sequence_tf_count(const rp_sequence *s);
+int rp_sequence_tf_count(const rp_sequence *s);
 
 /** Builds transfer function `index` (a preset or control points) as a
  *  new rp_tf on `ctx`; the caller destroys it.
  *  \returns 0, RP_EINVAL, RP_ERANGE (index out of range) or RP_ENOMEM.
  *  \since 0.1 */
-RP_API int rp_sequence_tf_create(rp_context *ctx, const rp_sequence *s,
-                                 int index, rp_tf **out);
+int rp_sequence_tf_create(rp_context *ctx, const rp_sequence *s,
+                          int index, rp_tf **out);
 
 /** Fills in every field of `cam` for a frame's state and a volume:
  *  rp_camera_orbit with the state's azimuth, elevation and distance, then
@@ -143,8 +151,8 @@ RP_API int rp_sequence_tf_create(rp_context *ctx, const rp_sequence *s,
  *  ortho_height = 2 * distance * radius * tan(fov / 2). Up is left zero
  *  (the default, which pan does not change). NULL arguments: no-op.
  *  \since 0.1 */
-RP_API void rp_sequence_camera(const rp_sequence_state *st,
-                               const rp_volume *vol, rp_camera *cam);
+void rp_sequence_camera(const rp_sequence_state *st,
+                        const rp_volume *vol, rp_camera *cam);
 
 #ifdef __cplusplus
 }
