@@ -274,6 +274,7 @@ typedef struct render_opts {
   uint32_t warmup;
   const char *devices_spec;
   rp_device_desc devices[RP_GROUP_MAX_DEVICES];
+  cli_device_ext device_ext[RP_GROUP_MAX_DEVICES]; /* devices[i].next */
   uint32_t ndevices;
   cli_memory mem;
 } render_opts;
@@ -351,7 +352,7 @@ static int parse_render(int argc, char **argv, render_opts *o) {
       break;
     case 'L':
       /* The parser names the bad part itself. */
-      if (cli_parse_devices("--devices", optarg, o->devices,
+      if (cli_parse_devices("--devices", optarg, o->devices, o->device_ext,
                             RP_GROUP_MAX_DEVICES, &o->ndevices) != 0)
         return 2;
       o->devices_spec = optarg;

@@ -151,7 +151,10 @@ typedef struct rp_backend_ops {
    * `table` is NULL. */
   int (*upload_bricks)(void *impl, uint32_t count, const uint32_t *slots,
                        const void *const *voxels, const uint32_t *table);
-  /* Device time of the last operation, nanoseconds. */
+  /* Device time of the last operation, nanoseconds. The operations that
+   * report one: upload_volume, upload_tf, upload_occupancy, depth_pass,
+   * ert_prepass, raycast, compute_ao, upload_ao (not a release) and
+   * upload_bricks. */
   uint64_t (*last_time_ns)(void *impl);
   /* Optional (NULL: kernels are built on first use only). Builds every
    * kernel variant a frame with `effects` may use on the volume uploaded

@@ -220,8 +220,9 @@ struct rp_backend_ops;
 /* Opens device `index` of backend `name` as rp_device_create would choose
  * it (NULL: RP_BACKEND, else the first backend with that device), but
  * bare: its ops and impl without a front end, for a server running a
- * backend's ops on another process's behalf (backends/mpi). Neither the
- * reference (no ops) nor a named-only backend can be opened so
+ * backend's ops on another process's behalf (backends/mpi). Neither a
+ * host backend ("reference": it reads the front end's camera in double,
+ * device.h) nor a named-only backend can be opened so
  * (RP_EUNSUPPORTED). The caller destroys it with ops->destroy(impl). */
 int rp__backend_open(rp_context *ctx, const char *name, uint32_t index,
                      const struct rp_backend_ops **ops, void **impl,
