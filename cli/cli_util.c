@@ -177,7 +177,8 @@ int cli_open_device(rp_context *ctx, const char *option, const char *backend,
 }
 
 /* The key=value fields of a device spec, in the order of this list. */
-static const char *const device_keys[] = {"cu", "slow", "fail"};
+static const char *const device_keys[] = {"cu", "slow", "fail", "seed",
+                                          "noise"};
 #define DEVICE_KEYS (sizeof device_keys / sizeof device_keys[0])
 
 /* Field `key` (an index into device_keys) = `v` of spec [s, s + len).
@@ -189,16 +190,24 @@ static int parse_device_field(const char *option, const char *tok,
   static const char *const wants[] = {
       "compute units must be a number in 1..65536",
       "slowdown must be a number in [1, 10000]",
-      "fail must be the render (from 1) to fail at, or 0"};
+      "fail must be the render (from 1) to fail at, or 0",
+      "seed must be a number in 0..4294967295",
+      "noise must be a number in [0, 1] (0: none)"};
   uint32_t u = 0;
   char *end;
   double x = strtod(v, &end);
   int bad = 0;
-  if (key != 1)
+  if (key >= 3 && strcmp(d->backend, "test") != 0) {
+    fprintf(stderr, "raypace: %s: '%s' in '%.*s' is for backend test "
+                    "only\n", option, tok, len, s);
+    return RP_EINVAL;
+  }
+  if (key == 0 || key == 2 || key == 3)
     bad = cli_parse_u32(v, key == 0 ? 65536 : UINT32_MAX, &u) != 0 ||
           (key == 0 && u == 0);
   else
-    bad = end == v || *end != '\0' || !(x >= 1.0 && x <= 10000.0);
+    bad = end == v || *end != '\0' ||
+          !(key == 1 ? x >= 1.0 && x <= 10000.0 : x >= 0.0 && x <= 1.0);
   if (bad) {
     fprintf(stderr, "raypace: %s: '%s' in '%.*s': %s\n", option, tok, len,
             s, wants[key]);
@@ -207,24 +216,39 @@ static int parse_device_field(const char *option, const char *tok,
   switch (key) {
   case 0: d->compute_units = u; break;
   case 1: ext->faults.slowdown = x; break;
-  default: ext->faults.fail_at_render = u; break;
+  case 2: ext->faults.fail_at_render = u; break;
+  case 3: ext->test.seed = u; break;
+  /* On the command line 0 means no noise, not the default's. */
+  default: ext->test.noise_sd = x > 0.0 ? x : -1.0; break;
   }
-  if (key != 0)
+  if (key == 1 || key == 2)
     ext->faults.header.type = RP_EXT_FAULTS;
+  else if (key >= 3)
+    ext->test.header.type = RP_EXT_TEST_BACKEND;
   return 0;
 }
 
 /* Chains the ext structs a spec set onto d->next. */
 static void chain_device_ext(rp_device_desc *d, cli_device_ext *ext) {
+  const void *next = NULL;
   ext->faults.header.next = NULL;
-  d->next = ext->faults.header.type != 0 ? &ext->faults : NULL;
+  ext->test.header.next = NULL;
+  if (ext->test.header.type != 0) {
+    ext->test.header.next = next;
+    next = &ext->test;
+  }
+  if (ext->faults.header.type != 0) {
+    ext->faults.header.next = next;
+    next = &ext->faults;
+  }
+  d->next = next;
 }
 
 /* One SPEC of a device list, [s, s + len). */
 static int parse_device(const char *option, const char *s, size_t len,
                         rp_device_desc *d, cli_device_ext *ext) {
   static const char *const names[] = {"opencl", "vulkan", "reference",
-                                      "mpi"};
+                                      "test", "mpi"};
   char buf[128], *tok, *save = NULL;
   int field = 0, seen[DEVICE_KEYS] = {0}, err;
   size_t i, k;
@@ -258,8 +282,8 @@ static int parse_device(const char *option, const char *s, size_t len,
           d->backend = names[i];
       if (d->backend == NULL) {
         fprintf(stderr, "raypace: %s: backend '%s' in '%.*s' is not opencl, "
-                        "vulkan, reference or mpi\n", option, tok, (int)len,
-                s);
+                        "vulkan, reference, test or mpi\n", option, tok,
+                (int)len, s);
         return RP_EINVAL;
       }
       continue;
@@ -278,8 +302,8 @@ static int parse_device(const char *option, const char *s, size_t len,
         break;
     if (eq == NULL || k == DEVICE_KEYS) {
       fprintf(stderr, "raypace: %s: field '%s' in '%.*s' is not %s"
-                      "cu=N, slow=S or fail=F\n", option, tok, (int)len, s,
-              field == 1 ? "an index, " : "");
+                      "cu=N, slow=S, fail=F, seed=N or noise=X\n", option,
+              tok, (int)len, s, field == 1 ? "an index, " : "");
       return RP_EINVAL;
     }
     if (seen[k]++) {

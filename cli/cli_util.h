@@ -44,19 +44,22 @@ int cli_open_device(rp_context *ctx, const char *option, const char *backend,
  * stored next to its rp_device_desc, whose `next` points into them. */
 typedef struct cli_device_ext {
   rp_fault_desc faults;
+  rp_test_backend_desc test;
 } cli_device_ext;
 /* Parses a device list "SPEC[,SPEC...]",
- * SPEC = BACKEND[:INDEX][:cu=N][:slow=S][:fail=F] (BACKEND opencl,
- * vulkan, reference or mpi, whose device INDEX is MPI rank INDEX + 1
- * under mpirun; INDEX default 0; cu = compute units of a sub-device,
- * rp_device_desc.compute_units; slow = rp_fault_desc.slowdown; fail =
- * rp_fault_desc.fail_at_render) into out[0..*n), with the extension structs in
+ * SPEC = BACKEND[:INDEX][:cu=N][:slow=S][:fail=F][:seed=N][:noise=X]
+ * (BACKEND opencl, vulkan, reference, test or mpi, whose device INDEX is
+ * MPI rank INDEX + 1 under mpirun; INDEX default 0; cu = compute units
+ * of a sub-device, rp_device_desc.compute_units; slow =
+ * rp_fault_desc.slowdown; fail = rp_fault_desc.fail_at_render; seed and
+ * noise, for backend test only, rp_test_backend_desc.seed and noise_sd,
+ * noise=0 meaning none) into out[0..*n), with the extension structs in
  * ext[0..*n) (out[i].next points into ext[i]; NULL when the spec asks for
  * none). At most `max`. On a bad spec prints "OPTION: ..." naming the bad
  * part to stderr and returns RP_EINVAL. INDEX, if given, comes right
  * after BACKEND; the key=value fields follow in any order, each at most
- * once (cu in 1..65536, slow in [1, 10000], fail >= 0 where 0 is
- * never). The message reads "raypace:
+ * once (cu in 1..65536, slow in [1, 10000], fail >= 0 where 0 is never,
+ * seed in 0..2^32-1, noise in [0, 1]). The message reads "raypace:
  * OPTION: ...", as cli_error's do. out[i].backend points to a static
  * string. */
 int cli_parse_devices(const char *option, const char *spec,

@@ -369,11 +369,12 @@ typedef struct rp_caps {
 typedef struct rp_device rp_device;
 
 typedef struct rp_device_desc {
-  /* "opencl", "vulkan", "reference" or "mpi" (another MPI rank's device,
-   * raypace_mpi.h). NULL: the RP_BACKEND environment variable if set,
-   * else the first compiled-in backend with a device ("reference" and
-   * "mpi" only when named: the slow scalar oracle, and a device
-   * elsewhere). */
+  /* "opencl", "vulkan", "reference", "test" or "mpi" (another MPI
+   * rank's device, raypace_mpi.h). NULL: the RP_BACKEND environment
+   * variable if set, else the first compiled-in backend with a device
+   * ("reference", "test" and "mpi" only when named: the slow scalar
+   * oracle, the deterministic test device of raypace_testing.h, and a
+   * device elsewhere). */
   const char *backend;
   uint32_t index;            /* device within the backend */
   /* 0: the whole device; n: a sub-device of n compute units (OpenCL:
@@ -390,12 +391,12 @@ typedef struct rp_device_desc {
    * the least recently used; a region whose bricks do not fit is cut into
    * parts, and a tile into depth slabs. The image is the in-core image.
    * 0: the device's largest buffer (rp_caps.max_alloc_bytes). Not for the
-   * reference device, which always holds the whole volume. */
+   * reference and test devices, which always hold the whole volume. */
   uint64_t budget_bytes;
   /* A brick's edge in voxels: a power of two in [8, 256]. 0: 16. */
   uint32_t brick_size;
   /* Extension structs from raypace_testing.h (the testing tier: fault
-   * injection), each beginning with
+   * injection, the test backend's parameters), each beginning with
    * rp_ext_header {type, next}; read only during rp_device_create.
    * NULL: none. */
   const void *next;

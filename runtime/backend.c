@@ -3,7 +3,8 @@
  *
  * Every device is a backend behind rp_backend_ops: a driver's (OpenCL,
  * Vulkan, MPI), or a host backend that runs in the library (the scalar
- * reference, ref_backend.c), possibly wrapped in fault injection (faults.c). The
+ * reference, ref_backend.c; the deterministic test device,
+ * test_backend.c), possibly wrapped in fault injection (faults.c). The
  * front end checks arguments and state, resolves the frame, and calls
  * through the ops; an out-of-core volume goes through the brick plan
  * (brick_plan.c), which drives the same ops. */
@@ -51,9 +52,10 @@ static int named_only(const rp_backend_bootstrap *b) {
 }
 
 /* The host backends, always compiled in and, like "mpi", opened only by
- * name: the scalar oracle is slow, not what an application means by "a
- * device". */
-static const rp__host_backend *const hosts[] = {&rp__ref_backend, NULL};
+ * name: the scalar oracle is slow, and the test device's time is a
+ * formula, neither what an application means by "a device". */
+static const rp__host_backend *const hosts[] = {&rp__ref_backend,
+                                                &rp__test_backend, NULL};
 
 struct rp_device {
   rp_context *ctx;
@@ -276,7 +278,7 @@ int rp_device_create(rp_context *ctx, const rp_device_desc *desc,
   if (desc != NULL)
     d = *desc;
   name = wanted_backend(d.backend);
-  if ((err = rp__ext_check(ctx, d.next, &faults)) != 0)
+  if ((err = rp__ext_check(ctx, d.next, name, &faults)) != 0)
     return err;
   if (d.brick_size != 0 &&
       (d.brick_size < RP__BRICK_MIN || d.brick_size > RP__BRICK_MAX ||
@@ -314,6 +316,13 @@ void rp_device_get_caps(const rp_device *dev, rp_caps *caps) {
 
 uint64_t rp_device_last_time_ns(const rp_device *dev) {
   return dev != NULL ? dev->last_ns : 0;
+}
+
+int rp__device_clock_ns(const rp_device *dev, uint64_t *ns) {
+  if (dev->ops->clock_ns == NULL)
+    return 0;
+  *ns = dev->ops->clock_ns(dev->impl);
+  return 1;
 }
 
 /* Reads only what is fixed at create (ops, impl): another thread may be

@@ -1,6 +1,7 @@
 /* What the device front end (backend.c) builds a device from besides a
- * driver's bootstrap: the host backend that runs inside the library (the
- * scalar reference, ref_backend.c), the frame it receives, and the fault wrapper that can
+ * driver's bootstrap: the host backends that run inside the library (the
+ * scalar reference, ref_backend.c; the deterministic test device,
+ * test_backend.c), the frame they receive, and the fault wrapper that can
  * sit around any backend (faults.c). Not part of the public API. */
 #ifndef RP_DEVICE_H
 #define RP_DEVICE_H
@@ -44,14 +45,26 @@ typedef struct rp__host_backend {
                 const rp_backend_ops **ops, void **impl, rp_caps *caps);
 } rp__host_backend;
 
-extern const rp__host_backend rp__ref_backend; /* "reference" */
+extern const rp__host_backend rp__ref_backend;  /* "reference" */
+extern const rp__host_backend rp__test_backend; /* "test" */
+
+/* The reference backend's ops and a bare impl of it, which the test
+ * backend renders with; rp__ref_check refuses, for host backend `name`,
+ * a desc with a budget, an index other than 0 or compute units. */
+extern const rp_backend_ops rp__ref_ops;
+int rp__ref_open(rp_context *ctx, void **impl);
+void rp__ref_caps(rp_caps *caps);
+int rp__ref_check(rp_context *ctx, const char *name,
+                  const rp_device_desc *desc);
 
 /* ---- The extension chain (device_ext.c) ------------------------------ */
 
-/* Checks the chain of a desc: every struct of a known type, each type
- * once (so the chain ends: one that loops repeats a struct), and the
- * faults valid. *faults: the fault desc, or NULL. */
-int rp__ext_check(rp_context *ctx, const void *next,
+/* Checks the chain of a desc opening backend `name` (NULL: the first
+ * with a device): every struct of a known type, each type once (so the
+ * chain ends: one that loops repeats a struct), the test backend's
+ * parameters only for it, and the faults valid. *faults: the fault desc,
+ * or NULL. */
+int rp__ext_check(rp_context *ctx, const void *next, const char *name,
                   const rp_fault_desc **faults);
 /* The extension struct of `type` in a checked chain, or NULL. */
 const rp_ext_header *rp__ext_find(const void *next, rp_ext_type type);

@@ -12,7 +12,10 @@
  *   the front end marks (rp__faults_render_begin/_end): an out-of-core
  *   render reaches the backend as several raycasts and uploads, and must
  *   still count once.
- */
+ *
+ * The waits are in wall time, unless the inner backend keeps its own
+ * clock (the test backend): then they advance that clock instead, and a
+ * slowed or stalled test device stays deterministic. */
 #include <math.h>
 #include <string.h>
 #include <time.h>
@@ -29,6 +32,7 @@ struct rp__faults {
   char device[128], backend[32]; /* the inner device, for messages */
   uint32_t renders, ao_jobs;
   uint64_t last_ns;
+  uint64_t waited_ns;        /* on the inner backend's own clock */
 };
 
 int rp__faults_check(rp_context *ctx, const rp_fault_desc *fd) {
@@ -44,9 +48,13 @@ int rp__faults_check(rp_context *ctx, const rp_fault_desc *fd) {
   return 0;
 }
 
-/* Waits `ns`, as the device would have taken them. */
-static void wait_ns(uint64_t ns) {
+/* Waits `ns` the way the inner device lives: its own clock, or the wall. */
+static void wait_ns(rp__faults *f, uint64_t ns) {
   struct timespec ts;
+  if (f->in->clock_ns != NULL) {
+    f->waited_ns += ns;
+    return;
+  }
   ts.tv_sec = (time_t)(ns / 1000000000u);
   ts.tv_nsec = (long)(ns % 1000000000u);
   while (nanosleep(&ts, &ts) != 0)
@@ -61,7 +69,7 @@ static int timed(rp__faults *f, int err) {
   ns = f->in->last_time_ns(f->in_impl);
   if (f->d.slowdown > 1.0) {
     extra = (uint64_t)((f->d.slowdown - 1.0) * (double)ns);
-    wait_ns(extra);
+    wait_ns(f, extra);
   }
   f->last_ns = ns + extra;
   return 0;
@@ -151,6 +159,11 @@ static int f_prepare(void *p, rp_context *ctx, uint32_t effects) {
   return f->in->prepare(f->in_impl, ctx, effects);
 }
 
+static uint64_t f_clock_ns(void *p) {
+  const rp__faults *f = p;
+  return f->in->clock_ns(f->in_impl) + f->waited_ns;
+}
+
 static const rp_backend_ops wrapper_ops = {
     .destroy = f_destroy,
     .upload_volume = f_upload_volume,
@@ -165,6 +178,7 @@ static const rp_backend_ops wrapper_ops = {
     .upload_bricks = f_upload_bricks,
     .last_time_ns = f_last_time_ns,
     .prepare = f_prepare,
+    .clock_ns = f_clock_ns,
 };
 
 /* ---- the front end's side ----------------------------------------------- */
@@ -185,7 +199,7 @@ int rp__faults_wrap(rp_context *ctx, const rp_fault_desc *fd,
   memcpy(f->backend, caps->backend, sizeof f->backend);
   f->ops = wrapper_ops;
   /* The front end reads an optional op's absence as a capability (no
-   * bricks, no building ahead): the wrapper keeps it. */
+   * bricks, no building ahead, real time): the wrapper keeps it. */
   if (in->set_brick_pool == NULL)
     f->ops.set_brick_pool = NULL;
   if (in->upload_bricks == NULL)
@@ -196,6 +210,8 @@ int rp__faults_wrap(rp_context *ctx, const rp_fault_desc *fd,
     f->ops.upload_ao = NULL;
   if (in->prepare == NULL)
     f->ops.prepare = NULL;
+  if (in->clock_ns == NULL)
+    f->ops.clock_ns = NULL;
   *ops = &f->ops;
   *impl = f;
   *out = f;
@@ -219,6 +235,6 @@ uint64_t rp__faults_render_end(rp__faults *f) {
       f->renders != f->d.stall_at_render)
     return 0;
   ns = (uint64_t)(f->d.stall_ms * 1e6);
-  wait_ns(ns);
+  wait_ns(f, ns);
   return ns;
 }

@@ -221,12 +221,17 @@ struct rp_backend_ops;
  * it (NULL: RP_BACKEND, else the first backend with that device), but
  * bare: its ops and impl without a front end, for a server running a
  * backend's ops on another process's behalf (backends/mpi). Neither a
- * host backend ("reference": it reads the front end's camera in double,
- * device.h) nor a named-only backend can be opened so
+ * host backend ("reference", "test": they read the front end's camera in
+ * double, device.h) nor a named-only backend can be opened so
  * (RP_EUNSUPPORTED). The caller destroys it with ops->destroy(impl). */
 int rp__backend_open(rp_context *ctx, const char *name, uint32_t index,
                      const struct rp_backend_ops **ops, void **impl,
                      rp_caps *caps);
+/* The device's own simulated clock (rp_backend_ops.clock_ns): 1 with *ns
+ * set when the device keeps one (the test backend, also under fault
+ * injection), else 0, and its time is real time (rp__now_ns). The
+ * device's owner thread only. */
+int rp__device_clock_ns(const rp_device *dev, uint64_t *ns);
 
 /* ---- png.c ------------------------------------------------------------- */
 

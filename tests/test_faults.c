@@ -9,7 +9,7 @@
  * - AO jobs are counted per rp_device_compute_ao, apart from renders.
  * - The wrapper forwards faithfully: for every backend present, a wrapped
  *   device with nothing to inject renders the plain device's image, and
- *   keeps its optional abilities (building ahead). */
+ *   keeps its optional abilities (building ahead, its own clock). */
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -147,7 +147,7 @@ static void test_ao_jobs_fail_apart(void **state) {
 /* ---- forwarding ---------------------------------------------------------- */
 
 static void test_wrapper_forwards(void **state) {
-  static const char *const backends[] = {"reference", "opencl",
+  static const char *const backends[] = {"reference", "test", "opencl",
                                          "vulkan"};
   scene s = make_scene(32);
   rp_camera c = {0};
@@ -163,6 +163,7 @@ static void test_wrapper_forwards(void **state) {
     rp_device_desc dd = {0};
     rp_fault_desc fd = {{RP_EXT_FAULTS, NULL}, 0.0, 0, 0, 0, 0.0};
     rp_device *plain, *wrapped;
+    uint64_t ns;
     if (!rp_test_has_device(backends[k]))
       continue;
     ran++;
@@ -177,11 +178,13 @@ static void test_wrapper_forwards(void **state) {
     assert_memory_equal(a, b, sizeof a);
     assert_int_equal(rp__device_builds_ahead(wrapped),
                      rp__device_builds_ahead(plain));
+    assert_int_equal(rp__device_clock_ns(wrapped, &ns),
+                     rp__device_clock_ns(plain, &ns));
     assert_int_equal(rp_device_prepare(wrapped, ctx, d.effects), 0);
     rp_device_destroy(wrapped);
     rp_device_destroy(plain);
   }
-  assert_true(ran >= 1); /* the reference is always there */
+  assert_true(ran >= 2); /* the host backends are always there */
   rp_test_scene_drop(&s);
 }
 
