@@ -20,7 +20,7 @@
  * Device sets (--set):
  *   cl2      PoCL's two 1-compute-unit sub-devices (OpenCL devices 1, 2)
  *   cl-vk    PoCL device 1 and lavapipe (set LP_NUM_THREADS=1)
- *   cl-slow  as cl2, the second slowed 3x (rp_device_desc.slowdown)
+ *   cl-slow  as cl2, the second slowed 3x (rp_fault_desc.slowdown)
  *
  * With --sweep, what AO accuracy costs: time and error of L in {4, 8,
  * 16, 32} directions and M in {4, 8, 16} samples against L = 64, M = 32.
@@ -36,6 +36,7 @@
 #include "bench_util.h"
 #include "raypace.h"
 #include "raypace_ao.h"
+#include "raypace_testing.h"
 
 #define MAX_RUNS 15
 /* Frames are short and noisy next to AO computations: more of them. */
@@ -46,6 +47,10 @@ typedef struct device_set {
   rp_device *dev[2];
   uint32_t n;
 } device_set;
+
+/* The second device of set cl-slow: three times slower. */
+static const rp_fault_desc slowed_3x = {{RP_EXT_FAULTS, NULL}, 3.0, 0, 0, 0,
+                                        0.0};
 
 static int open_set(const char *set, device_set *ds) {
   rp_device_desc dd[2];
@@ -58,7 +63,7 @@ static int open_set(const char *set, device_set *ds) {
     dd[0].index = 1;
     dd[1].index = 2;
     if (strcmp(set, "cl-slow") == 0)
-      dd[1].slowdown = 3.0;
+      dd[1].next = &slowed_3x;
   } else if (strcmp(set, "cl-vk") == 0) {
     dd[0].backend = "opencl";
     dd[0].index = 1;

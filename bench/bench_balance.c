@@ -29,7 +29,7 @@
  *   cl-vk    a 1-compute-unit PoCL sub-device and lavapipe with
  *            LP_NUM_THREADS=1: two different one-core devices;
  *   cl-slow  PoCL's two 1-compute-unit sub-devices (OpenCL devices 1
- *            and 2), the second slowed 3x (rp_device_desc.slowdown).
+ *            and 2), the second slowed 3x (rp_fault_desc.slowdown).
  * The step stays at 1 voxel (no tuning): what is measured is the split. */
 #include <math.h>
 #include <stdio.h>
@@ -40,6 +40,7 @@
 #include "raypace.h"
 #include "raypace_group.h"
 #include "raypace_sequence.h"
+#include "raypace_testing.h"
 
 #define MAX_FRAMES 2048
 #define SETTLE 5 /* frames left out of the averages: first-frame builds */
@@ -162,6 +163,10 @@ static void close_scene(scene *s) {
   rp_context_destroy(s->ctx);
 }
 
+/* The second device of pair cl-slow: three times slower. */
+static const rp_fault_desc slowed_3x = {{RP_EXT_FAULTS, NULL}, 3.0, 0, 0, 0,
+                                        0.0};
+
 /* The pair's device descriptions. */
 static int pair_devices(const char *pair, rp_device_desc *dd) {
   memset(dd, 0, 2 * sizeof *dd);
@@ -180,7 +185,7 @@ static int pair_devices(const char *pair, rp_device_desc *dd) {
     dd[0].index = 1;
     dd[1].backend = "opencl";
     dd[1].index = 2;
-    dd[1].slowdown = 3.0;
+    dd[1].next = &slowed_3x;
   } else {
     return 1;
   }
@@ -314,7 +319,7 @@ int main(int argc, char **argv) {
     rp_device_group_get_caps(single[1], 0, &c1);
     printf("pair %s: [0] %s:%s (%u CU)  [1] %s:%s (%u CU)%s\n", o.pair,
            c0.backend, c0.device, c0.compute_units, c1.backend, c1.device,
-           c1.compute_units, dd[1].slowdown > 1.0 ? ", slowed 3x" : "");
+           c1.compute_units, dd[1].next != NULL ? ", slowed 3x" : "");
     printf("volume %s, %ux%u, sequence %s, %u frames (first %d left out)\n",
            o.volume, o.size, o.size, o.sequence, n, SETTLE);
   }

@@ -176,15 +176,84 @@ int cli_open_device(rp_context *ctx, const char *option, const char *backend,
   return err != 0 ? cli_error(ctx, option, err) : 0;
 }
 
-/* One SPEC of a device list, [s, e). */
+/* The key=value fields of a device spec, in the order of this list. */
+static const char *const device_keys[] = {"cu", "slow", "fail", "seed",
+                                          "noise"};
+#define DEVICE_KEYS (sizeof device_keys / sizeof device_keys[0])
+
+/* Field `key` (an index into device_keys) = `v` of spec [s, s + len).
+ * Points d->next at the ext struct the field sets. */
+static int parse_device_field(const char *option, const char *tok,
+                              size_t key, const char *v, const char *s,
+                              int len, rp_device_desc *d,
+                              cli_device_ext *ext) {
+  static const char *const wants[] = {
+      "compute units must be a number in 1..65536",
+      "slowdown must be a number in [1, 10000]",
+      "fail must be the render (from 1) to fail at, or 0",
+      "seed must be a number in 0..4294967295",
+      "noise must be a number in [0, 1] (0: none)"};
+  uint32_t u = 0;
+  char *end;
+  double x = strtod(v, &end);
+  int bad = 0;
+  if (key >= 3 && strcmp(d->backend, "test") != 0) {
+    fprintf(stderr, "raypace: %s: '%s' in '%.*s' is for backend test "
+                    "only\n", option, tok, len, s);
+    return RP_EINVAL;
+  }
+  if (key == 0 || key == 2 || key == 3)
+    bad = cli_parse_u32(v, key == 0 ? 65536 : UINT32_MAX, &u) != 0 ||
+          (key == 0 && u == 0);
+  else
+    bad = end == v || *end != '\0' ||
+          !(key == 1 ? x >= 1.0 && x <= 10000.0 : x >= 0.0 && x <= 1.0);
+  if (bad) {
+    fprintf(stderr, "raypace: %s: '%s' in '%.*s': %s\n", option, tok, len,
+            s, wants[key]);
+    return RP_EINVAL;
+  }
+  switch (key) {
+  case 0: d->compute_units = u; break;
+  case 1: ext->faults.slowdown = x; break;
+  case 2: ext->faults.fail_at_render = u; break;
+  case 3: ext->test.seed = u; break;
+  /* On the command line 0 means no noise, not the default's. */
+  default: ext->test.noise_sd = x > 0.0 ? x : -1.0; break;
+  }
+  if (key == 1 || key == 2)
+    ext->faults.header.type = RP_EXT_FAULTS;
+  else if (key >= 3)
+    ext->test.header.type = RP_EXT_TEST_BACKEND;
+  return 0;
+}
+
+/* Chains the ext structs a spec set onto d->next. */
+static void chain_device_ext(rp_device_desc *d, cli_device_ext *ext) {
+  const void *next = NULL;
+  ext->faults.header.next = NULL;
+  ext->test.header.next = NULL;
+  if (ext->test.header.type != 0) {
+    ext->test.header.next = next;
+    next = &ext->test;
+  }
+  if (ext->faults.header.type != 0) {
+    ext->faults.header.next = next;
+    next = &ext->faults;
+  }
+  d->next = next;
+}
+
+/* One SPEC of a device list, [s, s + len). */
 static int parse_device(const char *option, const char *s, size_t len,
-                        rp_device_desc *d) {
+                        rp_device_desc *d, cli_device_ext *ext) {
   static const char *const names[] = {"opencl", "vulkan", "reference",
-                                      "mpi"};
+                                      "test", "mpi"};
   char buf[128], *tok, *save = NULL;
-  int field = 0, have_cu = 0, have_slow = 0, have_fail = 0;
-  size_t i;
+  int field = 0, seen[DEVICE_KEYS] = {0}, err;
+  size_t i, k;
   memset(d, 0, sizeof(*d));
+  memset(ext, 0, sizeof(*ext));
   if (len == 0) {
     fprintf(stderr, "raypace: %s: empty device in the list\n", option);
     return RP_EINVAL;
@@ -213,77 +282,67 @@ static int parse_device(const char *option, const char *s, size_t len,
           d->backend = names[i];
       if (d->backend == NULL) {
         fprintf(stderr, "raypace: %s: backend '%s' in '%.*s' is not opencl, "
-                        "vulkan, reference or mpi\n", option, tok, (int)len,
-                s);
+                        "vulkan, reference, test or mpi\n", option, tok,
+                (int)len, s);
         return RP_EINVAL;
       }
-    } else if (eq == NULL && field == 1) {
+      continue;
+    }
+    if (eq == NULL && field == 1) {
       if (cli_parse_u32(tok, 1024, &d->index) != 0) {
         fprintf(stderr, "raypace: %s: device index '%s' in '%.*s' is not a "
                         "number in 0..1024\n", option, tok, (int)len, s);
         return RP_EINVAL;
       }
-    } else if (eq != NULL && strncmp(tok, "cu=", 3) == 0 && !have_cu) {
-      have_cu = 1;
-      if (cli_parse_u32(eq + 1, 65536, &d->compute_units) != 0 ||
-          d->compute_units == 0) {
-        fprintf(stderr, "raypace: %s: '%s' in '%.*s': compute units must "
-                        "be a number in 1..65536\n", option, tok, (int)len,
-                s);
-        return RP_EINVAL;
-      }
-    } else if (eq != NULL && strncmp(tok, "slow=", 5) == 0 && !have_slow) {
-      char *end;
-      double v = strtod(eq + 1, &end);
-      have_slow = 1;
-      if (end == eq + 1 || *end != '\0' || !(v >= 1.0 && v <= 10000.0)) {
-        fprintf(stderr, "raypace: %s: '%s' in '%.*s': slowdown must be a "
-                        "number in [1, 10000]\n", option, tok, (int)len, s);
-        return RP_EINVAL;
-      }
-      d->slowdown = v;
-    } else if (eq != NULL && strncmp(tok, "fail=", 5) == 0 && !have_fail) {
-      have_fail = 1;
-      if (cli_parse_u32(eq + 1, UINT32_MAX, &d->fail_at_render) != 0) {
-        fprintf(stderr, "raypace: %s: '%s' in '%.*s': fail must be the "
-                        "render (from 1) to fail at, or 0\n", option, tok,
-                (int)len, s);
-        return RP_EINVAL;
-      }
-    } else if (eq != NULL && (strncmp(tok, "cu=", 3) == 0 ||
-                              strncmp(tok, "slow=", 5) == 0 ||
-                              strncmp(tok, "fail=", 5) == 0)) {
+      continue;
+    }
+    for (k = 0; eq != NULL && k < DEVICE_KEYS; k++)
+      if (strlen(device_keys[k]) == (size_t)(eq - tok) &&
+          strncmp(tok, device_keys[k], (size_t)(eq - tok)) == 0)
+        break;
+    if (eq == NULL || k == DEVICE_KEYS) {
+      fprintf(stderr, "raypace: %s: field '%s' in '%.*s' is not %s"
+                      "cu=N, slow=S, fail=F, seed=N or noise=X\n", option,
+              tok, (int)len, s, field == 1 ? "an index, " : "");
+      return RP_EINVAL;
+    }
+    if (seen[k]++) {
       fprintf(stderr, "raypace: %s: '%.*s' is given twice in '%.*s'\n",
               option, (int)(eq - tok), tok, (int)len, s);
       return RP_EINVAL;
-    } else {
-      fprintf(stderr, "raypace: %s: field '%s' in '%.*s' is not %s"
-                      "cu=N, slow=S or fail=F\n", option, tok, (int)len, s,
-              field == 1 ? "an index, " : "");
-      return RP_EINVAL;
     }
+    if ((err = parse_device_field(option, tok, k, eq + 1, s, (int)len, d,
+                                  ext)) != 0)
+      return err;
   }
+  chain_device_ext(d, ext);
   return 0;
 }
 
 int cli_parse_devices(const char *option, const char *spec,
-                      rp_device_desc *out, uint32_t max, uint32_t *n) {
+                      rp_device_desc *out, cli_device_ext *ext,
+                      uint32_t max, uint32_t *n) {
   uint32_t count = 0;
   const char *s = spec;
-  if (spec == NULL || out == NULL || n == NULL)
+  if (spec == NULL || out == NULL || ext == NULL || n == NULL)
     return RP_EINVAL;
   for (;;) {
     const char *comma = strchr(s, ',');
     size_t len = comma != NULL ? (size_t)(comma - s) : strlen(s);
     rp_device_desc d;
-    int err = parse_device(option, s, len, &d);
+    cli_device_ext e;
+    int err = parse_device(option, s, len, &d, &e);
     if (err != 0)
       return err;
     if (count == max) {
       fprintf(stderr, "raypace: %s: at most %u devices\n", option, max);
       return RP_EINVAL;
     }
-    out[count++] = d;
+    /* The chain points into ext[count], where the structs now live. */
+    ext[count] = e;
+    out[count] = d;
+    chain_device_ext(&out[count], &ext[count]);
+    count++;
     if (comma == NULL)
       break;
     s = comma + 1;

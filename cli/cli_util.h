@@ -6,6 +6,7 @@
 #include <stdio.h>
 
 #include "raypace.h"
+#include "raypace_testing.h"
 
 /* Opens a volume from a file path or a generator spec
  * "gen:KIND[:N|:XxYxZ][:u8|u16][:SEED]" (KIND: ml, phantom, noise; a
@@ -39,20 +40,31 @@ void cli_print_bricks(const rp_device *dev, const char *prefix);
  * the command-line option in the error. Returns 0 or 1 (error printed). */
 int cli_open_device(rp_context *ctx, const char *option, const char *backend,
                     uint32_t index, const cli_memory *mem, rp_device **dev);
+/* The extension structs a device spec may ask for (raypace_testing.h),
+ * stored next to its rp_device_desc, whose `next` points into them. */
+typedef struct cli_device_ext {
+  rp_fault_desc faults;
+  rp_test_backend_desc test;
+} cli_device_ext;
 /* Parses a device list "SPEC[,SPEC...]",
- * SPEC = BACKEND[:INDEX][:cu=N][:slow=S][:fail=F] (BACKEND opencl, vulkan,
- * reference or mpi, whose device INDEX is MPI rank INDEX + 1 under
- * mpirun; INDEX default 0; cu = compute units of a sub-device,
- * rp_device_desc.compute_units; slow = rp_device_desc.slowdown; fail =
- * rp_device_desc.fail_at_render) into out[0..*n). At most `max`. On a bad
- * spec prints "OPTION: ..." naming the bad part to stderr and returns
- * RP_EINVAL. INDEX, if given, comes right after BACKEND; the key=value
- * fields follow in any order, each at most once (cu in 1..65536, slow in
- * [1, 10000], fail >= 0 where 0 is never). The message reads
- * "raypace: OPTION: ...", as cli_error's do. out[i].backend points to a
- * static string. */
+ * SPEC = BACKEND[:INDEX][:cu=N][:slow=S][:fail=F][:seed=N][:noise=X]
+ * (BACKEND opencl, vulkan, reference, test or mpi, whose device INDEX is
+ * MPI rank INDEX + 1 under mpirun; INDEX default 0; cu = compute units
+ * of a sub-device, rp_device_desc.compute_units; slow =
+ * rp_fault_desc.slowdown; fail = rp_fault_desc.fail_at_render; seed and
+ * noise, for backend test only, rp_test_backend_desc.seed and noise_sd,
+ * noise=0 meaning none) into out[0..*n), with the extension structs in
+ * ext[0..*n) (out[i].next points into ext[i]; NULL when the spec asks for
+ * none). At most `max`. On a bad spec prints "OPTION: ..." naming the bad
+ * part to stderr and returns RP_EINVAL. INDEX, if given, comes right
+ * after BACKEND; the key=value fields follow in any order, each at most
+ * once (cu in 1..65536, slow in [1, 10000], fail >= 0 where 0 is never,
+ * seed in 0..2^32-1, noise in [0, 1]). The message reads "raypace:
+ * OPTION: ...", as cli_error's do. out[i].backend points to a static
+ * string. */
 int cli_parse_devices(const char *option, const char *spec,
-                      rp_device_desc *out, uint32_t max, uint32_t *n);
+                      rp_device_desc *out, cli_device_ext *ext,
+                      uint32_t max, uint32_t *n);
 /* Median of n > 0 values; sorts them in place. */
 double cli_median(double *v, int n);
 /* Writes s as a gnuplot single-quoted literal ('' is a quote), so that a

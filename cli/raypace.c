@@ -75,9 +75,11 @@ static void usage_render(FILE *f) {
           "\n"
           "  --background R,G,B    PNG background in [0,1] (default 0,0,0)\n"
           "  --backend NAME        opencl, vulkan, reference (the scalar\n"
-          "                        oracle) or mpi (under mpirun: device N is\n"
-          "                        rank N + 1's); default: the first with a\n"
-          "                        device (never mpi)\n"
+          "                        oracle), test (the reference's image, a\n"
+          "                        device time from a formula: testing) or\n"
+          "                        mpi (under mpirun: device N is rank\n"
+          "                        N + 1's); default: the first with a\n"
+          "                        device (never reference, test or mpi)\n"
           "  --device N            device index within the backend (default "
           "0)\n"
           "  --scale S             image scale in (0, 1]: rays per output\n"
@@ -87,14 +89,17 @@ static void usage_render(FILE *f) {
           "                        --backend/--device); LIST is SPEC[,SPEC.."
           ".],\n"
           "                        SPEC BACKEND[:INDEX][:cu=N][:slow=S]"
-          "[:fail=F]:\n"
+          "[:fail=F]\n"
+          "                        [:seed=N][:noise=X]:\n"
           "                        cu a sub-device of N compute units (the\n"
           "                        first part of an equal split: two cu=1\n"
           "                        share one core; opencl:1 and opencl:2\n"
           "                        are PoCL's two one-core parts), slow a\n"
           "                        device S times slower, fail the render "
           "it\n"
-          "                        fails at (testing device loss); mpi:I is\n"
+          "                        fails at (testing device loss), seed\n"
+          "                        and noise the test backend's noise\n"
+          "                        (0: none; default 0.02); mpi:I is\n"
           "                        MPI rank I + 1 under mpirun (rank 0 runs\n"
           "                        the command, the others serve devices)\n"
           "  --overlay-split       with --devices: tint each device's region"
@@ -274,6 +279,7 @@ typedef struct render_opts {
   uint32_t warmup;
   const char *devices_spec;
   rp_device_desc devices[RP_GROUP_MAX_DEVICES];
+  cli_device_ext device_ext[RP_GROUP_MAX_DEVICES]; /* devices[i].next */
   uint32_t ndevices;
   cli_memory mem;
 } render_opts;
@@ -351,7 +357,7 @@ static int parse_render(int argc, char **argv, render_opts *o) {
       break;
     case 'L':
       /* The parser names the bad part itself. */
-      if (cli_parse_devices("--devices", optarg, o->devices,
+      if (cli_parse_devices("--devices", optarg, o->devices, o->device_ext,
                             RP_GROUP_MAX_DEVICES, &o->ndevices) != 0)
         return 2;
       o->devices_spec = optarg;

@@ -91,7 +91,7 @@ static void usage(FILE *f) {
       "                        allows; image space stops at 1 (default:\n"
       "                        the base step)\n"
       "  --size WxH            output size (default 384x384)\n"
-      "  --backend NAME        opencl, vulkan, reference or mpi\n"
+      "  --backend NAME        opencl, vulkan, reference, test or mpi\n"
       "  --device N            device index within the backend\n"
       "  --devices LIST        render every frame on several devices at "
       "once\n"
@@ -99,7 +99,8 @@ static void usage(FILE *f) {
       "--device):\n"
       "                        SPEC[,SPEC...], SPEC BACKEND[:INDEX]"
       "[:cu=N]\n"
-      "                        [:slow=S][:fail=F] as in 'raypace render'"
+      "                        [:slow=S][:fail=F][:seed=N][:noise=X] as"
+      "\n                        in 'raypace render'"
       "\n"
       "                        (mpi:I: MPI rank I + 1, under mpirun)\n"
       "  --settle N            unrecorded frames before the sequence "
@@ -244,7 +245,7 @@ static int parse_opts(int argc, char **argv, replay_opts *o) {
       break;
     case 'L':
       /* The parser names the bad part itself. */
-      if (cli_parse_devices("--devices", optarg, o->devices,
+      if (cli_parse_devices("--devices", optarg, o->devices, o->device_ext,
                             RP_GROUP_MAX_DEVICES, &o->ndevices) != 0)
         return 2;
       o->devices_spec = optarg;

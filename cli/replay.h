@@ -28,6 +28,7 @@ typedef struct replay_opts {
   int device_given;
   const char *devices_spec;
   rp_device_desc devices[RP_GROUP_MAX_DEVICES];
+  cli_device_ext device_ext[RP_GROUP_MAX_DEVICES]; /* devices[i].next */
   uint32_t ndevices; /* 0: one device, no group */
   cli_memory mem;
 } replay_opts;

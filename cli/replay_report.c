@@ -250,15 +250,15 @@ static int write_plot(const char *png, const char *csv, const summary *sums,
 }
 
 /* Device i's label: its spec, as --devices gave it. */
-static void device_label(const rp_device_desc *d, uint32_t i, char *buf,
-                         size_t size) {
+static void device_label(const rp_device_desc *d, const rp_fault_desc *f,
+                         uint32_t i, char *buf, size_t size) {
   int n = snprintf(buf, size, "dev%u %s:%u", i, d->backend, d->index);
   if (n > 0 && (size_t)n < size && d->compute_units > 0)
     n += snprintf(buf + n, size - (size_t)n, ":cu=%u", d->compute_units);
-  if (n > 0 && (size_t)n < size && d->slowdown > 0)
-    n += snprintf(buf + n, size - (size_t)n, ":slow=%g", d->slowdown);
-  if (n > 0 && (size_t)n < size && d->fail_at_render > 0)
-    snprintf(buf + n, size - (size_t)n, ":fail=%u", d->fail_at_render);
+  if (n > 0 && (size_t)n < size && f->slowdown > 0)
+    n += snprintf(buf + n, size - (size_t)n, ":slow=%g", f->slowdown);
+  if (n > 0 && (size_t)n < size && f->fail_at_render > 0)
+    snprintf(buf + n, size - (size_t)n, ":fail=%u", f->fail_at_render);
 }
 
 /* Per-device busy times (left) and stacked shares (right) per frame, one
@@ -290,7 +290,8 @@ static int write_device_plot(const char *png, const char *csv,
     /* A frame the device had no region in is a gap, not a 0. */
     for (i = 0; i < n; i++) {
       char label[96];
-      device_label(&r->o->devices[i], i, label, sizeof(label));
+      device_label(&r->o->devices[i], &r->o->device_ext[i].faults, i, label,
+                   sizeof(label));
       fprintf(g, "%s", i ? ", " : "");
       cli_gnuplot_string(g, csv);
       fprintf(g, " skip 1 using 2:(strcol(1) eq '%s' && $%u > 0 ? $%u : "

@@ -371,11 +371,12 @@ typedef struct rp_caps {
 typedef struct rp_device rp_device;
 
 typedef struct rp_device_desc {
-  /* "opencl", "vulkan", "reference" or "mpi" (another MPI rank's device,
-   * raypace_mpi.h). NULL: the RP_BACKEND environment variable if set,
-   * else the first compiled-in backend with a device ("reference" and
-   * "mpi" only when named: the slow scalar oracle, and a device
-   * elsewhere). */
+  /* "opencl", "vulkan", "reference", "test" or "mpi" (another MPI
+   * rank's device, raypace_mpi.h). NULL: the RP_BACKEND environment
+   * variable if set, else the first compiled-in backend with a device
+   * ("reference", "test" and "mpi" only when named: the slow scalar
+   * oracle, the deterministic test device of raypace_testing.h, and a
+   * device elsewhere). */
   const char *backend;
   uint32_t index;            /* device within the backend */
   /* 0: the whole device; n: a sub-device of n compute units (OpenCL:
@@ -383,26 +384,6 @@ typedef struct rp_device_desc {
    * Backends that cannot partition refuse it with RP_EUNSUPPORTED; more
    * than the device has is RP_ERANGE. */
   uint32_t compute_units;
-  /* Testing heterogeneous devices: every depth pass, ERT pre-pass and
-   * render takes `slowdown` times as long. The front end waits
-   * (slowdown - 1) times the operation's device time after it and
-   * reports the stretched time, so a real backend becomes a device that
-   * much slower, reproducibly. 0 or 1: none; otherwise finite and in
-   * (1, 10000]. */
-  double slowdown;
-  /* Testing device loss: the fail_at_render-th render (counting from 1)
-   * and every one after it fail with RP_EDEVICE, as a device that is
-   * lost mid-session does. 0: never. */
-  uint32_t fail_at_render;
-  /* The same for AO jobs (rp_device_compute_ao): the fail_at_ao-th and
-   * every later one fail with RP_EDEVICE. 0: never. */
-  uint32_t fail_at_ao;
-  /* Testing a stall: the stall_at_render-th render (counting from 1)
-   * takes stall_ms longer, in wall time and in the time reported, as a
-   * thread descheduled on a shared machine does. 0: never; stall_ms
-   * finite and in [0, 60000]. */
-  uint32_t stall_at_render;
-  double stall_ms;
   /* Out-of-core volumes (DESIGN section 9, docs/out_of_core.md): the
    * device memory a volume may take, in bytes. A volume that fits is
    * uploaded whole. A larger one stays in host memory as bricks of
@@ -410,12 +391,17 @@ typedef struct rp_device_desc {
    * pool of as many bricks as the budget holds, loading on each render
    * only the visible bricks its region's frustum touches and replacing
    * the least recently used; a region whose bricks do not fit is cut into
-   * parts, and a tile into depth slabs. The image is the in-core image. 0: the device's largest buffer
-   * (rp_caps.max_alloc_bytes). Not for the reference device, which always
-   * holds the whole volume. */
+   * parts, and a tile into depth slabs. The image is the in-core image.
+   * 0: the device's largest buffer (rp_caps.max_alloc_bytes). Not for the
+   * reference and test devices, which always hold the whole volume. */
   uint64_t budget_bytes;
   /* A brick's edge in voxels: a power of two in [8, 256]. 0: 16. */
   uint32_t brick_size;
+  /* Extension structs from raypace_testing.h (the testing tier: fault
+   * injection, the test backend's parameters), each beginning with
+   * rp_ext_header {type, next}; read only during rp_device_create.
+   * NULL: none. */
+  const void *next;
 } rp_device_desc;
 
 /** How a device holds its volume (rp_device_get_brick_stats). Counters
@@ -445,7 +431,9 @@ RP_API int rp_device_count(rp_context *ctx, const char *backend,
                            uint32_t *count);
 /** Opens a device. RP_ENODEV when no backend has one (the message lists
  *  what was tried); RP_EUNSUPPORTED or RP_ERANGE for a compute_units the
- *  device cannot be partitioned into. \since 0.1 */
+ *  device cannot be partitioned into; RP_EINVAL (or RP_ERANGE,
+ *  RP_ENOTFINITE for a bad value) for an extension chain (desc->next)
+ *  raypace_testing.h does not describe. \since 0.1 */
 RP_API int rp_device_create(rp_context *ctx, const rp_device_desc *desc,
                             rp_device **out);
 RP_API void rp_device_destroy(rp_device *dev);

@@ -23,8 +23,8 @@ extern "C" {
 #endif
 
 /* Bumped whenever rp_backend_ops, rp_backend_bootstrap or rp_frame_params
- * change layout. */
-#define RP_BACKEND_ABI 6
+ * change layout. 7: rp_backend_ops.clock_ns. */
+#define RP_BACKEND_ABI 7
 
 /* Coarse ERT pre-pass geometry (DESIGN section 3). */
 #define RP_ERT_RAY_STRIDE 4    /* one pre-pass ray per 4x4 pixels */
@@ -154,7 +154,10 @@ typedef struct rp_backend_ops {
    * `table` is NULL. */
   int (*upload_bricks)(void *impl, uint32_t count, const uint32_t *slots,
                        const void *const *voxels, const uint32_t *table);
-  /* Device time of the last operation, nanoseconds. */
+  /* Device time of the last operation, nanoseconds. The operations that
+   * report one: upload_volume, upload_tf, upload_occupancy, depth_pass,
+   * ert_prepass, raycast, compute_ao, upload_ao (not a release) and
+   * upload_bricks. */
   uint64_t (*last_time_ns)(void *impl);
   /* Optional (NULL: kernels are built on first use only). Builds every
    * kernel variant a frame with `effects` may use on the volume uploaded
@@ -172,6 +175,13 @@ typedef struct rp_backend_ops {
    * frame then builds them itself), RP_ESTATE before any volume was
    * uploaded, RP_EBUILD or RP_ENOMEM/RP_EDEVICE when a build fails. */
   int (*prepare)(void *impl, rp_context *ctx, uint32_t effects);
+  /* Optional: the backend's own simulated clock, nanoseconds, for a
+   * backend whose device time is a model rather than a measurement (the
+   * "test" backend, raypace_testing.h): it starts at 0 and advances by
+   * each operation's reported time, so that whoever paces frames reads
+   * the device's time rather than the host's. NULL: real time
+   * (CLOCK_MONOTONIC). */
+  uint64_t (*clock_ns)(void *impl);
 } rp_backend_ops;
 
 typedef struct rp_backend_bootstrap {

@@ -199,16 +199,16 @@ int rp__ao_brick_mask(rp_context *ctx, const rp_volume *vol,
 /* ---- Reference AO -------------------------------------------------------- */
 
 uint8_t rp__ao_voxel(const rp_volume *vol, const rp_tf *tf,
-                     const rp_ao_plan *s, uint32_t i, uint32_t j,
+                     const rp_ao_job *s, uint32_t i, uint32_t j,
                      uint32_t k) {
   double acc = 0.0, ao;
   uint32_t l, m;
   float ref_step = rp_tf_reference_step(tf);
-  for (l = 0; l < s->desc.directions; l++) {
+  for (l = 0; l < s->directions; l++) {
     const float *d = s->dirs + 4 * (size_t)l;
     double T = 1.0, I = 0.0;
-    for (m = 0; m < s->desc.samples; m++) {
-      double t = (double)s->desc.offset + (double)m * (double)s->step, p[3];
+    for (m = 0; m < s->samples; m++) {
+      double t = (double)s->offset + (double)m * (double)s->step, p[3];
       double alpha = 0.0;
       int a, inside = 1;
       p[0] = (double)i + t * (double)d[0];
@@ -225,16 +225,16 @@ uint8_t rp__ao_voxel(const rp_volume *vol, const rp_tf *tf,
       T *= 1.0 - alpha;
       I += T;
     }
-    acc += I / (double)s->desc.samples;
+    acc += I / (double)s->samples;
   }
-  ao = acc / (double)s->desc.directions;
+  ao = acc / (double)s->directions;
   ao = ao < 0.0 ? 0.0 : ao > 1.0 ? 1.0 : ao;
   return (uint8_t)floor(ao * 255.0 + 0.5);
 }
 
 /* Whether voxel (i, j, k) is computed: its brick is full, or there is no
  * mask. */
-static int voxel_wanted(const rp_ao_plan *s, uint32_t i, uint32_t j,
+static int voxel_wanted(const rp_ao_job *s, uint32_t i, uint32_t j,
                         uint32_t k) {
   const uint32_t *g = s->brick_grid;
   if (s->bricks == NULL)
@@ -244,19 +244,30 @@ static int voxel_wanted(const rp_ao_plan *s, uint32_t i, uint32_t j,
                    i / RP_AO_BRICK] != 0;
 }
 
-void rp__ao_reference_box(const rp_volume *vol, const rp_tf *tf,
-                          const rp_ao_plan *s, const uint32_t lo[3],
-                          const uint32_t end[3], uint32_t z0, uint32_t z1,
+void rp__ao_reference_job(const rp_volume *vol, const rp_tf *tf,
+                          const rp_ao_job *job, uint32_t z0, uint32_t z1,
                           uint8_t *out) {
+  const uint32_t *lo = job->lo, *end = job->end;
   uint32_t nx = end[0] - lo[0], ny = end[1] - lo[1], i, j, k;
   for (k = z0; k < z1; k++)
     for (j = lo[1]; j < end[1]; j++)
       for (i = lo[0]; i < end[0]; i++) {
         size_t o = ((size_t)(k - lo[2]) * ny + (j - lo[1])) * nx +
                    (i - lo[0]);
-        out[o] = voxel_wanted(s, i, j, k) ? rp__ao_voxel(vol, tf, s, i, j, k)
-                                          : 255;
+        out[o] = voxel_wanted(job, i, j, k)
+                     ? rp__ao_voxel(vol, tf, job, i, j, k)
+                     : 255;
       }
+}
+
+void rp__ao_reference_box(const rp_volume *vol, const rp_tf *tf,
+                          const rp_ao_plan *s, const uint32_t lo[3],
+                          const uint32_t end[3], uint32_t z0, uint32_t z1,
+                          uint8_t *out) {
+  rp_ao_job job;
+  rp__ao_job(s, lo, end, rp_tf_reference_step(tf), vol->min, vol->max,
+             (uint32_t)tf->lut_size, &job);
+  rp__ao_reference_job(vol, tf, &job, z0, z1, out);
 }
 
 typedef struct ref_job {

@@ -56,12 +56,18 @@ void rp__ao_brick_grid(const uint32_t dims[3], uint32_t grid[3]);
 int rp__ao_brick_mask(rp_context *ctx, const rp_volume *vol,
                       const rp_tf *tf, uint8_t **mask, uint32_t grid[3],
                       uint64_t *full);
-/* AO of one voxel, in double. */
+/* AO of one voxel, in double, with the directions, samples, offset and
+ * step of `job` (its box and brick mask are not looked at). */
 uint8_t rp__ao_voxel(const rp_volume *vol, const rp_tf *tf,
-                     const rp_ao_plan *s, uint32_t i, uint32_t j,
+                     const rp_ao_job *job, uint32_t i, uint32_t j,
                      uint32_t k);
-/* AO of the box [lo, end) restricted to layers z0 .. z1-1 into `out`,
- * which holds the whole box (x fastest); empty bricks get 255. */
+/* AO of job's box [lo, end) restricted to layers z0 .. z1-1 into `out`,
+ * which holds the whole box (x fastest); voxels of bricks the job's mask
+ * calls empty get 255. The reference backend's compute_ao. */
+void rp__ao_reference_job(const rp_volume *vol, const rp_tf *tf,
+                          const rp_ao_job *job, uint32_t z0, uint32_t z1,
+                          uint8_t *out);
+/* The same for the box [lo, end) under `plan`: rp__ao_job's job. */
 void rp__ao_reference_box(const rp_volume *vol, const rp_tf *tf,
                           const rp_ao_plan *s, const uint32_t lo[3],
                           const uint32_t end[3], uint32_t z0, uint32_t z1,

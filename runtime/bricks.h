@@ -25,6 +25,7 @@
 
 #include <stdint.h>
 
+#include "device.h"
 #include "internal.h"
 #include "raygen.h"
 
@@ -113,5 +114,69 @@ typedef struct rp__bricks_info {
   size_t stored_bytes;
 } rp__bricks_info;
 void rp__bricks_get_info(const rp__bricks *b, rp__bricks_info *info);
+
+/* ---- brick_plan.c: one device's out-of-core plan --------------------- */
+
+/* How a device holds its volume, and how a render or an estimate walks
+ * the pool: which volume goes whole and which as bricks, the parts a
+ * region is cut into so that each part's bricks fit, the depth slabs of a
+ * tile that still does not fit, and the measured upload rate. The device
+ * front end (backend.c) validates and calls in; everything out of core
+ * happens here and in the pool above. */
+typedef struct rp__brick_plan {
+  rp_context *ctx;
+  const rp_backend_ops *ops; /* the device's backend */
+  void *impl;
+  const rp_caps *caps;       /* the device's, for limits and messages */
+  uint64_t budget_bytes;     /* rp_device_desc's; 0: the largest buffer */
+  uint32_t brick_size;
+  rp__bricks *bricks;        /* NULL while the whole volume is on the
+                                device (or none is) */
+  int table_sent;            /* the pool's table is the host's */
+  /* Renders alternate the order of their parts: the last part's bricks
+   * are then the first the next frame needs. In the same order every
+   * frame, least-recently-used replacement evicts exactly the bricks the
+   * next part needs (the cyclic worst case: measured 45 % hits on
+   * bonsai at half the volume, camera still). */
+  int reverse_parts;
+  rp_brick_stats stats;      /* but out_of_core and the pool's counters */
+  double upload_ns_per_byte; /* measured on its uploads (smoothed) */
+} rp__brick_plan;
+
+/* A plan for a device that holds no volume yet; brick_size resolved. */
+void rp__brick_plan_init(rp__brick_plan *pl, rp_context *ctx,
+                         const rp_backend_ops *ops, void *impl,
+                         const rp_caps *caps, uint64_t budget_bytes,
+                         uint32_t brick_size);
+/* Frees the host's bricks (the device is going). */
+void rp__brick_plan_release(rp__brick_plan *pl);
+/* What the volume may take on the device. */
+uint64_t rp__brick_plan_budget(const rp__brick_plan *pl);
+/* Uploads `vol` whole when it fits the budget, else as bricks with an
+ * empty pool. A failure changes nothing, except that a backend whose
+ * pool could not be set holds no volume any more (it dropped the old
+ * one first): then *lost is 1. */
+int rp__brick_plan_upload(rp__brick_plan *pl, const rp_volume *vol,
+                          int *lost);
+/* The TF uploaded: bricks' visibility and slot 0's transparent value. */
+void rp__brick_plan_set_tf(rp__brick_plan *pl, const rp_tf *tf);
+/* A frame's brick fields (brick_shift, brick_grid, one slab). */
+void rp__brick_plan_frame(const rp__brick_plan *pl, rp_frame_params *p);
+/* Raycasts `region` out of core: the bricks of each part made resident,
+ * then the part cast (its depth slabs in turn). *ns receives the device
+ * time of it all, uploads included. The depth pass has run. */
+int rp__brick_plan_render(rp__brick_plan *pl, const rp__host_frame *f,
+                          const rp_region *region, uint8_t *rgba,
+                          rp_tile_stats *tiles, uint64_t *fetches,
+                          uint64_t *ns);
+/* rp_device_upload_estimate out of core: the render's own plan, run on a
+ * copy of the pool's bookkeeping. */
+int rp__brick_plan_estimate(rp__brick_plan *pl, const rp__raygen *rg,
+                            uint32_t effects, const rp_region *r,
+                            rp_upload_estimate *out);
+void rp__brick_plan_stats(const rp__brick_plan *pl, rp_brick_stats *out);
+/* RP_EUNSUPPORTED for AO on bricks (fn names the call): AO reads and
+ * darkens the whole volume. */
+int rp__brick_plan_no_ao(const rp__brick_plan *pl, const char *fn);
 
 #endif /* RP_BRICKS_H */

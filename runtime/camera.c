@@ -4,7 +4,9 @@
  * an rp__raygen rather than re-deriving the basis, so that a camera the
  * reference accepts is a camera every backend sees the same way. */
 #include <math.h>
+#include <string.h>
 
+#include "passes.h"
 #include "raygen.h"
 
 #define RP__PI 3.14159265358979323846
@@ -275,4 +277,43 @@ uint64_t rp__lattice_count(double s, double t1, double step) {
   while (k + 1 < (uint64_t)cap && s + (double)(k + 1) * step <= t1)
     k++;
   return k + 1;
+}
+
+/* The float form of the frame every backend receives (raypace_backend.h):
+ * the camera resolved here, plus the volume's grid and the TF's range. */
+int rp__frame_params(rp_context *ctx, const rp_volume *shape,
+                     const rp_occupancy *occ, const rp_camera *cam,
+                     const rp_render_desc *d, float ref_step,
+                     uint32_t lut_size, rp__raygen *rg, rp_frame_params *p) {
+  int err, a;
+  if ((err = rp__raygen_init(ctx, cam, shape, d->width, d->height, rg)) != 0)
+    return err;
+  rp_scaled_size(d, &rg->width, &rg->height);
+  memset(p, 0, sizeof *p);
+  for (a = 0; a < 3; a++) {
+    p->eye[a] = (float)rg->eye[a];
+    p->f[a] = (float)rg->f[a];
+    p->r[a] = (float)rg->r[a];
+    p->u[a] = (float)rg->u[a];
+    p->dims[a] = (float)rg->dims[a];
+    p->inv_spacing[a] = (float)(1.0 / rg->spacing[a]);
+    p->idims[a] = shape->dims[a];
+    p->blocks[a] = rp__blocks_along(shape->dims[a]);
+    p->occupied_lo[a] = occ != NULL ? occ->box_lo[a] : 0u;
+    p->occupied_end[a] = occ != NULL ? occ->box_end[a] : p->blocks[a];
+  }
+  p->half_w = (float)rg->half_w;
+  p->half_h = (float)rg->half_h;
+  p->ortho = rg->ortho;
+  p->width = rg->width;
+  p->height = rg->height;
+  p->min_spacing = (float)rg->min_spacing;
+  p->step = d->step;
+  p->ref_step = ref_step;
+  p->ert_threshold = d->ert_threshold;
+  p->effects = d->effects;
+  p->value_min = (float)shape->min;
+  p->value_max = (float)shape->max;
+  p->lut_size = lut_size;
+  return 0;
 }

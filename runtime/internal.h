@@ -223,12 +223,18 @@ struct rp_backend_ops;
 /* Opens device `index` of backend `name` as rp_device_create would choose
  * it (NULL: RP_BACKEND, else the first backend with that device), but
  * bare: its ops and impl without a front end, for a server running a
- * backend's ops on another process's behalf (backends/mpi). Neither the
- * reference (no ops) nor a named-only backend can be opened so
+ * backend's ops on another process's behalf (backends/mpi). Neither a
+ * host backend ("reference", "test": they read the front end's camera in
+ * double, device.h) nor a named-only backend can be opened so
  * (RP_EUNSUPPORTED). The caller destroys it with ops->destroy(impl). */
 int rp__backend_open(rp_context *ctx, const char *name, uint32_t index,
                      const struct rp_backend_ops **ops, void **impl,
                      rp_caps *caps);
+/* The device's own simulated clock (rp_backend_ops.clock_ns): 1 with *ns
+ * set when the device keeps one (the test backend, also under fault
+ * injection), else 0, and its time is real time (rp__now_ns). The
+ * device's owner thread only. */
+int rp__device_clock_ns(const rp_device *dev, uint64_t *ns);
 
 /* ---- png.c ------------------------------------------------------------- */
 
@@ -237,9 +243,6 @@ int rp__png_write_rgb(rp_context *ctx, const char *path, const uint8_t *rgb,
 
 /* Whether the device builds kernels ahead (its backend has `prepare`). */
 int rp__device_builds_ahead(const rp_device *dev);
-/* 1 with *ns set when the device keeps a clock of its own (a backend
- * whose time is simulated), else 0: its time is the host's. */
-int rp__device_clock_ns(const rp_device *dev, uint64_t *ns);
 
 /* ---- group.c ----------------------------------------------------------- */
 

@@ -559,9 +559,12 @@ static void open_devices(device_set *ds, uint32_t n, const lopsided_scene *sn,
   memset(ds, 0, sizeof *ds);
   for (i = 0; i < n; i++) {
     rp_device_desc dd = {0};
+    rp_fault_desc fd = {{RP_EXT_FAULTS, NULL}, 0.0, 0, 0, 0, 0.0};
     dd.backend = "reference";
-    if (i == fail_device || fail_device == ALL_DEVICES)
-      dd.fail_at_ao = fail_at;
+    if (i == fail_device || fail_device == ALL_DEVICES) {
+      fd.fail_at_ao = fail_at;
+      rp_test_faults(&dd, &fd);
+    }
     ds->ctx[i] = rp_test_context();
     assert_int_equal(rp_device_create(ds->ctx[i], &dd, &ds->dev[i]), 0);
     assert_int_equal(rp_device_set_volume(ds->dev[i], sn->vol), 0);

@@ -4,7 +4,7 @@
  * alone: a region's pixels depend only on its rays, so the group's image
  * must be byte-identical whatever the split, the speeds or the devices
  * lost. Devices are "reference" devices (always built) slowed or failed
- * by rp_device_desc's testing knobs, so the cases are reproducible; the
+ * by fault injection (rp_fault_desc), so the cases are reproducible; the
  * OpenCL case runs where a driver is. */
 #include <math.h>
 #include <stdio.h>
@@ -149,6 +149,7 @@ static void check_matches_one_device(double tail, uint32_t strips) {
   uint8_t *one = malloc(W * H * 4), *many = malloc(W * H * 4);
   rp_tile_stats t_one[8 * 6], t_many[8 * 6];
   rp_device_desc dd[3];
+  rp_fault_desc fd[3];
   rp_group_desc gd = {0};
   rp_group_report rep;
   rp_device_group *g;
@@ -157,9 +158,11 @@ static void check_matches_one_device(double tail, uint32_t strips) {
   scene_make(&s, W - 3, H - 5);
   render_alone(&s, "reference", one, t_one);
   memset(dd, 0, sizeof dd);
+  memset(fd, 0, sizeof fd);
   for (i = 0; i < 3; i++) {
     dd[i].backend = "reference";
-    dd[i].slowdown = slow[i];
+    fd[i].slowdown = slow[i];
+    rp_test_faults(&dd[i], &fd[i]);
   }
   gd.devices = dd;
   gd.count = 3;
@@ -237,6 +240,7 @@ static rp_device_group *reference_pair(scene *s, rp_device_desc dd[2],
 static void test_shares_follow_speed(void **state) {
   uint8_t *img = malloc(4 * W * H * 4);
   rp_device_desc dd[2];
+  rp_fault_desc fd[2];
   rp_group_desc gd = {0};
   rp_group_report rep;
   rp_device_group *g;
@@ -245,7 +249,9 @@ static void test_shares_follow_speed(void **state) {
   int f;
   (void)state;
   memset(dd, 0, sizeof dd);
-  dd[1].slowdown = 8.0;
+  memset(fd, 0, sizeof fd);
+  fd[1].slowdown = 8.0;
+  rp_test_faults(&dd[1], &fd[1]);
   g = reference_pair(&s, dd, &gd);
   /* Before any frame the split is even: nothing is known. */
   assert_int_equal(rp_device_group_shares(g, &s.probe, 1.0f, 1.0f, shares),
@@ -285,6 +291,7 @@ static void test_shares_follow_speed(void **state) {
  * the reference computation. */
 static void test_ao_follows_speed(void **state) {
   rp_device_desc dd[2];
+  rp_fault_desc fd[2];
   rp_group_desc gd = {0};
   rp_device_group *g;
   rp_ao_desc desc = {4, 2, 3.0f, 1.0f, 0};
@@ -294,7 +301,9 @@ static void test_ao_follows_speed(void **state) {
   int k;
   (void)state;
   memset(dd, 0, sizeof dd);
-  dd[1].slowdown = 4.0;
+  memset(fd, 0, sizeof fd);
+  fd[1].slowdown = 4.0;
+  rp_test_faults(&dd[1], &fd[1]);
   g = reference_pair(&s, dd, &gd);
   assert_int_equal(rp_ao_plan_create(s.ctx, s.vol, s.tf, &desc, &plan), 0);
   assert_int_equal(rp_ao_compute_reference(s.ctx, s.vol, s.tf, &desc, NULL,
@@ -358,6 +367,7 @@ static void test_ao_follows_speed(void **state) {
 static void test_stall_recovers(void **state) {
   uint8_t *img = malloc(4 * W * H * 4);
   rp_device_desc dd[2], cd[2];
+  rp_fault_desc fd[2];
   rp_group_desc gd = {0}, gc = {0};
   rp_group_report rep;
   rp_device_group *g, *c;
@@ -366,9 +376,11 @@ static void test_stall_recovers(void **state) {
   int f;
   (void)state;
   memset(dd, 0, sizeof dd);
+  memset(fd, 0, sizeof fd);
   memset(cd, 0, sizeof cd);
-  dd[1].stall_at_render = 4;
-  dd[1].stall_ms = 600.0;
+  fd[1].stall_at_render = 4;
+  fd[1].stall_ms = 600.0;
+  rp_test_faults(&dd[1], &fd[1]);
   gd.damp_rate = gc.damp_rate = 1.0;
   g = reference_pair(&s, dd, &gd);
   c = reference_pair(&sc, cd, &gc);
@@ -407,6 +419,7 @@ static void test_stall_recovers(void **state) {
 static void test_device_loss(void **state) {
   uint8_t *one = malloc(W * H * 4), *img = malloc(W * H * 4);
   rp_device_desc dd[3];
+  rp_fault_desc fd[3];
   rp_group_desc gd = {0};
   rp_group_report rep;
   rp_device_group *g;
@@ -417,9 +430,11 @@ static void test_device_loss(void **state) {
   scene_make(&s, W, H);
   render_alone(&s, "reference", one, NULL);
   memset(dd, 0, sizeof dd);
+  memset(fd, 0, sizeof fd);
   for (i = 0; i < 3; i++)
     dd[i].backend = "reference";
-  dd[1].fail_at_render = 2;
+  fd[1].fail_at_render = 2;
+  rp_test_faults(&dd[1], &fd[1]);
   gd.devices = dd;
   gd.count = 3;
   g = make_group(&s, &gd);
@@ -463,6 +478,7 @@ static void test_device_loss(void **state) {
 static void test_late_device(void **state) {
   uint8_t *one = malloc(16 * 8 * 4), *img = malloc(16 * 8 * 4);
   rp_device_desc dd[2];
+  rp_fault_desc fd[2];
   rp_group_desc gd = {0};
   rp_group_report rep;
   rp_device_group *g;
@@ -471,8 +487,10 @@ static void test_late_device(void **state) {
   scene_make(&s, 16, 8);
   render_alone(&s, "reference", one, NULL);
   memset(dd, 0, sizeof dd);
+  memset(fd, 0, sizeof fd);
   dd[0].backend = dd[1].backend = "reference";
-  dd[1].slowdown = 1000.0;
+  fd[1].slowdown = 1000.0;
+  rp_test_faults(&dd[1], &fd[1]);
   gd.devices = dd;
   gd.count = 2;
   gd.deadline_factor = 4.0;
@@ -503,6 +521,7 @@ static void test_late_device(void **state) {
 static void test_all_lost(void **state) {
   uint8_t *img = malloc(W * H * 4), *keep = malloc(W * H * 4);
   rp_device_desc dd[2];
+  rp_fault_desc fd[2];
   rp_group_desc gd = {0};
   rp_group_report rep;
   rp_device_group *g;
@@ -511,9 +530,11 @@ static void test_all_lost(void **state) {
   (void)state;
   scene_make(&s, W, H);
   memset(dd, 0, sizeof dd);
+  memset(fd, 0, sizeof fd);
   for (i = 0; i < 2; i++) {
     dd[i].backend = "reference";
-    dd[i].fail_at_render = 1;
+    fd[i].fail_at_render = 1;
+    rp_test_faults(&dd[i], &fd[i]);
   }
   gd.devices = dd;
   gd.count = 2;
@@ -645,6 +666,7 @@ static void test_tile_costs(void **state) {
 static void test_tail_takes_a_stall(void **state) {
   uint8_t *one = malloc(W * H * 4), *img = malloc(W * H * 4);
   rp_device_desc dd[2];
+  rp_fault_desc fd[2];
   rp_group_desc gd = {0};
   rp_group_report rep;
   rp_device_group *g;
@@ -653,9 +675,11 @@ static void test_tail_takes_a_stall(void **state) {
   scene_make(&s, W, H);
   render_alone(&s, "reference", one, NULL);
   memset(dd, 0, sizeof dd);
+  memset(fd, 0, sizeof fd);
   dd[0].backend = dd[1].backend = "reference";
-  dd[1].stall_at_render = 1;
-  dd[1].stall_ms = 1500.0;
+  fd[1].stall_at_render = 1;
+  fd[1].stall_ms = 1500.0;
+  rp_test_faults(&dd[1], &fd[1]);
   gd.devices = dd;
   gd.count = 2;
   gd.tail_fraction = 0.3;
@@ -688,6 +712,7 @@ static void test_tail_slow_device_leaves_strips(void **state) {
   static const double fixed[2] = {0.98, 0.02};
   uint8_t *one = malloc(4 * W * H * 4), *img = malloc(4 * W * H * 4);
   rp_device_desc dd[2];
+  rp_fault_desc fd[2];
   rp_group_desc gd = {0};
   rp_group_report rep;
   rp_device_group *g;
@@ -695,7 +720,9 @@ static void test_tail_slow_device_leaves_strips(void **state) {
   int f, took = 0;
   (void)state;
   memset(dd, 0, sizeof dd);
-  dd[1].slowdown = 16.0;
+  memset(fd, 0, sizeof fd);
+  fd[1].slowdown = 16.0;
+  rp_test_faults(&dd[1], &fd[1]);
   gd.share_mode = RP_SHARES_FIXED;
   gd.fixed_shares = fixed;
   gd.tail_fraction = 0.5;
@@ -728,6 +755,7 @@ static void test_tail_slow_device_leaves_strips(void **state) {
 static void test_tail_device_loss(void **state) {
   uint8_t *one = malloc(W * H * 4), *img = malloc(W * H * 4);
   rp_device_desc dd[2];
+  rp_fault_desc fd[2];
   rp_group_desc gd = {0};
   rp_group_report rep;
   rp_device_group *g;
@@ -738,9 +766,12 @@ static void test_tail_device_loss(void **state) {
   scene_make(&s, W, H);
   render_alone(&s, "reference", one, NULL);
   memset(dd, 0, sizeof dd);
+  memset(fd, 0, sizeof fd);
   dd[0].backend = dd[1].backend = "reference";
-  dd[0].slowdown = 3.0;
-  dd[1].fail_at_render = 2;
+  fd[0].slowdown = 3.0;
+  rp_test_faults(&dd[0], &fd[0]);
+  fd[1].fail_at_render = 2;
+  rp_test_faults(&dd[1], &fd[1]);
   gd.devices = dd;
   gd.count = 2;
   gd.tail_fraction = 0.4;
@@ -808,6 +839,7 @@ static void test_bad_input(void **state) {
 static void test_opencl_pair(void **state) {
   uint8_t *one = malloc(W * H * 4), *img = malloc(W * H * 4);
   rp_device_desc dd[2];
+  rp_fault_desc fd[2];
   rp_group_desc gd = {0};
   rp_group_report rep;
   rp_device_group *g;
@@ -823,8 +855,10 @@ static void test_opencl_pair(void **state) {
   }
   render_alone(&s, "opencl", one, NULL);
   memset(dd, 0, sizeof dd);
+  memset(fd, 0, sizeof fd);
   dd[0].backend = dd[1].backend = "opencl";
-  dd[1].slowdown = 2.0;
+  fd[1].slowdown = 2.0;
+  rp_test_faults(&dd[1], &fd[1]);
   gd.devices = dd;
   gd.count = 2;
   g = make_group(&s, &gd);

@@ -536,6 +536,7 @@ static void test_ao_in_steps(void **state) {
 static void test_several_devices(void **state) {
   app a;
   rp_device_desc *dd = calloc(3, sizeof *dd);
+  rp_fault_desc fd = {{RP_EXT_FAULTS, NULL}, 0.0, 3, 0, 0, 0.0};
   rp_volume *vol, *vol2;
   rp_tf *tf;
   rp_camera cam;
@@ -544,7 +545,7 @@ static void test_several_devices(void **state) {
   (void)state;
   for (i = 0; i < 3; i++)
     dd[i].backend = "reference";
-  dd[1].fail_at_render = 3;
+  rp_test_faults(&dd[1], &fd); /* lost at its third render */
   memset(&a, 0, sizeof a);
   app_open_devices(&a, dd, 3);
   free(dd);
@@ -779,9 +780,10 @@ static void test_close_in_flight(void **state) {
   rp_tf *tf = NULL;
   rp_camera cam;
   rp_device_desc slow = {0};
+  rp_fault_desc fd = {{RP_EXT_FAULTS, NULL}, 100.0, 0, 0, 0, 0.0};
   (void)state;
   slow.backend = "reference";
-  slow.slowdown = 100.0;
+  rp_test_faults(&slow, &fd);
   app_open_devices(&a, &slow, 1);
   vol = make_volume(a.ctx, 64, 4);
   cam = orbit(vol, 30.0f);

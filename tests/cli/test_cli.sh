@@ -388,6 +388,31 @@ check "group scaled" "$rp" render gen:phantom:32 --size 50x30 --scale 0.5 \
 regions_ok 25 15 "group scaled"
 regions_ok 50 30 "group scaled output" output_region
 
+# The deterministic test device: named only, the reference's image byte
+# for byte, in a group and in replay too; its options in device specs.
+check "test backend" "$rp" render gen:phantom:32 --backend test \
+  --size 40x30 --shading --json -o "$dir/t.png"
+has "test backend named" '"backend":	"test"'
+check "test backend reference" "$rp" render gen:phantom:32 \
+  --backend reference --size 40x30 --shading -o "$dir/r.png"
+if cmp -s "$dir/t.png" "$dir/r.png"; then pass=$((pass + 1)); else
+  echo "FAIL: test backend: its PNG is not the reference's"
+  fails=$((fails + 1)); fi
+check "test devices" "$rp" render gen:phantom:32 --size 40x24 \
+  --devices test:0:seed=7:noise=0,test:slow=2:noise=0.1 --json -o "$g"
+regions_ok 40 24 "test devices"
+refuse "seed on reference" "'seed=1' in 'reference:seed=1' is for backend" \
+  "$rp" render gen:ml:8 --devices reference:seed=1 -o "$g"
+refuse "test noise range" "'noise=2' in 'test:noise=2'" "$rp" render \
+  gen:ml:8 --devices test:noise=2 -o "$g"
+check "replay test" "$rp" replay gen:phantom:24 --backend test \
+  --sequence tf-switch --frames 12 --settle 2 --size 32x32 --json --quiet \
+  --controller predicted
+has "replay test controller" '"controller":"predicted"'
+check "replay test devices" "$rp" replay gen:phantom:24 \
+  --devices test:0:seed=1,test:0:seed=2 --sequence tf-switch --frames 8 \
+  --settle 2 --size 32x32 --quiet --controller predicted
+
 if "$rp" render gen:ml:8 --size 8x8 --backend opencl -o "$g" \
     >/dev/null 2>&1; then
   check "group opencl overlay" "$rp" render gen:phantom:64 --size 64x64 \

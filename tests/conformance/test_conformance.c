@@ -1,6 +1,6 @@
 /* Backend conformance, written once and run per backend (ctest registers it
- * with RP_BACKEND=reference|opencl|vulkan; exit code 77 when that backend
- * has no device here).
+ * with RP_BACKEND=reference|test|opencl|vulkan; exit code 77 when that
+ * backend has no device here).
  *
  * Every image is compared with rp_render_reference, the scalar oracle, over
  * a matrix of volumes, transfer functions, effects, cameras, viewports and
@@ -23,6 +23,7 @@
 #include "ao.h"
 #include "passes.h"
 #include "raypace_backend.h"
+#include "raypace_testing.h"
 #include "test_util.h"
 
 static const char *backend_name(void) {
@@ -663,29 +664,35 @@ static void front_end_validates(void **state) {
 }
 
 
-/* One render of the whole 8x8 image, its wall time and the time the
- * device reports, in ns. */
+/* One render of the whole 8x8 image, the time that passed for the
+ * device meanwhile (wall time, or its own clock when it keeps one: the
+ * test backend) and the time it reports, in ns. */
 static void timed_render(rp_device *on, const rp_camera *cam,
                          const rp_render_desc *d, uint8_t *img,
                          double *wall_ns, double *reported_ns) {
   struct timespec a, b;
+  uint64_t c0 = 0, c1 = 0;
+  int own = rp__device_clock_ns(on, &c0);
   clock_gettime(CLOCK_MONOTONIC, &a);
   assert_int_equal(rp_device_render(on, cam, d, NULL, img, NULL), 0);
   clock_gettime(CLOCK_MONOTONIC, &b);
   *wall_ns = (double)(b.tv_sec - a.tv_sec) * 1e9 +
              (double)(b.tv_nsec - a.tv_nsec);
+  if (own && rp__device_clock_ns(on, &c1))
+    *wall_ns = (double)(c1 - c0);
   *reported_ns = (double)rp_device_last_time_ns(on);
 }
-/* rp_device_desc's testing knobs, on this backend. A device slowed 1000x
- * sleeps 999x its device time after each operation and reports 1000x
- * it: its renders report at least 10x the median of the same renders on
- * the plain device (a margin of 100 against noise), and each one's wall
- * time is at least 999/1000 of what it reports (less 1 ns for the
- * rounding to whole ns), however fast or loaded the machine is. Either
- * bound fails if its half of the slowdown is missing. A device set to
- * fail at its second render renders once, the same image as the plain
- * device, then fails every render with RP_EDEVICE and leaves the
- * caller's image as it was. */
+/* Fault injection (rp_fault_desc) around this backend. A device slowed
+ * 1000x waits 999x its device time after each operation and reports
+ * 1000x it: its renders report at least 10x the median of the same
+ * renders on the plain device (a margin of 100 against noise), and the
+ * time that passes for each (wall time, or the device's own clock) is
+ * at least 999/1000 of what it reports (less 1 ns for the rounding to
+ * whole ns), however fast or loaded the machine is. Either bound fails
+ * if its half of the slowdown is missing. A device set to fail at its
+ * second render renders once, the same image as the plain device, then
+ * fails every render with RP_EDEVICE and leaves the caller's image as it
+ * was. */
 static int cmp_double(const void *a, const void *b) {
   double x = *(const double *)a, y = *(const double *)b;
   return (x > y) - (x < y);
@@ -698,6 +705,7 @@ static void slowed_and_failing_devices(void **state) {
   rp_camera cam = camera(s.vol, 0);
   rp_render_desc d = {0};
   rp_device_desc dd = {0};
+  rp_fault_desc fd = {{RP_EXT_FAULTS, NULL}, 0.0, 0, 0, 0, 0.0};
   rp_device *slow = NULL, *lost = NULL, *plain = NULL;
   uint8_t first[8 * 8 * 4], img[8 * 8 * 4], keep[8 * 8 * 4];
   double wall_ns, reported_ns, plain_ns[3];
@@ -708,23 +716,24 @@ static void slowed_and_failing_devices(void **state) {
   d.width = d.height = 8;
   d.effects = RP_EFFECT_ERT | RP_EFFECT_SKIP;
   dd.backend = backend_name();
-  dd.slowdown = 0.5;
+  assert_int_equal(rp_device_create(ctx, &dd, &plain), 0);
+  dd.next = &fd;
+  fd.slowdown = 0.5;
   assert_int_equal(rp_device_create(ctx, &dd, &slow), RP_ERANGE);
   assert_non_null(strstr(rp_last_error(ctx), "slowdown"));
-  dd.slowdown = NAN;
+  fd.slowdown = NAN;
   assert_int_equal(rp_device_create(ctx, &dd, &slow), RP_ENOTFINITE);
-  dd.slowdown = 20001.0;
+  fd.slowdown = 20001.0;
   assert_int_equal(rp_device_create(ctx, &dd, &slow), RP_ERANGE);
   assert_null(slow);
-  dd.slowdown = 0.0;
-  dd.stall_ms = -1.0;
+  fd.slowdown = 0.0;
+  fd.stall_ms = -1.0;
   assert_int_equal(rp_device_create(ctx, &dd, &slow), RP_ERANGE);
   assert_non_null(strstr(rp_last_error(ctx), "stall_ms"));
-  dd.stall_ms = INFINITY;
+  fd.stall_ms = INFINITY;
   assert_int_equal(rp_device_create(ctx, &dd, &slow), RP_ENOTFINITE);
   assert_null(slow);
-  dd.stall_ms = 0.0;
-  assert_int_equal(rp_device_create(ctx, &dd, &plain), 0);
+  fd.stall_ms = 0.0;
   assert_int_equal(rp_device_set_volume(plain, s.vol), 0);
   assert_int_equal(rp_device_set_tf(plain, tf, occ), 0);
   for (i = 0; i < 3; i++) {
@@ -732,7 +741,7 @@ static void slowed_and_failing_devices(void **state) {
     plain_ns[i] = (double)rp_device_last_time_ns(plain);
   }
   qsort(plain_ns, 3, sizeof plain_ns[0], cmp_double);
-  dd.slowdown = 1000.0;
+  fd.slowdown = 1000.0;
   assert_int_equal(rp_device_create(ctx, &dd, &slow), 0);
   assert_int_equal(rp_device_set_volume(slow, s.vol), 0);
   assert_int_equal(rp_device_set_tf(slow, tf, occ), 0);
@@ -749,9 +758,9 @@ static void slowed_and_failing_devices(void **state) {
    * render takes well under a millisecond). The first is not timed: a
    * new device may compile its kernels then, and lavapipe's first
    * dispatch counts its compile as device time (440 ms here cold). */
-  dd.slowdown = 0.0;
-  dd.stall_at_render = 3;
-  dd.stall_ms = 200.0;
+  fd.slowdown = 0.0;
+  fd.stall_at_render = 3;
+  fd.stall_ms = 200.0;
   assert_int_equal(rp_device_create(ctx, &dd, &slow), 0);
   assert_int_equal(rp_device_set_volume(slow, s.vol), 0);
   assert_int_equal(rp_device_set_tf(slow, tf, occ), 0);
@@ -765,9 +774,9 @@ static void slowed_and_failing_devices(void **state) {
     }
     assert_memory_equal(first, img, sizeof img);
   }
-  dd.stall_at_render = 0;
-  dd.stall_ms = 0.0;
-  dd.fail_at_render = 2;
+  fd.stall_at_render = 0;
+  fd.stall_ms = 0.0;
+  fd.fail_at_render = 2;
   assert_int_equal(rp_device_create(ctx, &dd, &lost), 0);
   assert_int_equal(rp_device_set_volume(lost, s.vol), 0);
   assert_int_equal(rp_device_set_tf(lost, tf, occ), 0);

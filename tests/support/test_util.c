@@ -158,3 +158,28 @@ void rp_test_expect_reference(rp_context *ctx, const rp_volume *vol,
   rp_occupancy_destroy(occ);
   rp_histograms_destroy(hist);
 }
+
+rp_test_scene rp_test_scene_make(rp_context *ctx, rp_generator kind,
+                                 uint32_t n, uint32_t seed, const char *tf) {
+  rp_test_scene s;
+  rp_generate_desc g = {kind, {n, n, n}, RP_U8, seed};
+  memset(&s, 0, sizeof s);
+  assert_int_equal(rp_volume_generate(ctx, &g, &s.vol), 0);
+  assert_int_equal(rp_histograms_build(ctx, s.vol, &s.h), 0);
+  s.tf = rp_test_preset(ctx, tf);
+  assert_int_equal(rp_occupancy_build(ctx, s.h, s.tf, &s.occ), 0);
+  return s;
+}
+
+void rp_test_scene_drop(rp_test_scene *s) {
+  rp_occupancy_destroy(s->occ);
+  rp_tf_destroy(s->tf);
+  rp_histograms_destroy(s->h);
+  rp_volume_destroy(s->vol);
+}
+
+void rp_test_faults(rp_device_desc *d, rp_fault_desc *f) {
+  f->header.type = RP_EXT_FAULTS;
+  f->header.next = d->next;
+  d->next = f;
+}

@@ -10,6 +10,7 @@
 #include <cmocka.h>
 
 #include "raypace.h"
+#include "raypace_testing.h"
 
 /* The shared data folder (RP_SHARED_DATA), or NULL when it is absent: tests
  * that need real volumes call skip() then. */
@@ -67,5 +68,21 @@ void rp_test_expect_reference(rp_context *ctx, const rp_volume *vol,
 
 /* The per_visible of rp_test_check_fetches for an effects set. */
 unsigned rp_test_visible_fetches(uint32_t effects);
+
+/* A generated uint8 volume of n^3 voxels with its histograms, a preset
+ * TF and the occupancy built for them (each call asserts success). */
+typedef struct rp_test_scene {
+  rp_volume *vol;
+  rp_histograms *h;
+  rp_tf *tf;
+  rp_occupancy *occ;
+} rp_test_scene;
+rp_test_scene rp_test_scene_make(rp_context *ctx, rp_generator kind,
+                                 uint32_t n, uint32_t seed, const char *tf);
+void rp_test_scene_drop(rp_test_scene *s);
+
+/* Gives the device `d` will open the faults in `f` (raypace_testing.h):
+ * sets f's header and chains f onto d->next. */
+void rp_test_faults(rp_device_desc *d, rp_fault_desc *f);
 
 #endif
