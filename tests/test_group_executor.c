@@ -1,7 +1,8 @@
 /* The devices' executors (runtime/executor.c): one owner thread per
  * device running jobs in the order they came, a build lane that runs
  * beside it, inline executors for a device alone, and a destroy that
- * waits for a job still running. */
+ * waits for a job still running. Then the group's AO on its one-device
+ * (inline) executor: on the caller's thread, equal to a lone device's. */
 #ifdef __linux__
 #define _GNU_SOURCE /* syscall(SYS_gettid) */
 #include <sys/resource.h>
@@ -13,6 +14,7 @@
 
 #include "ao.h"
 #include "executor.h"
+#include "raypace_group.h"
 #include "test_util.h"
 
 #define JOBS 6
@@ -212,12 +214,96 @@ static void test_resubmit(void **state) {
   fixture_free(&f);
 }
 
+/* ---- A group's AO on its one device ------------------------------------ */
+
+typedef struct progress_log {
+  uv_thread_t caller;
+  int calls, off_thread;
+  double last;
+  int rising;
+} progress_log;
+
+static void on_progress(double fraction, void *user) {
+  progress_log *p = user;
+  uv_thread_t now = uv_thread_self();
+  p->off_thread |= !uv_thread_equal(&now, &p->caller);
+  p->rising &= fraction >= p->last;
+  p->last = fraction;
+  p->calls++;
+}
+
+/* A group of one device computes AO through its inline executor: every
+ * progress report comes from the caller's thread, rising, one between
+ * jobs (8^3 blocks of a 32^3 phantom: more than the final 1), and
+ * the volume equals one device's alone, byte for byte. */
+static void test_group_of_one_ao(void **state) {
+  rp_context *ctx = rp_test_context();
+  rp_generate_desc gen = {0};
+  rp_device_desc dd = {0};
+  rp_group_desc gd = {0};
+  rp_ao_schedule sc = {0};
+  rp_volume *vol = NULL;
+  rp_histograms *h = NULL;
+  rp_occupancy *occ = NULL;
+  rp_ao_plan *plan = NULL;
+  rp_ao *grouped = NULL, *alone = NULL;
+  rp_device_group *g = NULL;
+  rp_device *dev = NULL;
+  progress_log p;
+  uint32_t dims[3];
+  rp_tf *tf;
+  (void)state;
+  gen.kind = RP_GEN_PHANTOM;
+  gen.dims[0] = gen.dims[1] = gen.dims[2] = 32;
+  assert_int_equal(rp_volume_generate(ctx, &gen, &vol), 0);
+  tf = rp_test_preset(ctx, "ct-bone");
+  assert_int_equal(rp_histograms_build(ctx, vol, &h), 0);
+  assert_int_equal(rp_occupancy_build(ctx, h, tf, &occ), 0);
+  assert_int_equal(rp_ao_plan_create(ctx, vol, tf, NULL, &plan), 0);
+  dd.backend = "reference";
+  gd.devices = &dd;
+  gd.count = 1;
+  assert_int_equal(rp_device_group_create(ctx, &gd, &g), 0);
+  assert_int_equal(rp_device_group_set_volume(g, vol), 0);
+  assert_int_equal(rp_device_group_set_tf(g, tf, occ), 0);
+  memset(&p, 0, sizeof p);
+  p.caller = uv_thread_self();
+  p.rising = 1;
+  sc.scheme = RP_AO_DYNAMIC;
+  sc.block = 8;
+  sc.progress = on_progress;
+  sc.user = &p;
+  assert_int_equal(rp_device_group_compute_ao(g, plan, &sc, &grouped, NULL),
+                   0);
+  assert_false(p.off_thread);
+  assert_true(p.rising && p.last == 1.0 && p.calls >= 2);
+  assert_int_equal(rp_device_create(ctx, &dd, &dev), 0);
+  assert_int_equal(rp_device_set_volume(dev, vol), 0);
+  assert_int_equal(rp_device_set_tf(dev, tf, occ), 0);
+  sc.progress = NULL;
+  assert_int_equal(rp_ao_compute(ctx, &dev, 1, plan, &sc, &alone, NULL), 0);
+  (void)rp_ao_data(grouped, dims);
+  assert_memory_equal(rp_ao_data(grouped, NULL), rp_ao_data(alone, NULL),
+                      (size_t)dims[0] * dims[1] * dims[2]);
+  rp_ao_destroy(alone);
+  rp_ao_destroy(grouped);
+  rp_device_destroy(dev);
+  rp_device_group_destroy(g);
+  rp_ao_plan_destroy(plan);
+  rp_occupancy_destroy(occ);
+  rp_histograms_destroy(h);
+  rp_tf_destroy(tf);
+  rp_volume_destroy(vol);
+  rp_context_destroy(ctx);
+}
+
 int main(void) {
   const struct CMUnitTest tests[] = {
       cmocka_unit_test(test_one_owner_in_order),
       cmocka_unit_test(test_inline),
       cmocka_unit_test(test_build_lane_overlaps),
       cmocka_unit_test(test_resubmit),
+      cmocka_unit_test(test_group_of_one_ao),
   };
   return cmocka_run_group_tests(tests, NULL, NULL);
 }
