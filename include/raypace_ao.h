@@ -176,7 +176,8 @@ typedef struct rp_ao_report {
 
 /** Computes AO over `count` devices, each holding the plan's volume and
  *  transfer function (rp_device_set_volume, rp_device_set_tf), one thread
- *  per device; the result is assembled on the host. A device that fails
+ *  per device (the run's: see rp_ao_run_create); the result is assembled
+ *  on the host. A device that fails
  *  has its remaining work taken by the others; only when every device
  *  fails does the call fail, with the first device's error. `sched` and
  *  `report` may be NULL; the report is filled on failure too. Each
@@ -194,7 +195,9 @@ RP_API int rp_ao_compute(rp_context *ctx, rp_device *const *devices,
  *  returns with the fraction of jobs done. INFINITY runs to the end. The
  *  devices and the plan must stay as they are (same volume and TF) until
  *  the run is finished or destroyed; between steps they are free for
- *  rendering. rp_ao_run_finish hands over the AO volume once every job
+ *  rendering. A run owns a worker thread per device, made by create and
+ *  joined by destroy: during a step each device is called from its worker
+ *  only, and progress is reported on the thread calling the step. rp_ao_run_finish hands over the AO volume once every job
  *  is done (RP_ESTATE before). \since 0.2 */
 typedef struct rp_ao_run rp_ao_run;
 RP_API int rp_ao_run_create(rp_context *ctx, rp_device *const *devices,

@@ -5,8 +5,8 @@
  * raypace device groups: one frame rendered by several devices at once
  * (DESIGN section 7, milestone M6).
  *
- * A group opens its devices, gives each a worker thread, keeps a cost
- * model per device (its sigma) and, per frame:
+ * A group opens its devices, gives each an owner (a worker thread with a
+ * job queue), keeps a cost model per device (its sigma) and, per frame:
  *   shares from the models (rp_balance_shares, damped) -> each 8x8 tile's
  *   predicted cost from the probe's ray spans -> the kd-tree split
  *   (rp_balancer_split) of all but a tail of the image -> every device
@@ -21,8 +21,12 @@
  * A group of one device does exactly what that device alone does, on the
  * caller's thread.
  *
- * Threading: a group belongs to one thread at a time; its workers are
- * internal. */
+ * Threading: a group belongs to one thread at a time. Each device is
+ * called only by its own worker (with two devices or more): the group's
+ * uploads, render rounds and AO steps are jobs on it, and kernels built
+ * ahead run on a second thread of the same owner, beside them. A device
+ * given up on at its deadline keeps its worker busy until it finishes;
+ * only destroy waits for that. */
 #ifndef RAYPACE_GROUP_H
 #define RAYPACE_GROUP_H
 
@@ -134,8 +138,8 @@ typedef struct rp_group_report {
 } rp_group_report;
 
 /** Opens every device (each with a context of its own, made from `ctx`'s
- *  description) and starts a worker per device when there are two or
- *  more. `ctx` is kept for the group's own messages.
+ *  description) and starts a worker per device, the device's one caller,
+ *  when there are two or more. `ctx` is kept for the group's own messages.
  *  \returns 0, RP_EINVAL (a NULL argument, a bad field), RP_ERANGE,
  *  RP_ENOTFINITE, RP_ENODEV / RP_EDEVICE (a device would not open: the
  *  message names it), RP_ENOMEM. \since 0.1 */
@@ -160,8 +164,9 @@ RP_API int rp_device_group_set_volume(rp_device_group *g,
 RP_API int rp_device_group_set_tf(rp_device_group *g, const rp_tf *tf,
                                   const rp_occupancy *occ);
 /** Builds the kernels a frame with `effects` will need on every live
- *  device (rp_device_prepare) on a thread of the group's own, started on
- *  the first call, and returns at once; rp_device_group_prepared says
+ *  device (rp_device_prepare), each on a thread beside the device's
+ *  worker (its build lane, started on its first build, at a lower
+ *  priority), and returns at once; rp_device_group_prepared says
  *  when they are done. Asking again for a set asked for or done is
  *  free. A new volume (rp_device_group_set_volume) forgets what was
  *  asked and done: the kernels are built for its voxel type. 0 at once
@@ -174,9 +179,10 @@ RP_API int rp_device_group_prepare(rp_device_group *g, uint32_t effects);
  *  ahead; 0 otherwise. \since 0.2 */
 RP_API int rp_device_group_prepared(rp_device_group *g, uint32_t effects);
 
-/** AO on every live device (raypace_ao.h): computed with rp_ao_compute
- *  over the live devices (each already has a context of its own; a
- *  device lost doing it is dropped), and set for RP_EFFECT_AO renders
+/** AO on every live device (raypace_ao.h): computed as rp_ao_compute
+ *  would over the live devices, each device's jobs on its own worker
+ *  (with one device, on the calling thread; a device lost doing it is
+ *  dropped), and set for RP_EFFECT_AO renders
  *  (NULL releases every device's AO memory); the bytes they hold. Not
  *  while a frame is in flight. Without speeds in `schedule`, a static
  *  split takes each device's speed from the group's previous AO

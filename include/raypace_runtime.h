@@ -152,10 +152,11 @@ typedef struct rp_frame_stats {
                               frame renders fewer while AO is being
                               computed, and the last frame's while the
                               kernels of a set not rendered before on
-                              this volume are built on the device
-                              group's builder thread (rp_device_group_
-                              prepare); the first frame on a volume
-                              builds its own. \since 0.2 */
+                              this volume are built on the devices'
+                              build lanes, beside their rendering
+                              (rp_device_group_prepare); the first
+                              frame on a volume builds its own.
+                              \since 0.2 */
   uint64_t samples;        /* samples the raycast took (tile sums) */
   /* The render passes alone, summed: the part of measured_ms the
    * controller's budget is for and the cost model learns. \since 0.2 */

@@ -5,6 +5,7 @@
 
 #include <stdint.h>
 
+#include "executor.h"
 #include "internal.h"
 #include "raygen.h"
 #include "raypace_backend.h"
@@ -93,6 +94,13 @@ void rp__ao_view(const rp_ao *ao, rp_volume *view);
  * fn). */
 int rp__ao_schedule_resolve(rp_context *ctx, const char *fn,
                             const rp_ao_schedule *in, rp_ao_schedule *out);
+
+/* rp_ao_run_create on the devices of `count` executors, which stay the
+ * caller's (a group's: rp_device_group_ao_begin): each step's work for a
+ * device is a job on its executor. */
+int rp__ao_run_create(rp_context *ctx, rp__executor *const *ex,
+                      uint32_t count, const rp_ao_plan *plan,
+                      const rp_ao_schedule *schedule, rp_ao_run **out);
 
 /* backend.c: the context a device was made from, and whether it holds
  * this volume and transfer function. */

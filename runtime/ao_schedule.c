@@ -13,6 +13,11 @@
  * - Both schemes are one mechanism: a list of jobs, each owned by a
  *   device (static) or by none (dynamic). A device that fails releases
  *   its jobs to the others, so a lost device costs time, not the result.
+ * - A device's part of a step is a job on its executor (executor.h),
+ *   the device's one owner thread: a group's run (rp_device_group_ao_
+ *   begin) uses the executors the group renders on, a run made from
+ *   plain devices (rp_ao_run_create) executors of its own, made with
+ *   the run and joined when it is destroyed.
  * - Static splits weigh each side of a plane by the speeds of the
  *   devices under it (rp_ao_schedule.speed; all 1 by default, which is
  *   the seed's criterion per device, and also covers odd device counts,
@@ -43,13 +48,23 @@ typedef struct job {
   int state;  /* 0 waiting, 1 taken, 2 done */
 } job;
 
+/* A device's part of a step: its job on the device's executor. */
+typedef struct ao_lane {
+  rp__job job;
+  rp_ao_run *s;
+  uint32_t index;
+} ao_lane;
+
 /* A computation in progress: the jobs, the volume being assembled, and
- * what the devices did so far. Guarded by mu while a step's workers run;
+ * what the devices did so far. Guarded by mu while a step's jobs run;
  * the caller's between steps. */
 struct rp_ao_run {
   rp_context *ctx;
   const rp_ao_plan *plan;
   rp_device *devs[RP_AO_MAX_DEVICES];
+  rp__executor *ex[RP_AO_MAX_DEVICES]; /* device i's owner */
+  int own_ex;          /* made for the run (rp_ao_run_create) */
+  ao_lane lanes[RP_AO_MAX_DEVICES];
   uint32_t n;
   rp_ao_schedule sc;
   rp_ao *ao;           /* being assembled; the caller's after finish */
@@ -59,7 +74,8 @@ struct rp_ao_run {
   uint32_t alive_count;
   double t0;           /* creation, for the report's total */
   double deadline;     /* the current step's, absolute ms; INFINITY */
-  uint32_t active;     /* the current step's workers still running */
+  uint32_t active;     /* the current step's device jobs still running */
+  uint32_t reported;   /* jobs done at the last progress report */
   uint32_t taken[RP_AO_MAX_DEVICES]; /* jobs each took this step */
   pthread_mutex_t mu;
   pthread_cond_t cv;
@@ -67,12 +83,6 @@ struct rp_ao_run {
   char first_error[256];
   int first_err;
 };
-
-typedef struct worker {
-  rp_ao_run *s;
-  uint32_t index;
-  pthread_t thread;
-} worker;
 
 static uint64_t box_voxels(const box *b) {
   return (uint64_t)(b->end[0] - b->lo[0]) * (b->end[1] - b->lo[1]) *
@@ -114,11 +124,31 @@ static int in_time(const rp_ao_run *s, uint32_t i) {
   return rp__now_ms() + mean <= s->deadline;
 }
 
-static void *worker_main(void *arg) {
-  worker *w = arg;
+/* Reports progress from the caller's thread (under s->mu, released for
+ * the call) when jobs were done since the last report and some are left.
+ * 1: reported. */
+static int report_progress(rp_ao_run *s) {
+  double f;
+  if (s->sc.progress == NULL || s->done == s->reported ||
+      s->done >= s->njobs)
+    return 0;
+  f = (double)s->done / (double)s->njobs;
+  s->reported = s->done;
+  pthread_mutex_unlock(&s->mu);
+  s->sc.progress(f, s->sc.user);
+  pthread_mutex_lock(&s->mu);
+  return 1;
+}
+
+/* Device i's part of a step, on its executor: jobs until none is left
+ * for it or the step's time is up. */
+static void device_job(rp__job *lane_job, rp_context *dctx) {
+  ao_lane *w = RP__JOB_OWNER(lane_job, ao_lane, job);
   rp_ao_run *s = w->s;
   rp_device *dev = s->devs[w->index];
-  rp_context *dctx = rp__device_context(dev);
+  /* An inline executor runs this on the caller's thread, which reports
+   * progress between jobs itself. */
+  int inline_run = !rp__executor_threaded(s->ex[w->index]);
   uint8_t *part = NULL;
   size_t cap = 0;
   pthread_mutex_lock(&s->mu);
@@ -185,12 +215,14 @@ static void *worker_main(void *arg) {
         rp_ao_plan_full_bricks(s->plan, j->b.lo, j->b.end);
     s->rep.devices[w->index].jobs++;
     pthread_cond_broadcast(&s->cv);
+    if (inline_run)
+      (void)report_progress(s);
   }
   s->active--;
   pthread_cond_broadcast(&s->cv);
   pthread_mutex_unlock(&s->mu);
+  /* The run is its caller's again: only the device's context from here. */
   rp__free(dctx, part);
-  return NULL;
 }
 
 /* ---- Static split ------------------------------------------------------ */
@@ -582,33 +614,30 @@ static int check_args(rp_context *ctx, rp_device *const *devs, uint32_t n,
   return 0;
 }
 
-int rp_ao_run_create(rp_context *ctx, rp_device *const *devices,
-                     uint32_t count, const rp_ao_plan *plan,
-                     const rp_ao_schedule *schedule, rp_ao_run **out) {
-  rp_ao_schedule sc = {0};
+/* The run over `count` executors (their devices checked by check_args),
+ * which it owns when own_ex. On failure the caller keeps the executors. */
+static int run_make(rp_context *ctx, rp__executor *const *ex, uint32_t count,
+                    int own_ex, const rp_ao_plan *plan,
+                    const rp_ao_schedule *sc, rp_ao_run **out) {
   rp_ao_run *s;
   double balance_ms = 0.0;
   uint32_t i;
   int err;
-  if (ctx == NULL)
-    return RP_EINVAL;
-  if (out == NULL) {
-    rp__fail(ctx, RP_EINVAL, "rp_ao_run_create: out is required");
-    return RP_EINVAL;
-  }
-  if ((err = check_args(ctx, devices, count, plan, schedule, &sc)) != 0)
-    return err;
   if ((s = rp__calloc(ctx, 1, sizeof *s)) == NULL)
     return RP__AO_FAIL(ctx, RP_ENOMEM, "rp_ao_run_create: out of memory");
   s->ctx = ctx;
   s->plan = plan;
   s->n = count;
-  s->sc = sc;
+  s->sc = *sc;
   s->t0 = rp__now_ms();
   s->rep.device_count = count;
   for (i = 0; i < count; i++) {
-    s->devs[i] = devices[i];
+    s->ex[i] = ex[i];
+    s->devs[i] = rp__executor_device(ex[i]);
     s->alive[i] = 1;
+    s->lanes[i].job.run = device_job;
+    s->lanes[i].s = s;
+    s->lanes[i].index = i;
   }
   s->alive_count = count;
   if ((err = rp__ao_new(ctx, plan, &s->ao)) != 0) {
@@ -619,9 +648,9 @@ int rp_ao_run_create(rp_context *ctx, rp_device *const *devices,
    * by definition. */
   memset(s->ao->data, 255,
          (size_t)plan->dims[0] * plan->dims[1] * plan->dims[2]);
-  err = sc.scheme == RP_AO_DYNAMIC
-            ? dynamic_jobs(ctx, plan, sc.block, &s->jobs, &s->njobs)
-            : static_jobs(ctx, plan, count, sc.scheme == RP_AO_STATIC, &sc,
+  err = sc->scheme == RP_AO_DYNAMIC
+            ? dynamic_jobs(ctx, plan, sc->block, &s->jobs, &s->njobs)
+            : static_jobs(ctx, plan, count, sc->scheme == RP_AO_STATIC, sc,
                           &s->jobs, &s->njobs, &balance_ms, &s->rep);
   if (err != 0) {
     rp_ao_destroy(s->ao);
@@ -629,15 +658,58 @@ int rp_ao_run_create(rp_context *ctx, rp_device *const *devices,
     return err;
   }
   s->rep.balance_ms = balance_ms;
+  s->own_ex = own_ex;
   pthread_mutex_init(&s->mu, NULL);
   pthread_cond_init(&s->cv, NULL);
   *out = s;
   return 0;
 }
 
+int rp__ao_run_create(rp_context *ctx, rp__executor *const *ex,
+                      uint32_t count, const rp_ao_plan *plan,
+                      const rp_ao_schedule *schedule, rp_ao_run **out) {
+  rp_device *devs[RP_AO_MAX_DEVICES];
+  rp_ao_schedule sc = {0};
+  uint32_t i;
+  int err;
+  *out = NULL;
+  for (i = 0; i < count && i < RP_AO_MAX_DEVICES; i++)
+    devs[i] = rp__executor_device(ex[i]);
+  if ((err = check_args(ctx, devs, count, plan, schedule, &sc)) != 0)
+    return err;
+  return run_make(ctx, ex, count, 0, plan, &sc, out);
+}
+
+int rp_ao_run_create(rp_context *ctx, rp_device *const *devices,
+                     uint32_t count, const rp_ao_plan *plan,
+                     const rp_ao_schedule *schedule, rp_ao_run **out) {
+  rp__executor *ex[RP_AO_MAX_DEVICES];
+  rp_ao_schedule sc = {0};
+  uint32_t i, made;
+  int err;
+  if (ctx == NULL)
+    return RP_EINVAL;
+  if (out == NULL) {
+    rp__fail(ctx, RP_EINVAL, "rp_ao_run_create: out is required");
+    return RP_EINVAL;
+  }
+  *out = NULL;
+  if ((err = check_args(ctx, devices, count, plan, schedule, &sc)) != 0)
+    return err;
+  /* Plain devices get owners for the run's life: one worker each, the
+   * caller's thread reporting progress while they run. */
+  for (made = 0; made < count; made++)
+    if ((err = rp__executor_create(ctx, devices[made], 1, &ex[made])) != 0)
+      break;
+  if (err == 0 && (err = run_make(ctx, ex, count, 1, plan, &sc, out)) == 0)
+    return 0;
+  for (i = 0; i < made; i++)
+    rp__executor_destroy(ex[i]);
+  return err;
+}
+
 int rp_ao_run_step(rp_ao_run *s, double budget_ms, double *fraction) {
-  worker ws[RP_AO_MAX_DEVICES];
-  uint32_t i, started = 0, reported;
+  uint32_t idx[RP_AO_MAX_DEVICES], i, n = 0;
   int err = 0;
   if (s == NULL)
     return RP_EINVAL;
@@ -650,44 +722,23 @@ int rp_ao_run_step(rp_ao_run *s, double budget_ms, double *fraction) {
   pthread_mutex_lock(&s->mu);
   s->deadline = budget_ms == INFINITY ? INFINITY : rp__now_ms() + budget_ms;
   memset(s->taken, 0, sizeof s->taken);
-  reported = s->done;
+  s->reported = s->done;
+  if (s->done < s->njobs)
+    for (i = 0; i < s->n; i++)
+      if (s->alive[i])
+        idx[n++] = i;
+  s->active = n;
   pthread_mutex_unlock(&s->mu);
-  if (s->done < s->njobs) {
-    pthread_mutex_lock(&s->mu);
-    for (i = 0; i < s->n; i++) {
-      if (!s->alive[i])
-        continue;
-      ws[started].s = s;
-      ws[started].index = i;
-      s->active++;
-      if (pthread_create(&ws[started].thread, NULL, worker_main,
-                         &ws[started]) != 0) {
-        s->active--;
-        break;
-      }
-      started++;
-    }
-    /* Progress from the calling thread, on every job finished. */
-    while (s->active > 0) {
-      if (s->sc.progress != NULL && s->done != reported &&
-          s->done < s->njobs) {
-        double f = (double)s->done / (double)s->njobs;
-        reported = s->done;
-        pthread_mutex_unlock(&s->mu);
-        s->sc.progress(f, s->sc.user);
-        pthread_mutex_lock(&s->mu);
-        continue;
-      }
+  /* Outside the lock: an inline executor runs the job here. */
+  for (i = 0; i < n; i++)
+    rp__executor_submit(s->ex[idx[i]], &s->lanes[idx[i]].job);
+  /* Progress from the calling thread, on every job finished. */
+  pthread_mutex_lock(&s->mu);
+  while (s->active > 0)
+    if (!report_progress(s))
       pthread_cond_wait(&s->cv, &s->mu);
-    }
-    pthread_mutex_unlock(&s->mu);
-    for (i = 0; i < started; i++)
-      pthread_join(ws[i].thread, NULL);
-    if (started == 0 && s->alive_count > 0)
-      err = RP__AO_FAIL(s->ctx, RP_EDEVICE, "rp_ao_run_step: no thread "
-                        "could be started");
-  }
-  if (err == 0 && s->alive_count == 0 && s->done < s->njobs) {
+  pthread_mutex_unlock(&s->mu);
+  if (s->alive_count == 0 && s->done < s->njobs) {
     err = s->first_err != 0 ? s->first_err : RP_EDEVICE;
     rp__fail(s->ctx, err, "rp_ao_compute: every device failed; first, %s",
              s->first_error);
@@ -732,8 +783,11 @@ void rp_ao_run_report(const rp_ao_run *s, rp_ao_report *report) {
 }
 
 void rp_ao_run_destroy(rp_ao_run *s) {
+  uint32_t i;
   if (s == NULL)
     return;
+  for (i = 0; i < s->n && s->own_ex; i++)
+    rp__executor_destroy(s->ex[i]);
   pthread_cond_destroy(&s->cv);
   pthread_mutex_destroy(&s->mu);
   rp_ao_destroy(s->ao);

@@ -69,7 +69,7 @@ typedef struct scene {
    * renders at once. */
   uint64_t ao_tf_id;
   rp_tf *ao_tf;
-  int ao_waits;  /* the run's first step waits for the builder to build
+  int ao_waits;  /* the run's first step waits for the build lanes to build
                     the AO kernels (rp_device_group_prepare) */
 } scene;
 
@@ -262,7 +262,7 @@ static int update_ao(rp__engine *e) {
     s->ao_ready = 1; /* back to the TF whose AO the devices hold */
   } else {
     /* AO's kernels (the AO volume's and the raycast that reads it) on
-     * the builder: the run starts once they are built, and the frame AO
+     * the build lanes: the run starts once they are built, and the frame AO
      * is ready in renders with them at once; no frame builds one. */
     s->ao_waits = rp_device_group_prepare(e->group, s->effects) == 0 &&
                   !rp_device_group_prepared(e->group, s->effects);

@@ -247,7 +247,8 @@ int rp__device_builds_ahead(const rp_device *dev);
 /* ---- group.c ----------------------------------------------------------- */
 
 struct rp_device_group;
-/* Member i's device (NULL when i >= count). */
+/* Member i's device (NULL when i >= count), for code that reads a
+ * group's device between frames (the frame engine, its clock). */
 rp_device *rp__group_device(const struct rp_device_group *g, uint32_t i);
 
 /* Around a driver's set-up calls (OpenCL's first device query, Vulkan's
