@@ -286,37 +286,6 @@ static void test_passes_per_event(void **state) {
   rp_context_destroy(a.ctx);
 }
 
-/* A min_step under the base step lets the runtime's controller go past
- * density 1 when the budget allows: a 1000 ms target on a 40x32 frame
- * (the predicted controller) ends at the finest step, 0.25 (density 4);
- * without one, at the base step. */
-static void test_min_step(void **state) {
-  static const float min_steps[2] = {0.0f, 0.25f};
-  int k, f;
-  (void)state;
-  for (k = 0; k < 2; k++) {
-    app a;
-    rp_volume *vol;
-    rp_tf *tf;
-    rp_camera cam;
-    app_open_full(&a, NULL, 0, 0.0, min_steps[k]);
-    assert_int_equal(rp_runtime_set_controller(a.rt, RP_CONTROL_PREDICTED),
-                     0);
-    vol = make_volume(a.ctx, 32, 1);
-    cam = orbit(vol, 30.0f);
-    tf = post_scene(a.rt, a.ctx, vol, "ct-bone", &cam);
-    for (f = 0; f < 12; f++)
-      (void)frame(&a);
-    assert_int_equal(a.s.failed, 0);
-    assert_true(a.s.last.rho == (k ? 4.0 : 1.0));
-    assert_true(a.s.last.step == (k ? 0.25f : 1.0f));
-    assert_true(a.s.last.scale == 1.0f);
-    app_close(&a);
-    rp_tf_destroy(tf);
-    rp_context_destroy(a.ctx);
-  }
-}
-
 /* Requests made while nothing can render wait for the scene; requests
  * made before a frame starts coalesce into one frame. */
 static void test_requests(void **state) {
@@ -1022,7 +991,6 @@ int main(void) {
       cmocka_unit_test(test_names),
       cmocka_unit_test(test_create_refuses),
       cmocka_unit_test(test_passes_per_event),
-      cmocka_unit_test(test_min_step),
       cmocka_unit_test(test_requests),
       cmocka_unit_test(test_bad_input),
       cmocka_unit_test(test_ao_only_when_on),
