@@ -1206,49 +1206,6 @@ static void test_prepare_concurrent(void **state) {
   free(b);
 }
 
-/* A full table: prepare builds, keeps nothing (it never grows the table,
- * which is the render thread's to do from its context) and still
- * succeeds; the frame then builds for itself. */
-static void test_prepare_full_table(void **state) {
-  const uint32_t effects = RP_EFFECT_SHADING | RP_EFFECT_SKIP;
-  rp_context *ctx2 = rp_test_context();
-  void *impl = fresh_device(NULL);
-  rp_vk_impl *vk = impl;
-  uint8_t *a = malloc(64 * 64 * 4);
-  frame_desc fd = {64, 64, 1.0f, 1.0f, effects};
-  rp_camera cams[3];
-  scene s;
-  frame f;
-  uint32_t count, built;
-  (void)state;
-  assert_non_null(a);
-  prepare_scene(&s, cams);
-  scene_upload(&s, impl);
-  /* Another set's frame first: the table filled is not an empty one. */
-  fd.effects = 0;
-  frame_init(&s, &cams[1], &fd, &f);
-  vk_render(impl, &f, NULL, a, NULL, NULL);
-  fd.effects = effects;
-  /* No prepare runs now: the table's fields are this thread's. */
-  count = vk->pipeline_count;
-  assert_true(count > 0);
-  vk->pipeline_cap = count;
-  built = pipelines_created(impl);
-  assert_int_equal(g_ops->prepare(impl, ctx2, effects), 0);
-  assert_true(pipelines_created(impl) > built);
-  assert_int_equal(vk->pipeline_count, count);
-  assert_int_equal(vk->pipeline_cap, count);
-  built = pipelines_created(impl);
-  frame_init(&s, &cams[0], &fd, &f);
-  vk_render(impl, &f, NULL, a, NULL, NULL);
-  assert_true(pipelines_created(impl) > built);
-  assert_true(vk->pipeline_count > count);
-  g_ops->destroy(impl);
-  rp_context_destroy(ctx2);
-  scene_free(&s);
-  free(a);
-}
-
 /* The depth pass against runtime/depth.c, ray by ray. */
 static void test_depth_pass(void **state) {
   rp_camera cams[3];
@@ -1634,7 +1591,6 @@ int main(void) {
       cmocka_unit_test(test_prepare_ao),
       cmocka_unit_test(test_prepare_no_volume),
       cmocka_unit_test(test_prepare_concurrent),
-      cmocka_unit_test(test_prepare_full_table),
       cmocka_unit_test(test_depth_pass),
       cmocka_unit_test(test_ert_prepass),
       cmocka_unit_test(test_pipeline_cache),
