@@ -999,13 +999,6 @@ void rp_cl__variant_stats(void *p, rp_variant_stats *out) {
   pthread_mutex_unlock(&impl->lock);
 }
 
-int rp_cl__prepare_raycast(void *p, uint32_t effects, int count_fetches) {
-  rp_cl_impl *impl = p;
-  cl_kernel k;
-  return rp_cl__kernel(impl, RP_CL_RAYCAST,
-                       raycast_key(impl, effects, count_fetches), &k);
-}
-
 /* A kernel that applies the raycast's opacity correction to an array;
  * built after common.cl and sample.cl, so it calls the very function
  * frames use. */

@@ -140,9 +140,6 @@ int rp_cl__kernel(rp_cl_impl *impl, rp_cl_kind kind, uint32_t key,
  * test reaches the build-failure path. */
 int rp_cl__build_program_for_test(void *impl, const char *source,
                                   const char *options);
-/* Looks up (building if needed) the raycast program for `effects` as a
- * frame would; returns 0 or an RP_E* code. */
-int rp_cl__prepare_raycast(void *impl, uint32_t effects, int count_fetches);
 /* Runs the raycast kernel's own opacity correction on n alphas for
  * step / ref_step = ratio, into out (n floats). */
 int rp_cl__correct_for_test(void *impl, const float *alpha, size_t n,
