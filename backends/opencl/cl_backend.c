@@ -3,9 +3,11 @@
  *
  * Kernels are compiled per effect set: a disabled effect is compiled out
  * with its -D option, never skipped by a branch on a uniform. Programs
- * are built on first use and kept in a small table keyed by the option
- * set; the same set is never built twice on one device (PoCL would find
- * its own disk cache, but still spends tens of milliseconds per build).
+ * are built on first use and kept in the variant cache every backend
+ * keeps (../variant_cache.h: a bounded table, the least recently used
+ * replaced), keyed by the option set, so a set in use is not built
+ * twice (PoCL would find its own disk cache, but still spends tens of
+ * milliseconds per build).
  *
  * Buffers only, no images: PoCL's linear-filtered images are about half
  * as fast as hand-written trilinear on a buffer, and image access from a
@@ -94,16 +96,9 @@ static void release_program(rp_cl_program *p) {
   p->program = NULL;
 }
 
-/* The cached entry for (kind, key), or NULL; under impl->lock. */
-static rp_cl_program *cached(rp_cl_impl *impl, rp_cl_kind kind,
-                             uint32_t key) {
-  int i;
-  for (i = 0; i < RP_CL_CACHE_SIZE; i++) {
-    rp_cl_program *p = &impl->cache[i];
-    if (p->program != NULL && p->kind == kind && p->key == key)
-      return p;
-  }
-  return NULL;
+/* The variant cache's key of (kind, key). */
+static uint32_t variant_key(rp_cl_kind kind, uint32_t key) {
+  return (uint32_t)kind << RP_CL_KEY_KIND_SHIFT | key;
 }
 
 /* Builds the program of (kind, key) and its kernel; errors to `ctx`. Any
@@ -137,46 +132,35 @@ static int build_kernel(rp_cl_impl *impl, rp_context *ctx, rp_cl_kind kind,
   return 0;
 }
 
-/* Puts a built (prog, kernel) for (kind, key) in the cache and sets *out
- * to the kernel to use: the cache's own when it has one already (the
- * other thread built it meanwhile; ours is released). The render thread
- * (`owner`) takes the least recently used entry, evicting it, and counts
- * a hit when the entry was there; prepare only fills a free entry (one
- * never used: last_use 0), and releases what it built when there is
- * none (*out NULL). */
+/* Puts a built (prog, kernel) for (kind, key) in the variant cache and
+ * sets *out to the kernel to use: the cache's own when it has one
+ * already (the other thread built it meanwhile; ours is released). The
+ * render thread (`owner`) replaces the least recently used entry when
+ * none is free; prepare only fills a free entry, and releases what it
+ * built when there is none (*out NULL). An evicted kernel is released
+ * at once: only the owner runs kernels, and it has none in hand here but
+ * the ones of this op, which are the most recently used; a launch
+ * enqueued before retains its kernel until it completes. */
 static void keep_kernel(rp_cl_impl *impl, rp_cl_kind kind, uint32_t key,
                         cl_program prog, cl_kernel kernel, int owner,
                         cl_kernel *out) {
-  rp_cl_program *p;
-  int i, fresh = 0;
+  rp_cl_program mine = {prog, kernel}, old = {NULL, NULL};
+  rp_variant_fate fate;
+  int i;
   pthread_mutex_lock(&impl->lock);
-  if ((p = cached(impl, kind, key)) != NULL) {
-    impl->hits += (uint32_t)owner;
-  } else {
-    p = &impl->cache[0];
-    for (i = 1; i < RP_CL_CACHE_SIZE; i++)
-      if (impl->cache[i].last_use < p->last_use)
-        p = &impl->cache[i];
-    if (owner || p->program == NULL) {
-      release_program(p);
-      p->kind = kind;
-      p->key = key;
-      p->program = prog;
-      p->kernel = kernel;
-      impl->builds++;
-      fresh = 1;
-    } else {
-      p = NULL;
-    }
+  fate = rp__variant_insert(&impl->variants, variant_key(kind, key), owner,
+                            &i);
+  if (fate == RP_VARIANT_REPLACED)
+    old = impl->programs[i];
+  if (fate == RP_VARIANT_KEPT || fate == RP_VARIANT_REPLACED) {
+    impl->programs[i] = mine;
+    mine.program = NULL;
+    mine.kernel = NULL;
   }
-  if (p != NULL && (owner || fresh))
-    p->last_use = ++impl->use_clock;
-  *out = p != NULL ? p->kernel : NULL;
+  *out = fate != RP_VARIANT_DROPPED ? impl->programs[i].kernel : NULL;
   pthread_mutex_unlock(&impl->lock);
-  if (!fresh) {
-    clReleaseKernel(kernel);
-    clReleaseProgram(prog);
-  }
+  release_program(&old);
+  release_program(&mine);
 }
 
 /* The calling (render) thread is the only one that uses kernels from the
@@ -185,18 +169,15 @@ static void keep_kernel(rp_cl_impl *impl, rp_cl_kind kind, uint32_t key,
  * held only to look up and to insert, never across a build. */
 int rp_cl__kernel(rp_cl_impl *impl, rp_cl_kind kind, uint32_t key,
                   cl_kernel *out) {
-  rp_cl_program *p;
   cl_program prog;
   cl_kernel kernel;
-  int rc;
+  int rc, i;
   pthread_mutex_lock(&impl->lock);
-  if ((p = cached(impl, kind, key)) != NULL) {
-    p->last_use = ++impl->use_clock;
-    impl->hits++;
-    *out = p->kernel;
-  }
+  i = rp__variant_use(&impl->variants, variant_key(kind, key));
+  if (i >= 0)
+    *out = impl->programs[i].kernel;
   pthread_mutex_unlock(&impl->lock);
-  if (p != NULL)
+  if (i >= 0)
     return 0;
   if ((rc = build_kernel(impl, impl->ctx, kind, key, &prog, &kernel)) != 0)
     return rc;
@@ -374,8 +355,8 @@ static void cl_destroy(void *p) {
   size_t i;
   if (impl == NULL)
     return;
-  for (i = 0; i < RP_CL_CACHE_SIZE; i++)
-    release_program(&impl->cache[i]);
+  for (i = 0; i < RP_VARIANT_CACHE_SIZE; i++)
+    release_program(&impl->programs[i]);
   release_buffer(&impl->volume);
   release_buffer(&impl->brick_table);
   release_buffer(&impl->lut);
@@ -936,7 +917,8 @@ static int cl_prepare(void *p, rp_context *ctx, uint32_t effects) {
     cl_program prog;
     cl_kernel kernel;
     pthread_mutex_lock(&impl->lock);
-    have = cached(impl, kinds[i], keys[i]) != NULL;
+    have = rp__variant_find(&impl->variants,
+                            variant_key(kinds[i], keys[i])) >= 0;
     pthread_mutex_unlock(&impl->lock);
     if (have)
       continue;
@@ -1010,19 +992,11 @@ int rp_cl__build_program_for_test(void *p, const char *source,
   return rc;
 }
 
-void rp_cl__cache_stats(void *p, uint32_t *builds, uint32_t *hits) {
+void rp_cl__variant_stats(void *p, rp_variant_stats *out) {
   rp_cl_impl *impl = p;
   pthread_mutex_lock(&impl->lock);
-  *builds = impl->builds;
-  *hits = impl->hits;
+  *out = impl->variants.stats;
   pthread_mutex_unlock(&impl->lock);
-}
-
-int rp_cl__prepare_raycast(void *p, uint32_t effects, int count_fetches) {
-  rp_cl_impl *impl = p;
-  cl_kernel k;
-  return rp_cl__kernel(impl, RP_CL_RAYCAST,
-                       raycast_key(impl, effects, count_fetches), &k);
 }
 
 /* A kernel that applies the raycast's opacity correction to an array;

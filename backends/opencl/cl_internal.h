@@ -11,6 +11,7 @@
 
 #include "internal.h"
 #include "raypace_backend.h"
+#include "variant_cache.h"
 
 extern const rp_backend_bootstrap rp_cl_bootstrap;
 
@@ -22,22 +23,21 @@ typedef enum rp_cl_kind {
   RP_CL_AO = 3
 } rp_cl_kind;
 
-/* Option set of a program, the key of the program cache: the effect bits
- * it was specialised for (RP_EFFECT_SHADING | ERT | SKIP | AO), the fetch
- * counting variant, and the voxel type and index width (raycast and AO
- * only). */
+/* Option set of a program, the key of its entry in the variant cache
+ * (variant_cache.h): the effect bits it was specialised for
+ * (RP_EFFECT_SHADING | ERT | SKIP | AO), the fetch counting variant, the
+ * voxel type and index width (raycast and AO only), and the program's
+ * kind above them all. */
 #define RP_CL_KEY_COUNT (1u << 8)
 #define RP_CL_KEY_BIG (1u << 9) /* 2^31 voxels or more: 64-bit indices */
 #define RP_CL_KEY_TYPE_SHIFT 10 /* two bits */
 #define RP_CL_KEY_BRICKED (1u << 12) /* the volume is a brick pool */
-#define RP_CL_CACHE_SIZE 32
+#define RP_CL_KEY_KIND_SHIFT 16
 
+/* The driver objects of a variant-cache entry. */
 typedef struct rp_cl_program {
-  rp_cl_kind kind;
-  uint32_t key;
-  cl_program program; /* NULL: free slot */
+  cl_program program; /* NULL: free entry */
   cl_kernel kernel;
-  uint64_t last_use;  /* for evicting the least recently used */
 } rp_cl_program;
 
 /* A device buffer that grows on demand and is reused otherwise, so that
@@ -67,13 +67,12 @@ typedef struct rp_cl_impl {
   cl_device_id root;   /* its parent when a sub-device, else NULL */
   cl_context context;
   cl_command_queue queue;
-  /* Guards the program cache, its counters and the three fields after
-   * them: the ops' one exception to one thread per impl is `prepare`,
-   * which builds on another thread and adds what it built here. */
+  /* Guards the variant cache and the three fields after it: the ops'
+   * one exception to one thread per impl is `prepare`, which builds on
+   * another thread and adds what it built here. */
   pthread_mutex_t lock;
-  rp_cl_program cache[RP_CL_CACHE_SIZE];
-  uint64_t use_clock;
-  uint32_t builds, hits; /* program cache counters (tests read them) */
+  rp_variant_table variants;
+  rp_cl_program programs[RP_VARIANT_CACHE_SIZE]; /* at variants' index */
   rp_voxel_type voxel_type; /* 0 until a volume is uploaded */
   int big_volume;           /* see RP_CL_KEY_BIG */
   int bricked;              /* the volume is a brick pool (below) */
@@ -131,7 +130,7 @@ int rp_cl__build(rp_cl_impl *impl, rp_context *ctx, const char *what,
 /* ---- cl_backend.c -------------------------------------------------------- */
 
 /* The kernel of `kind` for option set `key`, built on first use and
- * cached in impl (cache hits and builds are counted). */
+ * kept in impl's variant cache (variant_cache.h says which it evicts). */
 int rp_cl__kernel(rp_cl_impl *impl, rp_cl_kind kind, uint32_t key,
                   cl_kernel *out);
 
@@ -141,11 +140,6 @@ int rp_cl__kernel(rp_cl_impl *impl, rp_cl_kind kind, uint32_t key,
  * test reaches the build-failure path. */
 int rp_cl__build_program_for_test(void *impl, const char *source,
                                   const char *options);
-/* Program cache counters: programs built and cache hits so far. */
-void rp_cl__cache_stats(void *impl, uint32_t *builds, uint32_t *hits);
-/* Looks up (building if needed) the raycast program for `effects` as a
- * frame would; returns 0 or an RP_E* code. */
-int rp_cl__prepare_raycast(void *impl, uint32_t effects, int count_fetches);
 /* Runs the raycast kernel's own opacity correction on n alphas for
  * step / ref_step = ratio, into out (n floats). */
 int rp_cl__correct_for_test(void *impl, const float *alpha, size_t n,

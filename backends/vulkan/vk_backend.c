@@ -6,7 +6,9 @@
  *   SPIR-V by glslc at build time and embedded. The effects, the counting
  *   variant, the voxel type, the volume layout and whether opacity needs
  *   correcting are specialization constants: a pipeline is made the first
- *   time a combination is used and kept for the device's life, and a
+ *   time a combination is used and kept in the variant cache every
+ *   backend keeps (../variant_cache.h: a bounded table, the least
+ *   recently used replaced), and a
  *   VkPipelineCache file carries what the driver is willing to store
  *   between runs (lavapipe stores only a header; its compiled code goes
  *   to Mesa's own shader cache).
@@ -67,11 +69,6 @@ _Static_assert(sizeof(rp_vk_params) == 320,
                "rp_vk_params must match the Params block in common.glsl");
 
 static const rp_backend_ops vk_ops;
-
-/* Pipeline table entries allocated at create: a frame binds a depth and
- * a raycast pipeline, so a dozen effect sets and step kinds fit before
- * the table first grows. */
-#define RP_VK_PIPELINES_AT_CREATE 32
 
 /* Texel formats of the volume per rp_voxel_type: one voxel per texel
  * (plain), or the 2x2 footprint of the quad layout. */
@@ -283,8 +280,9 @@ static void vk_destroy(void *p) {
     vkDeviceWaitIdle(impl->dev);
     if (impl->lost == NULL)
       rp_vk__cache_save(impl);
-    for (i = 0; i < impl->pipeline_count; i++)
-      vkDestroyPipeline(impl->dev, impl->pipelines[i].pipe, NULL);
+    for (i = 0; i < RP_VARIANT_CACHE_SIZE; i++)
+      if (impl->pipes[i] != VK_NULL_HANDLE)
+        vkDestroyPipeline(impl->dev, impl->pipes[i], NULL);
     if (impl->cache != VK_NULL_HANDLE)
       vkDestroyPipelineCache(impl->dev, impl->cache, NULL);
     for (i = 0; i < RP_VK_KERNEL_COUNT; i++)
@@ -325,7 +323,6 @@ static void vk_destroy(void *p) {
   }
   rp_vk__close(impl);
   pthread_mutex_destroy(&impl->lock);
-  rp__free(impl->ctx, impl->pipelines);
   rp__free(impl->ctx, impl);
 }
 
@@ -361,17 +358,6 @@ static int vk_create(rp_context *ctx, uint32_t index, uint32_t units,
     return rp__fail(ctx, RP_ENOMEM, "vulkan: no mutex for device %u",
                     (unsigned)index);
   }
-  /* Room from the start: prepare only fills free entries (growing is
-   * the render thread's, from its context), and a device's first frames
-   * are what it would prepare for. */
-  impl->pipelines = rp__malloc(ctx, RP_VK_PIPELINES_AT_CREATE *
-                                        sizeof *impl->pipelines);
-  if (impl->pipelines == NULL) {
-    vk_destroy(impl);
-    return rp__fail(ctx, RP_ENOMEM, "vulkan: out of memory for the "
-                    "pipeline table");
-  }
-  impl->pipeline_cap = RP_VK_PIPELINES_AT_CREATE;
   if ((err = rp_vk__open(impl, index, caps)) != 0 ||
       (err = make_modules(impl)) != 0 || (err = make_layout(impl)) != 0 ||
       (err = make_buffers(impl)) != 0) {
@@ -412,20 +398,14 @@ static uint32_t ao_pipeline_key(int correct, int quad, rp_voxel_type type) {
          ((uint32_t)type << RP_VK_KEY_TYPE_SHIFT);
 }
 
-/* The table's entry for `key`, or VK_NULL_HANDLE. The caller holds the
- * lock. */
-static VkPipeline find_pipeline(const rp_vk_impl *impl, uint32_t key) {
-  uint32_t i;
-  for (i = 0; i < impl->pipeline_count; i++)
-    if (impl->pipelines[i].key == key)
-      return impl->pipelines[i].pipe;
-  return VK_NULL_HANDLE;
-}
-
+/* The owner's lookup: the table's pipeline for `key`, stamped as used,
+ * or VK_NULL_HANDLE. */
 static VkPipeline lookup(rp_vk_impl *impl, uint32_t key) {
-  VkPipeline pipe;
+  VkPipeline pipe = VK_NULL_HANDLE;
+  int i;
   pthread_mutex_lock(&impl->lock);
-  pipe = find_pipeline(impl, key);
+  if ((i = rp__variant_use(&impl->variants, key)) >= 0)
+    pipe = impl->pipes[i];
   pthread_mutex_unlock(&impl->lock);
   return pipe;
 }
@@ -507,47 +487,37 @@ static int build_pipeline(rp_vk_impl *impl, rp_context *ctx, uint32_t key,
   return 0;
 }
 
-/* Adds `pipe` for `key` unless the table has it already (the other
- * thread built it meanwhile: `pipe` is then destroyed and *out is the
- * table's). Only the thread that owns the impl grows the table
- * (`grow`), from its context; prepare keeps a pipeline only where there
- * is a free entry, and otherwise leaves it to the frame to build. The
- * caller holds nothing; returns RP_ENOMEM (not yet recorded) when the
- * table could not grow, 1 when `pipe` was dropped for want of room. */
-static int keep_pipeline(rp_vk_impl *impl, uint32_t key, VkPipeline pipe,
-                         int grow, VkPipeline *out) {
-  VkPipeline had;
-  int rc = 0;
+/* Adds `pipe` for `key` to the variant cache and sets *out to the
+ * pipeline to use: the table's own when it has one already (the other
+ * thread built it meanwhile; `pipe` is destroyed). The impl's own thread
+ * (`owner`) replaces the least recently used entry when none is free;
+ * prepare keeps a pipeline only in a free entry, and otherwise destroys
+ * it and leaves the frame to build it (*out VK_NULL_HANDLE). An evicted
+ * pipeline is destroyed at once, which is safe because only the owner
+ * evicts and no command buffer that binds it can be pending then: every
+ * op waits for its fence before it returns, a lost device runs no op
+ * again, and an op looks up its pipelines before it records anything,
+ * the one it looked up first being the most recently used entry, which
+ * is never the one replaced. The caller holds nothing. */
+static void keep_pipeline(rp_vk_impl *impl, uint32_t key, VkPipeline pipe,
+                          int owner, VkPipeline *out) {
+  VkPipeline old = VK_NULL_HANDLE;
+  rp_variant_fate fate;
+  int i;
   pthread_mutex_lock(&impl->lock);
-  had = find_pipeline(impl, key);
-  if (had == VK_NULL_HANDLE && grow &&
-      impl->pipeline_count == impl->pipeline_cap) {
-    uint32_t cap = impl->pipeline_cap ? 2 * impl->pipeline_cap : 8;
-    rp_vk_pipeline *grown = rp__malloc(impl->ctx, cap * sizeof *grown);
-    if (grown != NULL) {
-      if (impl->pipeline_count > 0)
-        memcpy(grown, impl->pipelines,
-               impl->pipeline_count * sizeof *grown);
-      rp__free(impl->ctx, impl->pipelines);
-      impl->pipelines = grown;
-      impl->pipeline_cap = cap;
-    }
+  fate = rp__variant_insert(&impl->variants, key, owner, &i);
+  if (fate == RP_VARIANT_REPLACED)
+    old = impl->pipes[i];
+  if (fate == RP_VARIANT_KEPT || fate == RP_VARIANT_REPLACED) {
+    impl->pipes[i] = pipe;
+    pipe = VK_NULL_HANDLE;
   }
-  if (had == VK_NULL_HANDLE) {
-    if (impl->pipeline_count < impl->pipeline_cap) {
-      impl->pipelines[impl->pipeline_count].key = key;
-      impl->pipelines[impl->pipeline_count].pipe = pipe;
-      impl->pipeline_count++;
-      had = pipe;
-    } else {
-      rc = grow ? RP_ENOMEM : 1;
-    }
-  }
+  *out = fate != RP_VARIANT_DROPPED ? impl->pipes[i] : VK_NULL_HANDLE;
   pthread_mutex_unlock(&impl->lock);
-  if (had != pipe)
+  if (old != VK_NULL_HANDLE)
+    vkDestroyPipeline(impl->dev, old, NULL);
+  if (pipe != VK_NULL_HANDLE)
     vkDestroyPipeline(impl->dev, pipe, NULL);
-  *out = had;
-  return rc;
 }
 
 /* The pipeline for `key`, made on first use: the ops' path, on the
@@ -559,9 +529,7 @@ static int get_pipeline(rp_vk_impl *impl, uint32_t key, VkPipeline *out) {
     return 0;
   if ((err = build_pipeline(impl, impl->ctx, key, &pipe)) != 0)
     return err;
-  if (keep_pipeline(impl, key, pipe, 1, out) != 0)
-    return rp__fail(impl->ctx, RP_ENOMEM, "vulkan: out of memory for "
-                    "the pipeline table");
+  keep_pipeline(impl, key, pipe, 1, out);
   return 0;
 }
 
@@ -584,7 +552,7 @@ static int vk_prepare(void *ip, rp_context *ctx, uint32_t effects) {
   rp_voxel_type type;
   const char *lost;
   VkPipeline pipe;
-  int quad, bricked, n = 0, i, err;
+  int quad, bricked, n = 0, i, have, err;
   pthread_mutex_lock(&impl->lock);
   type = impl->voxel_type;
   quad = impl->quad;
@@ -615,7 +583,10 @@ static int vk_prepare(void *ip, rp_context *ctx, uint32_t effects) {
   for (i = 0; i < 2 && !bricked && (effects & RP_EFFECT_AO); i++)
     keys[n++] = ao_pipeline_key(i, quad, type);
   for (i = 0; i < n; i++) {
-    if (lookup(impl, keys[i]) != VK_NULL_HANDLE)
+    pthread_mutex_lock(&impl->lock);
+    have = rp__variant_find(&impl->variants, keys[i]) >= 0;
+    pthread_mutex_unlock(&impl->lock);
+    if (have)
       continue;
     if ((err = build_pipeline(impl, ctx, keys[i], &pipe)) != 0)
       return err;
@@ -1741,6 +1712,13 @@ void rp_vk_get_stats(void *ip, rp_vk_stats *out) {
   rp_vk_impl *impl = ip;
   pthread_mutex_lock(&impl->lock);
   *out = impl->stats;
+  pthread_mutex_unlock(&impl->lock);
+}
+
+void rp_vk__variant_stats(void *ip, rp_variant_stats *out) {
+  rp_vk_impl *impl = ip;
+  pthread_mutex_lock(&impl->lock);
+  *out = impl->variants.stats;
   pthread_mutex_unlock(&impl->lock);
 }
 

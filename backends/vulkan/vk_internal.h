@@ -11,6 +11,7 @@
 
 #include "internal.h"
 #include "raypace_backend.h"
+#include "variant_cache.h"
 
 extern const rp_backend_bootstrap rp_vk_bootstrap;
 
@@ -57,11 +58,11 @@ enum {
   RP_VK_BIND_COUNT = 15
 };
 
-/* Pipeline key: the kernel, the effect bits it was specialised for, the
- * counting variant, the voxel type, the layout, whether opacity needs
- * correcting (raycast and AO) and whether the volume is a brick pool
- * (raycast). Bits that do not change a kernel are cleared so that variants
- * are shared. */
+/* Pipeline key, its entry's key in the variant cache (variant_cache.h):
+ * the kernel, the effect bits it was specialised for, the counting
+ * variant, the voxel type, the layout, whether opacity needs correcting
+ * (raycast and AO) and whether the volume is a brick pool (raycast). Bits
+ * that do not change a kernel are cleared so that variants are shared. */
 #define RP_VK_KEY_BRICKED (1u << 6)
 #define RP_VK_KEY_CORRECT (1u << 7)
 #define RP_VK_KEY_COUNT (1u << 8)
@@ -100,11 +101,6 @@ typedef struct rp_vk_buffer {
   VkDeviceSize size; /* bytes asked for */
   void *map;
 } rp_vk_buffer;
-
-typedef struct rp_vk_pipeline {
-  uint32_t key;
-  VkPipeline pipe;
-} rp_vk_pipeline;
 
 /* What tests read back: pipeline cache and pipeline creation figures. */
 typedef struct rp_vk_stats {
@@ -145,17 +141,18 @@ typedef struct rp_vk_impl {
   VkDescriptorSet set;
   VkShaderModule modules[RP_VK_KERNEL_COUNT];
   VkPipelineCache cache;
-  /* Guards the pipeline table, the stats' pipeline figures and the
+  /* Guards the variant cache, the stats' pipeline figures and the
    * writes of the fields marked "lock" below (prepare reads them under
    * it; the other ops, their only writers, read them without): the ops'
    * one exception to one thread per impl is `prepare`, which builds on
    * another thread and adds what it built here. Held to look up, insert
    * or copy, never across a build. */
   pthread_mutex_t lock;
-  /* Entries are never removed before destroy: a pipeline handed out
-   * stays valid without the lock. */
-  rp_vk_pipeline *pipelines;
-  uint32_t pipeline_count, pipeline_cap;
+  /* Only this impl's own thread evicts (variant_cache.h), so a pipeline
+   * it was handed stays valid without the lock until one of its own
+   * later lookups replaces it. */
+  rp_variant_table variants;
+  VkPipeline pipes[RP_VARIANT_CACHE_SIZE]; /* at variants' index */
   /* Inputs: the parameters in host-visible memory (written by every
    * operation), the rest device-local where the device has such memory. */
   rp_vk_buffer params, volume, lut, grid, alpha;

@@ -2,6 +2,7 @@
 
 #include <dirent.h>
 #include <errno.h>
+#include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -182,4 +183,72 @@ void rp_test_faults(rp_device_desc *d, rp_fault_desc *f) {
   f->header.type = RP_EXT_FAULTS;
   f->header.next = d->next;
   d->next = f;
+}
+
+rp_tf *rp_test_ramp_tf(rp_context *ctx, float ref_step) {
+  rp_tf_point pts[4] = {{0.0f, 0.1f, 0.2f, 0.9f, 0.0f},
+                        {0.35f, 0.9f, 0.6f, 0.1f, 0.0f},
+                        {0.6f, 1.0f, 0.9f, 0.3f, 0.25f},
+                        {1.0f, 0.9f, 0.1f, 0.1f, 0.6f}};
+  rp_tf_desc d = {pts, 4, ref_step, 256};
+  rp_tf *tf = NULL;
+  assert_int_equal(rp_tf_create(ctx, &d, &tf), 0);
+  return tf;
+}
+
+rp_volume *rp_test_generate(rp_context *ctx, rp_generator kind, uint32_t x,
+                            uint32_t y, uint32_t z, rp_voxel_type type,
+                            uint32_t seed) {
+  rp_generate_desc d = {0};
+  rp_volume *vol = NULL;
+  d.kind = kind, d.dims[0] = x, d.dims[1] = y, d.dims[2] = z;
+  d.type = type, d.seed = seed;
+  assert_int_equal(rp_volume_generate(ctx, &d, &vol), 0);
+  return vol;
+}
+
+/* A float volume of `dims` and `spacing` whose voxel (x, y, z) is
+ * f(x, y, z). */
+static rp_volume *float_volume(rp_context *ctx, const uint32_t dims[3],
+                               const float spacing[3],
+                               double (*f)(double, double, double)) {
+  rp_volume_desc d = {{dims[0], dims[1], dims[2]}, RP_F32,
+                      {spacing[0], spacing[1], spacing[2]}, NULL};
+  float *data = malloc(sizeof(float) * dims[0] * dims[1] * dims[2]);
+  rp_volume *vol = NULL;
+  uint32_t x, y, z;
+  assert_non_null(data);
+  for (z = 0; z < dims[2]; z++)
+    for (y = 0; y < dims[1]; y++)
+      for (x = 0; x < dims[0]; x++)
+        data[((size_t)z * dims[1] + y) * dims[0] + x] = (float)f(x, y, z);
+  d.data = data;
+  assert_int_equal(rp_volume_create(ctx, &d, &vol), 0);
+  free(data);
+  return vol;
+}
+
+static double two_blobs(double x, double y, double z) {
+  double a = (x - 12.0) * (x - 12.0) + (y - 14.0) * (y - 14.0) +
+             (z - 12.0) * (z - 12.0);
+  double b = (x - 25.0) * (x - 25.0) + (y - 16.0) * (y - 16.0) +
+             (z - 14.0) * (z - 14.0);
+  return 3.0 * exp(-a / 40.0) - 2.0 * exp(-b / 25.0) + 0.01 * x - 0.5;
+}
+
+rp_volume *rp_test_float_field(rp_context *ctx) {
+  static const uint32_t dims[3] = {37, 30, 26};
+  static const float spacing[3] = {1.0f, 1.5f, 0.8f};
+  return float_volume(ctx, dims, spacing, two_blobs);
+}
+
+static double one_blob(double x, double y, double z) {
+  double dx = x - 10.0, dy = (y - 9.0) * 1.3, dz = (z - 12.0) * 0.8;
+  return -3.5 + 100.0 * exp(-(dx * dx + dy * dy + dz * dz) / 40.0);
+}
+
+rp_volume *rp_test_float_blob(rp_context *ctx) {
+  static const uint32_t dims[3] = {21, 18, 25};
+  static const float spacing[3] = {1.0f, 1.3f, 0.8f};
+  return float_volume(ctx, dims, spacing, one_blob);
 }

@@ -34,6 +34,22 @@ rp_context *rp_test_context(void);
 int rp_test_has_device(const char *backend);
 /* A transfer-function preset; asserts on failure. */
 rp_tf *rp_test_preset(rp_context *ctx, const char *name);
+/* A half-transparent ramp of 256 entries whose alpha is given per
+ * `ref_step` voxels, so that a step other than ref_step exercises the
+ * opacity correction; asserts on failure. */
+rp_tf *rp_test_ramp_tf(rp_context *ctx, float ref_step);
+/* A generated volume; asserts on failure. */
+rp_volume *rp_test_generate(rp_context *ctx, rp_generator kind, uint32_t x,
+                            uint32_t y, uint32_t z, rp_voxel_type type,
+                            uint32_t seed);
+/* A smooth float field with negative values and anisotropic spacing
+ * (1, 1.5, 0.8): two blobs of opposite sign over a gentle slope,
+ * 37x30x26. */
+rp_volume *rp_test_float_field(rp_context *ctx);
+/* A float blob, 21x18x25 with spacing (1, 1.3, 0.8), from -3.5 in the
+ * corners to 96.5 at the centre: gradients and lighting vary
+ * everywhere. */
+rp_volume *rp_test_float_blob(rp_context *ctx);
 
 /* Holds a device's per-tile volume fetches (its counting variant) to the
  * reference's (rp__reference_render), failing the test with `what` and
