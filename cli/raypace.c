@@ -685,14 +685,16 @@ static void print_group(const render_opts *o, const rp_group_report *rep,
   printf("%s\n", o->overlay ? ", regions tinted (--overlay-split)" : "");
 }
 
-/* One render through a device group, from set-up to report. */
+/* One render through a device group, from set-up to report. What became
+ * of each device (render_group's `fate`) is kept apart: with both in one
+ * struct, GCC's -Wrestrict takes the copy of a device's error from the
+ * report for a copy that may overlap. */
 typedef struct group_run {
   rp_device_group *g;
   rp_frame_probe *probe;
   frame_buffers fb;
   rp_group_report rep; /* the kept frame's */
-  device_fate fate[RP_GROUP_MAX_DEVICES];
-  double t_render; /* the kept frame's wall time, seconds */
+  double t_render;     /* the kept frame's wall time, seconds */
 } group_run;
 
 /* The group, the volume and TF on it, and AO on its devices when asked;
@@ -730,10 +732,10 @@ static int group_setup(const scene *sc, const render_opts *o,
 
 /* The probe first (its tile costs guide the split), --warmup frames each
  * followed by training, then the frame kept. A device lost in any frame
- * keeps its first loss in run->fate. 0, or 1 with the error printed. */
+ * keeps its first loss in fate[]. 0, or 1 with the error printed. */
 static int group_frames(const scene *sc, const render_opts *o,
                         const rp_camera *cam, const rp_render_desc *rd,
-                        group_run *run) {
+                        group_run *run, device_fate *fate) {
   frame_buffers *fb = &run->fb;
   float step = rd->step > 0 ? rd->step : 1.0f;
   float scale = rd->image_scale > 0 ? rd->image_scale : 1.0f;
@@ -755,7 +757,7 @@ static int group_frames(const scene *sc, const render_opts *o,
       return cli_error(sc->ctx, "render", err);
     for (i = 0; i < run->rep.count; i++) {
       const rp_group_device *d = &run->rep.devices[i];
-      device_fate *f = &run->fate[i];
+      device_fate *f = &fate[i];
       if (d->status == 0 || f->status != 0)
         continue;
       f->status = d->status;
@@ -793,7 +795,8 @@ static void group_overlay(const render_opts *o, group_run *run) {
 }
 
 /* The summary on stdout: JSON with --json, else text. */
-static int group_report(const render_opts *o, const group_run *run) {
+static int group_report(const render_opts *o, const group_run *run,
+                        const device_fate *fate) {
   const rp_group_report *rep = &run->rep;
   frame_totals ft = sum_tiles(&run->fb);
   double t_render = run->t_render;
@@ -815,8 +818,7 @@ static int group_report(const render_opts *o, const group_run *run) {
     cJSON_AddNumberToObject(root, "devices_alive", rep->alive);
     cJSON_AddBoolToObject(root, "overlay_split", o->overlay);
     cJSON_AddItemToObject(root, "devices",
-                          json_group(o, rep, run->fate, run->fb.sw,
-                                     run->fb.sh));
+                          json_group(o, rep, fate, run->fb.sw, run->fb.sh));
     cJSON_AddItemToObject(root, "strips",
                           json_strips(o, rep, run->fb.sw, run->fb.sh));
     return print_json(root);
@@ -825,7 +827,7 @@ static int group_report(const render_opts *o, const group_run *run) {
          "samples/s)\n", o->out, o->width, o->height, rep->count,
          (unsigned long long)ft.samples, t_render * 1e3,
          t_render > 0 ? ft.samples / t_render / 1e6 : 0.0);
-  print_group(o, rep, run->fate);
+  print_group(o, rep, fate);
   return 0;
 }
 
@@ -833,21 +835,23 @@ static int group_report(const render_opts *o, const group_run *run) {
 static int render_group(const scene *sc, const render_opts *o,
                         const rp_camera *cam, const rp_render_desc *rd) {
   group_run run;
+  device_fate fate[RP_GROUP_MAX_DEVICES];
   int rc = 1;
   memset(&run, 0, sizeof run);
+  memset(fate, 0, sizeof fate);
   if (group_setup(sc, o, &run) != 0 || buffers_alloc(&run.fb, o, rd) != 0)
     goto out;
   if ((run.probe = malloc(sizeof *run.probe)) == NULL) {
     out_of_memory();
     goto out;
   }
-  if (group_frames(sc, o, cam, rd, &run) != 0)
+  if (group_frames(sc, o, cam, rd, &run, fate) != 0)
     goto out;
   if (o->overlay)
     group_overlay(o, &run);
   if (write_output(sc->ctx, o, &run.fb) != 0)
     goto out;
-  rc = group_report(o, &run);
+  rc = group_report(o, &run, fate);
 out:
   free(run.probe);
   buffers_free(&run.fb);
