@@ -144,28 +144,73 @@ static int print_json(cJSON *root) {
   return ok ? 0 : 1;
 }
 
-static int cmd_info(int argc, char **argv) {
+/* What info and render both build: a context, the volume, a TF, the
+ * density histograms and the occupancy under the TF. */
+typedef struct scene {
+  rp_context *ctx;
+  rp_volume *vol;
+  rp_tf *tf;
+  rp_histograms *h;
+  rp_occupancy *occ;
+  double histogram_s, occupancy_s; /* how long H and the occupancy took */
+} scene;
+
+/* Builds `sc`; 0, or 1 with the error printed. `h_what` names a failure
+ * to build H in the message (the commands have always named it
+ * differently). scene_close frees what was built, either way. */
+static int scene_open(scene *sc, const char *volume, const char *tf_name,
+                      const char *h_what) {
+  double t0;
+  int err;
+  memset(sc, 0, sizeof *sc);
+  if ((err = rp_context_create(NULL, &sc->ctx)) != 0)
+    return cli_error(sc->ctx, "context", err);
+  if (cli_open_volume(sc->ctx, volume, &sc->vol) != 0)
+    return 1;
+  if ((err = rp_tf_create_preset(sc->ctx, tf_name, &sc->tf)) != 0)
+    return cli_error(sc->ctx, "--tf", err);
+  t0 = cli_now();
+  if ((err = rp_histograms_build(sc->ctx, sc->vol, &sc->h)) != 0)
+    return cli_error(sc->ctx, h_what, err);
+  sc->histogram_s = cli_now() - t0;
+  t0 = cli_now();
+  if ((err = rp_occupancy_build(sc->ctx, sc->h, sc->tf, &sc->occ)) != 0)
+    return cli_error(sc->ctx, "occupancy", err);
+  sc->occupancy_s = cli_now() - t0;
+  return 0;
+}
+
+static void scene_close(scene *sc) {
+  rp_occupancy_destroy(sc->occ);
+  rp_histograms_destroy(sc->h);
+  rp_tf_destroy(sc->tf);
+  rp_volume_destroy(sc->vol);
+  rp_context_destroy(sc->ctx);
+}
+
+/* ---- info ---------------------------------------------------------------- */
+
+typedef struct info_opts {
+  const char *volume, *tf;
+  int json, hist;
+} info_opts;
+
+/* 0, or 1 after --help, or 2 (usage printed). */
+static int parse_info(int argc, char **argv, info_opts *o) {
   static const struct option opts[] = {{"tf", required_argument, 0, 't'},
                                        {"histograms", no_argument, 0, 'H'},
                                        {"json", no_argument, 0, 'j'},
                                        {"help", no_argument, 0, 'h'},
                                        {0, 0, 0, 0}};
-  const char *tf_name = "ct-bone";
-  int json = 0, hist = 0, c, err, rc = 1;
-  rp_context *ctx = NULL;
-  rp_volume *vol = NULL;
-  rp_tf *tf = NULL;
-  rp_histograms *h = NULL;
-  rp_occupancy *occ = NULL;
-  rp_volume_info in;
-  uint32_t nb, b;
-  double t0, t_h, t_occ;
+  int c;
+  memset(o, 0, sizeof *o);
+  o->tf = "ct-bone";
   while ((c = getopt_long(argc, argv, "h", opts, NULL)) != -1) {
     switch (c) {
-    case 't': tf_name = optarg; break;
-    case 'H': hist = 1; break;
-    case 'j': json = 1; break;
-    case 'h': usage_info(stdout); return 0;
+    case 't': o->tf = optarg; break;
+    case 'H': o->hist = 1; break;
+    case 'j': o->json = 1; break;
+    case 'h': usage_info(stdout); return 1;
     default: usage_info(stderr); return 2;
     }
   }
@@ -173,65 +218,53 @@ static int cmd_info(int argc, char **argv) {
     usage_info(stderr);
     return 2;
   }
-  if ((err = rp_context_create(NULL, &ctx)) != 0)
-    return cli_error(ctx, "context", err);
-  if (cli_open_volume(ctx, argv[optind], &vol) != 0)
-    goto out;
-  if ((err = rp_tf_create_preset(ctx, tf_name, &tf)) != 0) {
-    cli_error(ctx, "--tf", err);
-    goto out;
-  }
-  t0 = cli_now();
-  if ((err = rp_histograms_build(ctx, vol, &h)) != 0) {
-    cli_error(ctx, "histograms", err);
-    goto out;
-  }
-  t_h = cli_now() - t0;
-  t0 = cli_now();
-  if ((err = rp_occupancy_build(ctx, h, tf, &occ)) != 0) {
-    cli_error(ctx, "occupancy", err);
-    goto out;
-  }
-  t_occ = cli_now() - t0;
-  rp_volume_get_info(vol, &in);
-  nb = rp_histograms_block_count(h);
-  if (json) {
-    cJSON *root = cJSON_CreateObject();
-    uint32_t dims[3] = {in.dims[0], in.dims[1], in.dims[2]};
-    cJSON_AddStringToObject(root, "volume", argv[optind]);
-    cJSON_AddItemToObject(root, "dims", json_u32s(dims, 3));
-    cJSON_AddStringToObject(root, "type", rp_voxel_type_name(in.type));
-    cJSON_AddItemToObject(root, "spacing",
-                          cJSON_CreateFloatArray(in.spacing, 3));
-    cJSON_AddNumberToObject(root, "min", in.min);
-    cJSON_AddNumberToObject(root, "max", in.max);
-    cJSON_AddItemToObject(root, "blocks", json_u32s(in.blocks, 3));
-    cJSON_AddNumberToObject(root, "block_count", nb);
-    cJSON_AddStringToObject(root, "tf", tf_name);
-    cJSON_AddNumberToObject(root, "empty_blocks",
-                            rp_occupancy_empty_blocks(occ));
-    cJSON_AddNumberToObject(root, "empty_fraction",
-                            (double)rp_occupancy_empty_blocks(occ) / nb);
-    cJSON_AddNumberToObject(root, "histogram_ms", t_h * 1e3);
-    cJSON_AddNumberToObject(root, "occupancy_ms", t_occ * 1e3);
-    if (hist) {
-      cJSON *hd = cJSON_AddArrayToObject(root, "density_histograms");
-      cJSON *ha = cJSON_AddArrayToObject(root, "opacity_histograms");
-      const uint8_t *a = rp_occupancy_alpha_hist(occ);
-      for (b = 0; b < nb; b++) {
-        uint32_t op[RP_OPACITY_BINS];
-        int j;
-        cJSON_AddItemToArray(hd, json_u32s(rp_histograms_block(h, b),
-                                           RP_DENSITY_BINS));
-        for (j = 0; j < RP_OPACITY_BINS; j++)
-          op[j] = a[b * RP_OPACITY_BINS + j];
-        cJSON_AddItemToArray(ha, json_u32s(op, RP_OPACITY_BINS));
-      }
+  o->volume = argv[optind];
+  return 0;
+}
+
+static int info_json(const info_opts *o, const scene *sc) {
+  cJSON *root = cJSON_CreateObject();
+  rp_volume_info in;
+  uint32_t nb = rp_histograms_block_count(sc->h), b;
+  rp_volume_get_info(sc->vol, &in);
+  cJSON_AddStringToObject(root, "volume", o->volume);
+  cJSON_AddItemToObject(root, "dims", json_u32s(in.dims, 3));
+  cJSON_AddStringToObject(root, "type", rp_voxel_type_name(in.type));
+  cJSON_AddItemToObject(root, "spacing",
+                        cJSON_CreateFloatArray(in.spacing, 3));
+  cJSON_AddNumberToObject(root, "min", in.min);
+  cJSON_AddNumberToObject(root, "max", in.max);
+  cJSON_AddItemToObject(root, "blocks", json_u32s(in.blocks, 3));
+  cJSON_AddNumberToObject(root, "block_count", nb);
+  cJSON_AddStringToObject(root, "tf", o->tf);
+  cJSON_AddNumberToObject(root, "empty_blocks",
+                          rp_occupancy_empty_blocks(sc->occ));
+  cJSON_AddNumberToObject(root, "empty_fraction",
+                          (double)rp_occupancy_empty_blocks(sc->occ) / nb);
+  cJSON_AddNumberToObject(root, "histogram_ms", sc->histogram_s * 1e3);
+  cJSON_AddNumberToObject(root, "occupancy_ms", sc->occupancy_s * 1e3);
+  if (o->hist) {
+    cJSON *hd = cJSON_AddArrayToObject(root, "density_histograms");
+    cJSON *ha = cJSON_AddArrayToObject(root, "opacity_histograms");
+    const uint8_t *a = rp_occupancy_alpha_hist(sc->occ);
+    for (b = 0; b < nb; b++) {
+      uint32_t op[RP_OPACITY_BINS];
+      int j;
+      cJSON_AddItemToArray(hd, json_u32s(rp_histograms_block(sc->h, b),
+                                         RP_DENSITY_BINS));
+      for (j = 0; j < RP_OPACITY_BINS; j++)
+        op[j] = a[b * RP_OPACITY_BINS + j];
+      cJSON_AddItemToArray(ha, json_u32s(op, RP_OPACITY_BINS));
     }
-    rc = print_json(root);
-    goto out;
   }
-  printf("volume:        %s\n", argv[optind]);
+  return print_json(root);
+}
+
+static int info_text(const info_opts *o, const scene *sc) {
+  rp_volume_info in;
+  uint32_t nb = rp_histograms_block_count(sc->h), b;
+  rp_volume_get_info(sc->vol, &in);
+  printf("volume:        %s\n", o->volume);
   printf("dims:          %u x %u x %u\n", in.dims[0], in.dims[1], in.dims[2]);
   printf("type:          %s\n", rp_voxel_type_name(in.type));
   printf("spacing:       %g %g %g\n", in.spacing[0], in.spacing[1],
@@ -240,14 +273,14 @@ static int cmd_info(int argc, char **argv) {
   printf("blocks:        %u x %u x %u = %u (16^3)\n", in.blocks[0],
          in.blocks[1], in.blocks[2], nb);
   printf("empty blocks:  %u (%.1f %%) under TF '%s'\n",
-         rp_occupancy_empty_blocks(occ),
-         100.0 * rp_occupancy_empty_blocks(occ) / nb, tf_name);
+         rp_occupancy_empty_blocks(sc->occ),
+         100.0 * rp_occupancy_empty_blocks(sc->occ) / nb, o->tf);
   printf("timing:        H %.2f ms, H-alpha + occupancy %.2f ms\n",
-         t_h * 1e3, t_occ * 1e3);
-  if (hist) {
-    const uint8_t *a = rp_occupancy_alpha_hist(occ);
+         sc->histogram_s * 1e3, sc->occupancy_s * 1e3);
+  if (o->hist) {
+    const uint8_t *a = rp_occupancy_alpha_hist(sc->occ);
     for (b = 0; b < nb; b++) {
-      const uint32_t *hb = rp_histograms_block(h, b);
+      const uint32_t *hb = rp_histograms_block(sc->h, b);
       int j;
       printf("block %u H:", b);
       for (j = 0; j < RP_DENSITY_BINS; j++)
@@ -258,15 +291,22 @@ static int cmd_info(int argc, char **argv) {
       printf("\n");
     }
   }
-  rc = 0;
-out:
-  rp_occupancy_destroy(occ);
-  rp_histograms_destroy(h);
-  rp_tf_destroy(tf);
-  rp_volume_destroy(vol);
-  rp_context_destroy(ctx);
+  return 0;
+}
+
+static int cmd_info(int argc, char **argv) {
+  info_opts o;
+  scene sc;
+  int rc;
+  if ((rc = parse_info(argc, argv, &o)) != 0)
+    return rc == 1 ? 0 : rc;
+  if ((rc = scene_open(&sc, o.volume, o.tf, "histograms")) == 0)
+    rc = o.json ? info_json(&o, &sc) : info_text(&o, &sc);
+  scene_close(&sc);
   return rc;
 }
+
+/* ---- render -------------------------------------------------------------- */
 
 typedef struct render_opts {
   const char *volume, *out, *tf, *backend;
@@ -396,6 +436,106 @@ static int parse_render(int argc, char **argv, render_opts *o) {
   }
   o->volume = argv[optind];
   return 0;
+}
+
+/* The camera and render desc the options ask for. */
+static void render_setup(const render_opts *o, const rp_volume *vol,
+                         rp_camera *cam, rp_render_desc *rd) {
+  memset(cam, 0, sizeof *cam);
+  memset(rd, 0, sizeof *rd);
+  cam->projection = o->ortho ? RP_ORTHOGRAPHIC : RP_PERSPECTIVE;
+  cam->fov_y_deg = o->fov;
+  rp_camera_orbit(cam, vol, o->orbit[0], o->orbit[1], o->orbit[2]);
+  rd->width = o->width;
+  rd->height = o->height;
+  rd->step = o->step;
+  rd->ert_threshold = o->ert_threshold;
+  rd->image_scale = o->scale;
+  rd->effects = (o->shading ? RP_EFFECT_SHADING : 0) |
+                (o->ert ? RP_EFFECT_ERT : 0) |
+                (o->skip ? RP_EFFECT_SKIP : 0) | (o->ao ? RP_EFFECT_AO : 0);
+}
+
+static int out_of_memory(void) {
+  fprintf(stderr, "raypace render: out of memory\n");
+  return 1;
+}
+
+/* A frame's images and tile statistics: rendered at the scaled size
+ * (sw x sh, tx x ty tiles), kept at the output size. */
+typedef struct frame_buffers {
+  uint32_t sw, sh, tx, ty;
+  uint8_t *rgba, *out;
+  rp_tile_stats *tiles;
+} frame_buffers;
+
+/* 0, or 1 with the error printed; buffers_free frees them either way. */
+static int buffers_alloc(frame_buffers *fb, const render_opts *o,
+                         const rp_render_desc *rd) {
+  rp_scaled_size(rd, &fb->sw, &fb->sh);
+  rp_tile_grid(fb->sw, fb->sh, &fb->tx, &fb->ty);
+  fb->rgba = malloc((size_t)fb->sw * fb->sh * 4);
+  fb->out = malloc((size_t)o->width * o->height * 4);
+  fb->tiles = malloc((size_t)fb->tx * fb->ty * sizeof *fb->tiles);
+  if (fb->rgba == NULL || fb->out == NULL || fb->tiles == NULL)
+    return out_of_memory();
+  return 0;
+}
+
+static void buffers_free(frame_buffers *fb) {
+  free(fb->rgba);
+  free(fb->out);
+  free(fb->tiles);
+}
+
+/* What a frame's tiles add up to. */
+typedef struct frame_totals {
+  uint64_t samples, rays;
+  double depth_sum; /* mean depth times rays, summed */
+} frame_totals;
+
+static frame_totals sum_tiles(const frame_buffers *fb) {
+  frame_totals ft = {0, 0, 0};
+  uint32_t t;
+  for (t = 0; t < fb->tx * fb->ty; t++) {
+    ft.samples += fb->tiles[t].samples;
+    ft.rays += fb->tiles[t].rays_hit;
+    ft.depth_sum += (double)fb->tiles[t].mean_depth * fb->tiles[t].rays_hit;
+  }
+  return ft;
+}
+
+/* Writes the output image to the PNG the options name; 0, or 1 with the
+ * error printed. */
+static int write_output(rp_context *ctx, const render_opts *o,
+                        const frame_buffers *fb) {
+  int err = rp_write_png(ctx, o->out, fb->out, o->width, o->height,
+                         o->background);
+  return err != 0 ? cli_error(ctx, o->out, err) : 0;
+}
+
+/* The JSON summary's fields that one device and a group share, in the
+ * order both have always printed them; each adds its own after them. */
+static cJSON *json_render(const render_opts *o, const char *backend,
+                          const char *device, const frame_buffers *fb,
+                          const frame_totals *ft, double t_render,
+                          double device_ms) {
+  cJSON *root = cJSON_CreateObject();
+  cJSON_AddStringToObject(root, "output", o->out);
+  cJSON_AddStringToObject(root, "backend", backend);
+  cJSON_AddStringToObject(root, "device", device);
+  cJSON_AddNumberToObject(root, "width", o->width);
+  cJSON_AddNumberToObject(root, "height", o->height);
+  cJSON_AddNumberToObject(root, "scaled_width", fb->sw);
+  cJSON_AddNumberToObject(root, "scaled_height", fb->sh);
+  cJSON_AddStringToObject(root, "tf", o->tf);
+  cJSON_AddNumberToObject(root, "samples", (double)ft->samples);
+  cJSON_AddNumberToObject(root, "rays_hit", (double)ft->rays);
+  cJSON_AddNumberToObject(root, "mean_depth",
+                          ft->rays ? ft->depth_sum / ft->rays : 0.0);
+  cJSON_AddNumberToObject(root, "render_ms", t_render * 1e3);
+  cJSON_AddNumberToObject(root, "device_ms", device_ms);
+  return root;
 }
 
 /* ---- render --devices ---------------------------------------------------- */
@@ -545,165 +685,177 @@ static void print_group(const render_opts *o, const rp_group_report *rep,
   printf("%s\n", o->overlay ? ", regions tinted (--overlay-split)" : "");
 }
 
-/* Renders `rd` through a device group into `out` (output size): the
- * probe first (its tile costs guide the split), --warmup frames each
- * followed by training, then the frame kept. */
-static int render_group(rp_context *ctx, const render_opts *o,
-                        const rp_volume *vol, const rp_tf *tf,
-                        const rp_occupancy *occ, const rp_camera *cam,
-                        const rp_render_desc *rd) {
+/* One render through a device group, from set-up to report. What became
+ * of each device (render_group's `fate`) is kept apart: with both in one
+ * struct, GCC's -Wrestrict takes the copy of a device's error from the
+ * report for a copy that may overlap. */
+typedef struct group_run {
+  rp_device_group *g;
+  rp_frame_probe *probe;
+  frame_buffers fb;
+  rp_group_report rep; /* the kept frame's */
+  double t_render;     /* the kept frame's wall time, seconds */
+} group_run;
+
+/* The group, the volume and TF on it, and AO on its devices when asked;
+ * 0, or 1 with the error printed. */
+static int group_setup(const scene *sc, const render_opts *o,
+                       group_run *run) {
   rp_group_desc gd = {0};
-  rp_device_group *g = NULL;
-  rp_frame_probe *probe = NULL;
-  rp_group_report rep;
-  device_fate fate[RP_GROUP_MAX_DEVICES];
-  uint8_t *rgba = NULL, *out = NULL;
-  rp_tile_stats *tiles = NULL;
-  uint32_t sw, sh, tx, ty, t, i, frame;
-  uint64_t samples = 0, rays = 0;
-  double t0, t_render = 0, depth_sum = 0;
-  float step = rd->step > 0 ? rd->step : 1.0f;
-  float scale = rd->image_scale > 0 ? rd->image_scale : 1.0f;
-  int err, rc = 1;
-  memset(fate, 0, sizeof fate);
+  int err;
   gd.devices = o->devices;
   gd.count = o->ndevices;
-  if ((err = rp_device_group_create(ctx, &gd, &g)) != 0)
-    return cli_error(ctx, "--devices", err);
-  if ((err = rp_device_group_set_volume(g, vol)) != 0 ||
-      (err = rp_device_group_set_tf(g, tf, occ)) != 0) {
-    cli_error(ctx, "upload", err);
-    goto out;
-  }
+  if ((err = rp_device_group_create(sc->ctx, &gd, &run->g)) != 0)
+    return cli_error(sc->ctx, "--devices", err);
+  if ((err = rp_device_group_set_volume(run->g, sc->vol)) != 0 ||
+      (err = rp_device_group_set_tf(run->g, sc->tf, sc->occ)) != 0)
+    return cli_error(sc->ctx, "upload", err);
   if (o->ao) {
     rp_ao_plan *plan = NULL;
     rp_ao *ao = NULL;
-    rp_ao_schedule sc = {0};
-    sc.scheme = o->ao_scheme;
-    sc.progress = cli_progress;
-    sc.user = "ambient occlusion";
-    if ((err = rp_ao_plan_create(ctx, vol, tf, NULL, &plan)) == 0 &&
-        (err = rp_device_group_compute_ao(g, plan, &sc, &ao, NULL)) == 0)
-      err = rp_device_group_set_ao(g, ao);
+    rp_ao_schedule sched = {0};
+    sched.scheme = o->ao_scheme;
+    sched.progress = cli_progress;
+    sched.user = "ambient occlusion";
+    if ((err = rp_ao_plan_create(sc->ctx, sc->vol, sc->tf, NULL, &plan)) ==
+            0 &&
+        (err = rp_device_group_compute_ao(run->g, plan, &sched, &ao,
+                                          NULL)) == 0)
+      err = rp_device_group_set_ao(run->g, ao);
     rp_ao_destroy(ao);
     rp_ao_plan_destroy(plan);
-    if (err != 0) {
-      cli_error(ctx, "--ao", err);
-      goto out;
-    }
+    if (err != 0)
+      return cli_error(sc->ctx, "--ao", err);
   }
-  rp_scaled_size(rd, &sw, &sh);
-  rp_tile_grid(sw, sh, &tx, &ty);
-  rgba = malloc((size_t)sw * sh * 4);
-  out = malloc((size_t)o->width * o->height * 4);
-  tiles = malloc((size_t)tx * ty * sizeof *tiles);
-  probe = malloc(sizeof *probe);
-  if (rgba == NULL || out == NULL || tiles == NULL || probe == NULL) {
-    fprintf(stderr, "raypace render: out of memory\n");
-    goto out;
-  }
-  if ((err = rp_frame_probe_compute(ctx, vol, tf, occ, cam, rd, 1, 0,
-                                    probe)) != 0) {
-    cli_error(ctx, "probe", err);
-    goto out;
-  }
+  return 0;
+}
+
+/* The probe first (its tile costs guide the split), --warmup frames each
+ * followed by training, then the frame kept. A device lost in any frame
+ * keeps its first loss in fate[]. 0, or 1 with the error printed. */
+static int group_frames(const scene *sc, const render_opts *o,
+                        const rp_camera *cam, const rp_render_desc *rd,
+                        group_run *run, device_fate *fate) {
+  frame_buffers *fb = &run->fb;
+  float step = rd->step > 0 ? rd->step : 1.0f;
+  float scale = rd->image_scale > 0 ? rd->image_scale : 1.0f;
+  uint32_t frame, i;
+  double t0;
+  int err;
+  if ((err = rp_frame_probe_compute(sc->ctx, sc->vol, sc->tf, sc->occ, cam,
+                                    rd, 1, 0, run->probe)) != 0)
+    return cli_error(sc->ctx, "probe", err);
   for (frame = 0; frame <= o->warmup; frame++) {
     t0 = cli_now();
-    err = rp_device_group_render(g, cam, rd, probe, rgba, tiles, &rep);
+    err = rp_device_group_render(run->g, cam, rd, run->probe, fb->rgba,
+                                 fb->tiles, &run->rep);
     if (err == 0)
-      rp_image_upscale(rgba, sw, sh, out, o->width, o->height);
-    t_render = cli_now() - t0;
-    if (err != 0) {
-      cli_error(ctx, "render", err);
-      goto out;
-    }
-    for (i = 0; i < rep.count; i++) {
-      const rp_group_device *d = &rep.devices[i];
-      if (d->status == 0 || fate[i].status != 0)
+      rp_image_upscale(fb->rgba, fb->sw, fb->sh, fb->out, o->width,
+                       o->height);
+    run->t_render = cli_now() - t0;
+    if (err != 0)
+      return cli_error(sc->ctx, "render", err);
+    for (i = 0; i < run->rep.count; i++) {
+      const rp_group_device *d = &run->rep.devices[i];
+      device_fate *f = &fate[i];
+      if (d->status == 0 || f->status != 0)
         continue;
-      fate[i].status = d->status;
-      fate[i].late = d->late;
-      snprintf(fate[i].why, sizeof fate[i].why, "%s", d->error);
+      f->status = d->status;
+      f->late = d->late;
+      snprintf(f->why, sizeof f->why, "%s", d->error);
     }
     if (frame < o->warmup &&
-        (err = rp_device_group_train(g, probe, step, scale,
-                                     t_render * 1e3)) != 0) {
-      cli_error(ctx, "train", err);
-      goto out;
-    }
+        (err = rp_device_group_train(run->g, run->probe, step, scale,
+                                     run->t_render * 1e3)) != 0)
+      return cli_error(sc->ctx, "train", err);
   }
-  if (o->overlay) {
-    for (i = 0; i < rep.count; i++) {
-      rp_region r = region_to_output(&rep.devices[i].region, sw, sh,
+  return 0;
+}
+
+/* --overlay-split: each device's region tinted in its colour (hatched if
+ * it was lost), then the tail's strips in the colour of the device that
+ * took each. */
+static void group_overlay(const render_opts *o, group_run *run) {
+  const rp_group_report *rep = &run->rep;
+  frame_buffers *fb = &run->fb;
+  uint32_t i;
+  for (i = 0; i < rep->count; i++) {
+    rp_region r = region_to_output(&rep->devices[i].region, fb->sw, fb->sh,
+                                   o->width, o->height);
+    overlay_region(fb->out, o->width, &r, device_colours[i],
+                   rep->devices[i].status != 0);
+  }
+  for (i = 0; i < rep->strip_count; i++)
+    if (rep->strip_device[i] < rep->count) {
+      rp_region r = region_to_output(&rep->strips[i], fb->sw, fb->sh,
                                      o->width, o->height);
-      overlay_region(out, o->width, &r, device_colours[i],
-                     rep.devices[i].status != 0);
+      overlay_region(fb->out, o->width, &r,
+                     device_colours[rep->strip_device[i]], 0);
     }
-    /* The tail's strips in the colour of the device that took each. */
-    for (i = 0; i < rep.strip_count; i++)
-      if (rep.strip_device[i] < rep.count) {
-        rp_region r = region_to_output(&rep.strips[i], sw, sh, o->width,
-                                       o->height);
-        overlay_region(out, o->width, &r,
-                       device_colours[rep.strip_device[i]], 0);
-      }
-  }
-  if ((err = rp_write_png(ctx, o->out, out, o->width, o->height,
-                          o->background)) != 0) {
-    cli_error(ctx, o->out, err);
-    goto out;
-  }
-  for (t = 0; t < tx * ty; t++) {
-    samples += tiles[t].samples;
-    rays += tiles[t].rays_hit;
-    depth_sum += (double)tiles[t].mean_depth * tiles[t].rays_hit;
-  }
+}
+
+/* The summary on stdout: JSON with --json, else text. */
+static int group_report(const render_opts *o, const group_run *run,
+                        const device_fate *fate) {
+  const rp_group_report *rep = &run->rep;
+  frame_totals ft = sum_tiles(&run->fb);
+  double t_render = run->t_render;
   if (o->json) {
-    cJSON *root = cJSON_CreateObject();
     double device_ms = 0;
-    for (i = 0; i < rep.count; i++)
-      device_ms = fmax(device_ms, rep.devices[i].raycast_ms);
-    cJSON_AddStringToObject(root, "output", o->out);
-    cJSON_AddStringToObject(root, "backend", "group");
-    cJSON_AddStringToObject(root, "device", o->devices_spec);
-    cJSON_AddNumberToObject(root, "width", o->width);
-    cJSON_AddNumberToObject(root, "height", o->height);
-    cJSON_AddNumberToObject(root, "scaled_width", sw);
-    cJSON_AddNumberToObject(root, "scaled_height", sh);
-    cJSON_AddStringToObject(root, "tf", o->tf);
-    cJSON_AddNumberToObject(root, "samples", (double)samples);
-    cJSON_AddNumberToObject(root, "rays_hit", (double)rays);
-    cJSON_AddNumberToObject(root, "mean_depth",
-                            rays ? depth_sum / rays : 0.0);
-    cJSON_AddNumberToObject(root, "render_ms", t_render * 1e3);
-    cJSON_AddNumberToObject(root, "device_ms", device_ms);
+    cJSON *root;
+    uint32_t i;
+    for (i = 0; i < rep->count; i++)
+      device_ms = fmax(device_ms, rep->devices[i].raycast_ms);
+    root = json_render(o, "group", o->devices_spec, &run->fb, &ft,
+                       t_render, device_ms);
     cJSON_AddNumberToObject(root, "samples_per_s",
-                            t_render > 0 ? samples / t_render : 0.0);
+                            t_render > 0 ? ft.samples / t_render : 0.0);
     cJSON_AddNumberToObject(root, "warmup", o->warmup);
-    cJSON_AddNumberToObject(root, "probe_ms", probe->probe_ms);
-    cJSON_AddNumberToObject(root, "group_render_ms", rep.render_ms);
-    cJSON_AddNumberToObject(root, "rerender_ms", rep.rerender_ms);
-    cJSON_AddNumberToObject(root, "imbalance", rep.imbalance);
-    cJSON_AddNumberToObject(root, "devices_alive", rep.alive);
+    cJSON_AddNumberToObject(root, "probe_ms", run->probe->probe_ms);
+    cJSON_AddNumberToObject(root, "group_render_ms", rep->render_ms);
+    cJSON_AddNumberToObject(root, "rerender_ms", rep->rerender_ms);
+    cJSON_AddNumberToObject(root, "imbalance", rep->imbalance);
+    cJSON_AddNumberToObject(root, "devices_alive", rep->alive);
     cJSON_AddBoolToObject(root, "overlay_split", o->overlay);
     cJSON_AddItemToObject(root, "devices",
-                          json_group(o, &rep, fate, sw, sh));
-    cJSON_AddItemToObject(root, "strips", json_strips(o, &rep, sw, sh));
-    rc = print_json(root);
-  } else {
-    printf("wrote %s (%ux%u on %u devices, %llu samples, %.1f ms, %.2f M "
-           "samples/s)\n", o->out, o->width, o->height, rep.count,
-           (unsigned long long)samples, t_render * 1e3,
-           t_render > 0 ? samples / t_render / 1e6 : 0.0);
-    print_group(o, &rep, fate);
-    rc = 0;
+                          json_group(o, rep, fate, run->fb.sw, run->fb.sh));
+    cJSON_AddItemToObject(root, "strips",
+                          json_strips(o, rep, run->fb.sw, run->fb.sh));
+    return print_json(root);
   }
+  printf("wrote %s (%ux%u on %u devices, %llu samples, %.1f ms, %.2f M "
+         "samples/s)\n", o->out, o->width, o->height, rep->count,
+         (unsigned long long)ft.samples, t_render * 1e3,
+         t_render > 0 ? ft.samples / t_render / 1e6 : 0.0);
+  print_group(o, rep, fate);
+  return 0;
+}
+
+/* Renders `rd` through a device group into o->out (output size). */
+static int render_group(const scene *sc, const render_opts *o,
+                        const rp_camera *cam, const rp_render_desc *rd) {
+  group_run run;
+  device_fate fate[RP_GROUP_MAX_DEVICES];
+  int rc = 1;
+  memset(&run, 0, sizeof run);
+  memset(fate, 0, sizeof fate);
+  if (group_setup(sc, o, &run) != 0 || buffers_alloc(&run.fb, o, rd) != 0)
+    goto out;
+  if ((run.probe = malloc(sizeof *run.probe)) == NULL) {
+    out_of_memory();
+    goto out;
+  }
+  if (group_frames(sc, o, cam, rd, &run, fate) != 0)
+    goto out;
+  if (o->overlay)
+    group_overlay(o, &run);
+  if (write_output(sc->ctx, o, &run.fb) != 0)
+    goto out;
+  rc = group_report(o, &run, fate);
 out:
-  free(probe);
-  free(rgba);
-  free(out);
-  free(tiles);
-  rp_device_group_destroy(g);
+  free(run.probe);
+  buffers_free(&run.fb);
+  rp_device_group_destroy(run.g);
   return rc;
 }
 
@@ -727,154 +879,114 @@ static void add_bricks_json(cJSON *root, const rp_device *dev) {
   cJSON_AddNumberToObject(b, "upload_ms", st.last_upload_ns * 1e-6);
 }
 
-static int cmd_render(int argc, char **argv) {
-  render_opts o;
-  rp_context *ctx = NULL;
-  rp_volume *vol = NULL;
-  rp_tf *tf = NULL;
-  rp_histograms *h = NULL;
-  rp_occupancy *occ = NULL;
+/* The device, the volume and TF on it, and AO on it when asked (*ao_ms:
+ * how long AO took); 0, or 1 with the error printed. */
+static int single_setup(const scene *sc, const render_opts *o,
+                        rp_device **dev, rp_caps *caps, rp_ao **ao,
+                        double *ao_ms) {
+  int err;
+  if (cli_open_device(sc->ctx, "--backend", o->backend, o->device, &o->mem,
+                      dev) != 0)
+    return 1;
+  rp_device_get_caps(*dev, caps);
+  if ((err = rp_device_set_volume(*dev, sc->vol)) != 0 ||
+      (err = rp_device_set_tf(*dev, sc->tf, sc->occ)) != 0)
+    return cli_error(sc->ctx, "upload", err);
+  if (o->ao) {
+    rp_ao_plan *plan = NULL;
+    rp_ao_schedule sched = {0};
+    double t0;
+    sched.progress = cli_progress;
+    sched.user = "ambient occlusion";
+    t0 = cli_now();
+    if ((err = rp_ao_plan_create(sc->ctx, sc->vol, sc->tf, NULL, &plan)) ==
+            0 &&
+        (err = rp_ao_compute(sc->ctx, dev, 1, plan, &sched, ao, NULL)) == 0)
+      err = rp_device_set_ao(*dev, *ao);
+    *ao_ms = (cli_now() - t0) * 1e3;
+    rp_ao_plan_destroy(plan);
+    if (err != 0)
+      return cli_error(sc->ctx, "--ao", err);
+  }
+  return 0;
+}
+
+/* The summary on stdout: JSON with --json, else text. */
+static int single_report(const render_opts *o, const rp_device *dev,
+                         const rp_caps *caps, const frame_buffers *fb,
+                         double t_render, double ao_ms) {
+  frame_totals ft = sum_tiles(fb);
+  if (o->json) {
+    cJSON *root = json_render(o, caps->backend, caps->device, fb, &ft,
+                              t_render, rp_device_last_time_ns(dev) * 1e-6);
+    cJSON_AddBoolToObject(root, "ao", o->ao);
+    cJSON_AddNumberToObject(root, "ao_ms", ao_ms);
+    cJSON_AddNumberToObject(root, "samples_per_s",
+                            t_render > 0 ? ft.samples / t_render : 0.0);
+    add_bricks_json(root, dev);
+    return print_json(root);
+  }
+  printf("wrote %s (%ux%u on %s '%s', %llu samples, %.1f ms, %.2f M "
+         "samples/s)\n", o->out, o->width, o->height, caps->backend,
+         caps->device, (unsigned long long)ft.samples, t_render * 1e3,
+         t_render > 0 ? ft.samples / t_render / 1e6 : 0.0);
+  cli_print_bricks(dev, "  ");
+  return 0;
+}
+
+/* Renders `rd` on one device into o->out: --warmup frames first, then the
+ * frame kept and timed. */
+static int render_single(const scene *sc, const render_opts *o,
+                         const rp_camera *cam, const rp_render_desc *rd) {
   rp_device *dev = NULL;
   rp_caps caps;
-  rp_camera cam = {0};
-  rp_render_desc rd = {0};
   rp_ao *ao = NULL;
-  uint8_t *rgba = NULL, *out = NULL;
-  rp_tile_stats *tiles = NULL;
-  uint32_t tx, ty, t, sw, sh;
-  uint64_t samples = 0, rays = 0;
-  double t0, t_render, depth_sum = 0, ao_ms = 0;
+  frame_buffers fb;
+  double t0, t_render, ao_ms = 0;
+  uint32_t frame;
   int err, rc = 1;
-  if ((rc = parse_render(argc, argv, &o)) != 0)
-    return rc == 1 ? 0 : rc;
-  rc = 1;
-  if ((err = rp_context_create(NULL, &ctx)) != 0)
-    return cli_error(ctx, "context", err);
-  if (cli_open_volume(ctx, o.volume, &vol) != 0)
+  memset(&fb, 0, sizeof fb);
+  if (single_setup(sc, o, &dev, &caps, &ao, &ao_ms) != 0 ||
+      buffers_alloc(&fb, o, rd) != 0)
     goto out;
-  if ((err = rp_tf_create_preset(ctx, o.tf, &tf)) != 0) {
-    cli_error(ctx, "--tf", err);
-    goto out;
-  }
-  if ((err = rp_histograms_build(ctx, vol, &h)) != 0 ||
-      (err = rp_occupancy_build(ctx, h, tf, &occ)) != 0) {
-    cli_error(ctx, "occupancy", err);
-    goto out;
-  }
-  cam.projection = o.ortho ? RP_ORTHOGRAPHIC : RP_PERSPECTIVE;
-  cam.fov_y_deg = o.fov;
-  rp_camera_orbit(&cam, vol, o.orbit[0], o.orbit[1], o.orbit[2]);
-  rd.width = o.width;
-  rd.height = o.height;
-  rd.step = o.step;
-  rd.ert_threshold = o.ert_threshold;
-  rd.image_scale = o.scale;
-  rd.effects = (o.shading ? RP_EFFECT_SHADING : 0) |
-               (o.ert ? RP_EFFECT_ERT : 0) | (o.skip ? RP_EFFECT_SKIP : 0) |
-               (o.ao ? RP_EFFECT_AO : 0);
-  if (o.ndevices > 0) {
-    rc = render_group(ctx, &o, vol, tf, occ, &cam, &rd);
-    goto out;
-  }
-  if (cli_open_device(ctx, "--backend", o.backend, o.device, &o.mem,
-                      &dev) != 0)
-    goto out;
-  rp_device_get_caps(dev, &caps);
-  if ((err = rp_device_set_volume(dev, vol)) != 0 ||
-      (err = rp_device_set_tf(dev, tf, occ)) != 0) {
-    cli_error(ctx, "upload", err);
-    goto out;
-  }
-  if (o.ao) {
-    rp_ao_plan *plan = NULL;
-    rp_ao_schedule sc = {0};
-    sc.progress = cli_progress;
-    sc.user = "ambient occlusion";
-    t0 = cli_now();
-    if ((err = rp_ao_plan_create(ctx, vol, tf, NULL, &plan)) == 0 &&
-        (err = rp_ao_compute(ctx, &dev, 1, plan, &sc, &ao, NULL)) == 0)
-      err = rp_device_set_ao(dev, ao);
-    ao_ms = (cli_now() - t0) * 1e3;
-    rp_ao_plan_destroy(plan);
-    if (err != 0) {
-      cli_error(ctx, "--ao", err);
-      goto out;
-    }
-  }
-  rp_scaled_size(&rd, &sw, &sh);
-  rp_tile_grid(sw, sh, &tx, &ty);
-  rgba = malloc((size_t)sw * sh * 4);
-  out = malloc((size_t)o.width * o.height * 4);
-  tiles = malloc((size_t)tx * ty * sizeof *tiles);
-  if (rgba == NULL || out == NULL || tiles == NULL) {
-    fprintf(stderr, "raypace render: out of memory\n");
-    goto out;
-  }
-  for (t = 0; t < o.warmup; t++)
-    if ((err = rp_device_render(dev, &cam, &rd, NULL, rgba, tiles)) != 0) {
-      cli_error(ctx, "render", err);
+  for (frame = 0; frame < o->warmup; frame++)
+    if ((err = rp_device_render(dev, cam, rd, NULL, fb.rgba, fb.tiles)) !=
+        0) {
+      cli_error(sc->ctx, "render", err);
       goto out;
     }
   t0 = cli_now();
-  err = rp_device_render(dev, &cam, &rd, NULL, rgba, tiles);
+  err = rp_device_render(dev, cam, rd, NULL, fb.rgba, fb.tiles);
   t_render = cli_now() - t0;
   if (err != 0) {
-    cli_error(ctx, "render", err);
+    cli_error(sc->ctx, "render", err);
     goto out;
   }
-  rp_image_upscale(rgba, sw, sh, out, o.width, o.height);
-  if ((err = rp_write_png(ctx, o.out, out, o.width, o.height,
-                          o.background)) != 0) {
-    cli_error(ctx, o.out, err);
+  rp_image_upscale(fb.rgba, fb.sw, fb.sh, fb.out, o->width, o->height);
+  if (write_output(sc->ctx, o, &fb) != 0)
     goto out;
-  }
-  for (t = 0; t < tx * ty; t++) {
-    samples += tiles[t].samples;
-    rays += tiles[t].rays_hit;
-    depth_sum += (double)tiles[t].mean_depth * tiles[t].rays_hit;
-  }
-  if (o.json) {
-    cJSON *root = cJSON_CreateObject();
-    cJSON_AddStringToObject(root, "output", o.out);
-    cJSON_AddStringToObject(root, "backend", caps.backend);
-    cJSON_AddStringToObject(root, "device", caps.device);
-    cJSON_AddNumberToObject(root, "width", o.width);
-    cJSON_AddNumberToObject(root, "height", o.height);
-    cJSON_AddNumberToObject(root, "scaled_width", sw);
-    cJSON_AddNumberToObject(root, "scaled_height", sh);
-    cJSON_AddStringToObject(root, "tf", o.tf);
-    cJSON_AddNumberToObject(root, "samples", (double)samples);
-    cJSON_AddNumberToObject(root, "rays_hit", (double)rays);
-    cJSON_AddNumberToObject(root, "mean_depth",
-                            rays ? depth_sum / rays : 0.0);
-    cJSON_AddNumberToObject(root, "render_ms", t_render * 1e3);
-    cJSON_AddNumberToObject(root, "device_ms",
-                            rp_device_last_time_ns(dev) * 1e-6);
-    cJSON_AddBoolToObject(root, "ao", o.ao);
-    cJSON_AddNumberToObject(root, "ao_ms", ao_ms);
-    cJSON_AddNumberToObject(root, "samples_per_s",
-                            t_render > 0 ? samples / t_render : 0.0);
-    add_bricks_json(root, dev);
-    rc = print_json(root);
-  } else {
-    printf("wrote %s (%ux%u on %s '%s', %llu samples, %.1f ms, %.2f M "
-           "samples/s)\n", o.out, o.width, o.height, caps.backend,
-           caps.device, (unsigned long long)samples, t_render * 1e3,
-           t_render > 0 ? samples / t_render / 1e6 : 0.0);
-    cli_print_bricks(dev, "  ");
-    rc = 0;
-  }
+  rc = single_report(o, dev, &caps, &fb, t_render, ao_ms);
 out:
-  free(rgba);
-  free(out);
-  free(tiles);
+  buffers_free(&fb);
   rp_ao_destroy(ao);
   rp_device_destroy(dev);
-  rp_occupancy_destroy(occ);
-  rp_histograms_destroy(h);
-  rp_tf_destroy(tf);
-  rp_volume_destroy(vol);
-  rp_context_destroy(ctx);
+  return rc;
+}
+
+static int cmd_render(int argc, char **argv) {
+  render_opts o;
+  scene sc;
+  rp_camera cam;
+  rp_render_desc rd;
+  int rc;
+  if ((rc = parse_render(argc, argv, &o)) != 0)
+    return rc == 1 ? 0 : rc;
+  if ((rc = scene_open(&sc, o.volume, o.tf, "occupancy")) == 0) {
+    render_setup(&o, sc.vol, &cam, &rd);
+    rc = o.ndevices > 0 ? render_group(&sc, &o, &cam, &rd)
+                        : render_single(&sc, &o, &cam, &rd);
+  }
+  scene_close(&sc);
   return rc;
 }
 

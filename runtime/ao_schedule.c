@@ -350,9 +350,9 @@ static double imbalance(const rp_ao_plan *plan, const bsp_node *nd,
  * the seed does, and a step is never under one layer. Where the seed
  * stops when the sign of D flips, we keep the two planes either side of
  * the flip and halve the gap between them until it is one layer: a
- * sparse layer at the plane makes the proportional step overshoot far
- * (measured on bonsai: from x = 196 to 1), and stopping there would keep
- * the unbalanced plane. D is monotonic in the plane, so the halving
+ * sparse layer at the plane makes the proportional step overshoot far,
+ * and stopping there would keep the unbalanced plane (docs/ao.md,
+ * "Across devices"). D is monotonic in the plane, so the halving
  * converges. */
 static void bsp_balance(const rp_ao_plan *plan, bsp_node *nodes, int k,
                         double tolerance, double deadline) {

@@ -29,11 +29,9 @@
 #include "internal.h"
 #include "raygen.h"
 
-/* 16: on bonsai and engine at 512^2 (bench_bricks), bricks of 32^3
- * uploaded 3 to 9 times the bytes per frame of 16^3 ones at the same
- * budget (coarser culling, more parts evicting each other), and at an
- * eighth of engine one tile's bricks no longer fit the pool. 8^3 bricks
- * store 42 % more than they hold (the border). */
+/* 16 by default: larger bricks cull more coarsely and upload several
+ * times the bytes a frame; smaller ones carry a larger share of border
+ * (docs/out_of_core.md, "Bricks"). */
 #define RP__BRICK_DEFAULT 16
 #define RP__BRICK_MIN 8
 #define RP__BRICK_MAX 256
@@ -133,11 +131,10 @@ typedef struct rp__brick_plan {
   rp__bricks *bricks;        /* NULL while the whole volume is on the
                                 device (or none is) */
   int table_sent;            /* the pool's table is the host's */
-  /* Renders alternate the order of their parts: the last part's bricks
-   * are then the first the next frame needs. In the same order every
-   * frame, least-recently-used replacement evicts exactly the bricks the
-   * next part needs (the cyclic worst case: measured 45 % hits on
-   * bonsai at half the volume, camera still). */
+  /* Renders alternate the order of their parts, so that the last part's
+   * bricks are the first the next frame needs: in one fixed order, LRU
+   * evicts exactly the bricks the next part needs (docs/out_of_core.md,
+   * "What a render loads"). */
   int reverse_parts;
   rp_brick_stats stats;      /* but out_of_core and the pool's counters */
   double upload_ns_per_byte; /* measured on its uploads (smoothed) */

@@ -156,7 +156,7 @@ static inline double rp__voxel(const rp_volume *v, uint32_t i, uint32_t j,
   }
 }
 
-/* ---- volume_io.c -------------------------------------------------------- */
+/* ---- volume_header.c, volume_decode.c (the loader: volume_io.h) --------- */
 
 /* A parsed file header, before any voxel is read. */
 typedef struct rp__volume_header {

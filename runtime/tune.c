@@ -303,6 +303,15 @@ static void record_bad(search *s, double r) {
     s->have_hi = s->have_hi2 = 0;
 }
 
+/* Files the prediction t at r, priced or not. Returns 1 when it lands in
+ * the accepted band. */
+static int file_prediction(search *s, double r, double t) {
+  if (priced(t))
+    return record(s, r, t);
+  record_bad(s, r);
+  return 0;
+}
+
 static void search_init(search *s, double target, double tol, double lb,
                         double ub) {
   memset(s, 0, sizeof *s);
@@ -330,12 +339,114 @@ static void run_search(search *s, double r0, const rp_tune_desc *d,
       break;
     t = predict(user, r);
     (*iters)++;
-    if (priced(t)) {
-      if (record(s, r, t))
-        break;
-    } else {
-      record_bad(s, r);
+    if (file_prediction(s, r, t))
+      break;
+  }
+}
+
+/* The lift: held back by the damping alone, with the density it allows
+ * predicted far under the target (at d->lift of it or less), the density
+ * rises to the largest predicted at d->lift of the target, searched the
+ * same way between that density and rho_max (first asking at rho_max,
+ * which is the answer after a switch to a cheap TF). */
+static void lift(search *s, const rp_tune_desc *d, rp_predict_fn predict,
+                 void *user, double start, int *iters) {
+  search l;
+  double t;
+  if (!(held_at_ub(s) && s->ub < d->rho_max &&
+        s->best.t <= d->lift * s->target && *iters < d->max_iters &&
+        !spent(start, d->max_time_us)))
+    return;
+  t = predict(user, d->rho_max);
+  (*iters)++;
+  search_init(&l, d->lift * s->target, d->tolerance, s->best.r, d->rho_max);
+  (void)file_prediction(&l, d->rho_max, t);
+  if (!(l.have_best && l.best.r >= d->rho_max) &&
+      !record(&l, s->best.r, s->best.t))
+    run_search(&l, d->rho_max, d, predict, user, start, iters);
+  if (l.have_best && l.best.r > s->best.r) {
+    s->best = l.best;
+    s->ub = l.best.r; /* still held by the damping, or at rho_max */
+  }
+}
+
+/* What a target under rho_min's time gets: rho_min, or, when even rho_min
+ * is over the target (TUNE_FLOOR_SLACK), the largest density predicted
+ * within the slack of rho_min's time if that is at least
+ * TUNE_FLOOR_GAIN times rho_min. The search starts from what this call
+ * has predicted already (on a steady scene, last frame's answer is among
+ * it and ends it), then asks the upper clamp (a time that does not
+ * depend on rho ends there), then searches between. Its band is kept in
+ * the upper half of the slack (a caller's wide tolerance would reach
+ * down to rho_min's own time and end the search there). */
+static point floor_search(const search *s, const rp_tune_desc *d,
+                          rp_predict_fn predict, void *user, double start,
+                          int *iters) {
+  point cheapest;
+  search f;
+  int i, done = 0, have_ub = 0;
+  cheapest.r = s->lb;
+  cheapest.t = s->t_lb;
+  if (!(!s->have_best && s->have_lb && s->ub > s->lb &&
+        *iters < d->max_iters && !spent(start, d->max_time_us)))
+    return cheapest;
+  search_init(&f, s->t_lb * (1.0 + TUNE_FLOOR_SLACK),
+              fmin(d->tolerance,
+                   0.5 * TUNE_FLOOR_SLACK / (1.0 + TUNE_FLOOR_SLACK)),
+              s->lb, s->ub);
+  memcpy(f.bad, s->bad, sizeof f.bad);
+  f.nbad = s->nbad;
+  for (i = 0; i < f.nbad; i++)
+    have_ub |= f.bad[i] == s->ub; /* asked already, and unpriced */
+  for (i = 0; i < s->nseen && !done; i++)
+    if (s->seen[i].r <= s->ub) {
+      have_ub |= s->seen[i].r == s->ub;
+      done = record(&f, s->seen[i].r, s->seen[i].t);
     }
+  if (!done && !have_ub && !(f.have_best && f.best.r >= s->ub)) {
+    double t = predict(user, s->ub);
+    (*iters)++;
+    done = file_prediction(&f, s->ub, t);
+  }
+  if (!done && !(f.have_best && f.best.r >= s->ub))
+    run_search(&f, s->ub, d, predict, user, start, iters);
+  if (f.have_best && f.best.r >= TUNE_FLOOR_GAIN * s->lb)
+    cheapest = f.best;
+  return cheapest;
+}
+
+/* The call's answer from its searches; `cheapest` is floor_search's. */
+static void tune_result(const search *s, const rp_tune_desc *d,
+                        point cheapest, rp_tune_result *out) {
+  double r;
+  if (s->have_best) {
+    out->rho = s->best.r;
+    out->predicted_ms = s->best.t;
+    out->limited = held_at_ub(s);
+  } else if (s->have_lb) {
+    /* Even rho_min is over the target: rho_min, or the density within
+     * TUNE_FLOOR_SLACK of its time found above. */
+    out->rho = cheapest.r;
+    out->predicted_ms = cheapest.t;
+    out->limited = 1;
+  } else if (s->have_hi) {
+    /* Every valid prediction was over the target and the budget ran out
+     * before rho_min was tried: Eq. 2's step down from the lowest one,
+     * unverified. */
+    r = extrapolate(s, s->hi, s->have_hi2 ? &s->hi2 : NULL, s->lb);
+    /* A step into or past a density the model could not price is no
+     * guess at all: rho_min then. */
+    out->rho = r >= s->lb && r < s->hi.r && bad_below(s, s->hi.r) < r
+                   ? r
+                   : s->lb;
+    out->predicted_ms = NAN;
+    out->limited = out->rho <= s->lb;
+  } else {
+    /* The model priced nothing: keep last frame's density. */
+    out->rho = d->rho_prev > 0
+                   ? fmin(fmax(d->rho_prev, d->rho_min), d->rho_max)
+                   : d->rho_max;
+    out->predicted_ms = NAN;
   }
 }
 
@@ -366,101 +477,10 @@ int rp_tune(const rp_tune_desc *desc, rp_predict_fn predict, void *user,
 
   start = rp__now_ms() * 1e3; /* microseconds */
   run_search(&s, r0, &d, predict, user, start, &iters);
-
   memset(out, 0, sizeof *out);
-  if (held_at_ub(&s) && s.ub < d.rho_max &&
-      s.best.t <= d.lift * s.target && iters < d.max_iters &&
-      !spent(start, d.max_time_us)) {
-    /* Held back by the damping alone, with the density it allows
-     * predicted far under the target: lifted to the largest density
-     * predicted at d.lift of the target, searched the same way
-     * between that density and rho_max (first asking at rho_max, which
-     * is the answer after a switch to a cheap TF). */
-    search l;
-    double t = predict(user, d.rho_max);
-    iters++;
-    search_init(&l, d.lift * s.target, d.tolerance, s.best.r,
-                d.rho_max);
-    if (priced(t))
-      (void)record(&l, d.rho_max, t);
-    else
-      record_bad(&l, d.rho_max);
-    if (!(l.have_best && l.best.r >= d.rho_max) &&
-        !record(&l, s.best.r, s.best.t))
-      run_search(&l, d.rho_max, &d, predict, user, start, &iters);
-    if (l.have_best && l.best.r > s.best.r) {
-      s.best = l.best;
-      s.ub = l.best.r; /* still held by the damping, or at rho_max */
-    }
-  }
-  /* What a target under rho_min's time gets (below). */
-  cheapest.r = s.lb;
-  cheapest.t = s.t_lb;
-  if (!s.have_best && s.have_lb && s.ub > s.lb &&
-      iters < d.max_iters && !spent(start, d.max_time_us)) {
-    /* Even rho_min is over the target (TUNE_FLOOR_SLACK): the largest
-     * density predicted within the slack of rho_min's time. The search
-     * starts from what this call has predicted already (on a steady
-     * scene, last frame's answer is among it and ends it), then asks
-     * the upper clamp (a time that does not depend on rho ends there),
-     * then searches between. Its band is kept in the upper half of the
-     * slack (a caller's wide tolerance would reach down to rho_min's
-     * own time and end the search there). */
-    search f;
-    int i, done = 0, have_ub = 0;
-    search_init(&f, s.t_lb * (1.0 + TUNE_FLOOR_SLACK),
-                fmin(d.tolerance,
-                     0.5 * TUNE_FLOOR_SLACK / (1.0 + TUNE_FLOOR_SLACK)),
-                s.lb, s.ub);
-    memcpy(f.bad, s.bad, sizeof f.bad);
-    f.nbad = s.nbad;
-    for (i = 0; i < f.nbad; i++)
-      have_ub |= f.bad[i] == s.ub; /* asked already, and unpriced */
-    for (i = 0; i < s.nseen && !done; i++)
-      if (s.seen[i].r <= s.ub) {
-        have_ub |= s.seen[i].r == s.ub;
-        done = record(&f, s.seen[i].r, s.seen[i].t);
-      }
-    if (!done && !have_ub && !(f.have_best && f.best.r >= s.ub)) {
-      double t = predict(user, s.ub);
-      iters++;
-      if (priced(t))
-        done = record(&f, s.ub, t);
-      else
-        record_bad(&f, s.ub);
-    }
-    if (!done && !(f.have_best && f.best.r >= s.ub))
-      run_search(&f, s.ub, &d, predict, user, start, &iters);
-    if (f.have_best && f.best.r >= TUNE_FLOOR_GAIN * s.lb)
-      cheapest = f.best;
-  }
+  lift(&s, &d, predict, user, start, &iters);
+  cheapest = floor_search(&s, &d, predict, user, start, &iters);
   out->iters = iters;
-  if (s.have_best) {
-    out->rho = s.best.r;
-    out->predicted_ms = s.best.t;
-    out->limited = held_at_ub(&s);
-  } else if (s.have_lb) {
-    /* Even rho_min is over the target: rho_min, or the density within
-     * TUNE_FLOOR_SLACK of its time found above. */
-    out->rho = cheapest.r;
-    out->predicted_ms = cheapest.t;
-    out->limited = 1;
-  } else if (s.have_hi) {
-    /* Every valid prediction was over the target and the budget ran out
-     * before rho_min was tried: Eq. 2's step down from the lowest one,
-     * unverified. */
-    r = extrapolate(&s, s.hi, s.have_hi2 ? &s.hi2 : NULL, s.lb);
-    /* A step into or past a density the model could not price is no
-     * guess at all: rho_min then. */
-    out->rho = r >= s.lb && r < s.hi.r && bad_below(&s, s.hi.r) < r ? r
-                                                                    : s.lb;
-    out->predicted_ms = NAN;
-    out->limited = out->rho <= s.lb;
-  } else {
-    /* The model priced nothing: keep last frame's density. */
-    out->rho = d.rho_prev > 0 ? fmin(fmax(d.rho_prev, d.rho_min), d.rho_max)
-                              : d.rho_max;
-    out->predicted_ms = NAN;
-  }
+  tune_result(&s, &d, cheapest, out);
   return 0;
 }

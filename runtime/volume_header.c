@@ -1,0 +1,846 @@
+/* Volume headers: NRRD, the raypace sidecar and the dims and type in a
+ * NAME_XxYxZ_TYPE.raw file name, each read into an rp__volume_header
+ * (volume_io.h says how the loader's parts fit together).
+ *
+ * Policy decisions (tests/test_volume_io.c holds us to them):
+ * - A size of 0 is RP_ERANGE, like a product too large for size_t or for
+ *   the context's max_volume_bytes.
+ * - Lines are at most MAX_LINE bytes; a longer one is RP_EFORMAT. */
+#include <float.h>
+#include <locale.h>
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "volume_io.h"
+
+#define MAX_LINE 4096
+
+/* Fields whose repetition is an error, one bit each. */
+enum {
+  F_TYPE = 1 << 0,
+  F_DIMENSION = 1 << 1,
+  F_SIZES = 1 << 2,
+  F_ENDIAN = 1 << 3,
+  F_ENCODING = 1 << 4,
+  F_SPACINGS = 1 << 5,
+  F_DIRECTIONS = 1 << 6,
+  F_DATA_FILE = 1 << 7,
+  F_BYTE_SKIP = 1 << 8,
+  F_LINE_SKIP = 1 << 9,
+  F_BYTES = 1 << 10
+};
+
+typedef struct field_name {
+  const char *name;
+  unsigned bit;
+} field_name;
+
+typedef struct type_name {
+  const char *name;
+  rp_voxel_type type;
+} type_name;
+
+const rp__header_fields rp__nrrd_fields_named = {"field 'sizes'",
+                                                 "field 'spacings'"};
+const rp__header_fields rp__sidecar_fields_named = {"field 'dims'",
+                                                    "field 'spacing'"};
+const rp__header_fields rp__raw_fields_named = {"the dims in the file name",
+                                                "field 'spacing'"};
+
+/* ---- Text helpers ------------------------------------------------------ */
+
+/* Character classes by hand: <ctype.h> depends on the locale and is
+ * undefined for negative chars. */
+static int is_space(int c) {
+  return c == ' ' || c == '\t' || c == '\r' || c == '\v' || c == '\f';
+}
+
+static int is_digit(int c) { return c >= '0' && c <= '9'; }
+
+static int to_lower(int c) { return c >= 'A' && c <= 'Z' ? c - 'A' + 'a' : c; }
+
+static int eq_nocase(const char *a, const char *b) {
+  while (*a != '\0' && to_lower((unsigned char)*a) ==
+                           to_lower((unsigned char)*b)) {
+    a++;
+    b++;
+  }
+  return *a == '\0' && *b == '\0';
+}
+
+/* Strips spaces at both ends, in place. */
+static char *trim(char *s) {
+  size_t n;
+  while (is_space((unsigned char)*s))
+    s++;
+  n = strlen(s);
+  while (n > 0 && is_space((unsigned char)s[n - 1]))
+    s[--n] = '\0';
+  return s;
+}
+
+/* Splits off the next space-separated token, in place; NULL when none. */
+static char *next_token(char **cursor) {
+  char *s = *cursor, *tok;
+  while (is_space((unsigned char)*s))
+    s++;
+  if (*s == '\0') {
+    *cursor = s;
+    return NULL;
+  }
+  tok = s;
+  while (*s != '\0' && !is_space((unsigned char)*s))
+    s++;
+  if (*s != '\0')
+    *s++ = '\0';
+  *cursor = s;
+  return tok;
+}
+
+/* A short, printable copy of `s` for an error message, so that a binary
+ * file cannot fill the message or the user's terminal with garbage. */
+static const char *shown(char buf[64], const char *s) {
+  size_t i;
+  for (i = 0; s[i] != '\0' && i < 48; i++) {
+    unsigned char c = (unsigned char)s[i];
+    buf[i] = c >= 0x20 && c < 0x7f ? (char)c : '?';
+  }
+  if (s[i] != '\0') {
+    memcpy(buf + i, "...", 3);
+    i += 3;
+  }
+  buf[i] = '\0';
+  return buf;
+}
+
+/* A decimal integer filling the whole token, without sign. */
+static int parse_u64(const char *s, uint64_t *v) {
+  uint64_t x = 0;
+  if (*s == '\0')
+    return 0;
+  for (; *s != '\0'; s++) {
+    unsigned d;
+    if (!is_digit((unsigned char)*s))
+      return 0;
+    d = (unsigned)(*s - '0');
+    if (x > (UINT64_MAX - d) / 10)
+      return 0;
+    x = x * 10 + d;
+  }
+  *v = x;
+  return 1;
+}
+
+/* A decimal integer with an optional sign, filling the whole token. */
+static int parse_i64(const char *s, int64_t *v) {
+  uint64_t mag;
+  int neg = *s == '-';
+  if (*s == '-' || *s == '+')
+    s++;
+  if (!parse_u64(s, &mag) || mag > (uint64_t)INT64_MAX)
+    return 0;
+  *v = neg ? -(int64_t)mag : (int64_t)mag;
+  return 1;
+}
+
+/* A floating-point number filling the whole token. strtod reads the
+ * decimal point of the current locale, which a host application may have
+ * changed, so the token's '.' is translated first; NaN and infinities are
+ * accepted here and rejected by the callers with RP_ENOTFINITE. */
+static int parse_double(const char *s, double *v) {
+  char tmp[64];
+  const char *dp = localeconv()->decimal_point;
+  size_t n = strlen(s);
+  char *end;
+  if (n == 0 || n >= sizeof tmp)
+    return 0;
+  memcpy(tmp, s, n + 1);
+  if (dp != NULL && dp[0] != '\0' && dp[0] != '.' && dp[1] == '\0') {
+    char *p;
+    if (strchr(tmp, dp[0]) != NULL)
+      return 0;
+    for (p = tmp; *p != '\0'; p++)
+      if (*p == '.')
+        *p = dp[0];
+  }
+  *v = strtod(tmp, &end);
+  return end != tmp && *end == '\0';
+}
+
+static const char *type_label(rp_voxel_type type) {
+  switch (type) {
+  case RP_U8: return "uint8";
+  case RP_U16: return "uint16";
+  case RP_F32: return "float32";
+  default: return "?";
+  }
+}
+
+const char *rp__volume_dims_text(char buf[96],
+                                 const rp__volume_header *hdr) {
+  snprintf(buf, 96, "%llux%llux%llu %s", (unsigned long long)hdr->dims[0],
+           (unsigned long long)hdr->dims[1], (unsigned long long)hdr->dims[2],
+           type_label(hdr->type));
+  return buf;
+}
+
+/* ---- Lines of a memory buffer ------------------------------------------ */
+
+typedef struct line_reader {
+  const uint8_t *buf;
+  size_t len, pos;
+  unsigned number; /* of the last line returned, from 1 */
+} line_reader;
+
+/* Copies the next line into `out` as a C string, without its "\n" or
+ * "\r\n". Returns 1 with a line, 0 at the end of the buffer, or an error:
+ * lines longer than MAX_LINE and lines holding a NUL byte are malformed. */
+static int next_line(rp_context *ctx, const char *name, line_reader *lr,
+                     char out[MAX_LINE + 1]) {
+  const uint8_t *start = lr->buf + lr->pos;
+  const uint8_t *nl;
+  size_t n, rest;
+  out[0] = '\0';
+  if (lr->pos >= lr->len)
+    return 0;
+  rest = lr->len - lr->pos;
+  nl = memchr(start, '\n', rest);
+  n = nl != NULL ? (size_t)(nl - start) : rest;
+  lr->pos += nl != NULL ? n + 1 : n;
+  lr->number++;
+  if (n > 0 && start[n - 1] == '\r')
+    n--;
+  if (n > MAX_LINE)
+    return rp__fail(ctx, RP_EFORMAT,
+                    "%s: line %u is longer than %d bytes", name, lr->number,
+                    MAX_LINE);
+  if (memchr(start, '\0', n) != NULL)
+    return rp__fail(ctx, RP_EFORMAT, "%s: line %u holds a NUL byte", name,
+                    lr->number);
+  memcpy(out, start, n);
+  out[n] = '\0';
+  return 1;
+}
+
+/* ---- Field values -------------------------------------------------------- */
+
+static int parse_type(rp_context *ctx, const char *name, const char *field,
+                      const char *value, const type_name *names,
+                      const char *accepted, rp_voxel_type *type) {
+  char sv[64];
+  for (; names->name != NULL; names++) {
+    if (eq_nocase(value, names->name)) {
+      *type = names->type;
+      return 0;
+    }
+  }
+  return rp__fail(ctx, RP_EUNSUPPORTED,
+                  "%s: %s '%s' is not supported (accepted: %s)", name, field,
+                  shown(sv, value), accepted);
+}
+
+static int parse_endian(rp_context *ctx, const char *name, const char *field,
+                        const char *value, int *big) {
+  char sv[64];
+  if (eq_nocase(value, "little"))
+    *big = 0;
+  else if (eq_nocase(value, "big"))
+    *big = 1;
+  else
+    return rp__fail(ctx, RP_EFORMAT,
+                    "%s: %s '%s' is neither 'little' nor 'big'", name, field,
+                    shown(sv, value));
+  return 0;
+}
+
+/* Exactly three sizes, each at least 1. */
+static int parse_sizes(rp_context *ctx, const char *name, const char *field,
+                       char *value, uint64_t dims[3]) {
+  char sv[64], copy[MAX_LINE + 1];
+  char *cursor = value, *tok;
+  int n = 0;
+  snprintf(copy, sizeof copy, "%s", value);
+  while ((tok = next_token(&cursor)) != NULL) {
+    if (n == 3 || !parse_u64(tok, &dims[n]))
+      return rp__fail(ctx, RP_EFORMAT,
+                      "%s: %s '%s' is not three whole numbers", name, field,
+                      shown(sv, copy));
+    if (dims[n] == 0)
+      return rp__fail(ctx, RP_ERANGE,
+                      "%s: %s '%s': every size must be at least 1", name,
+                      field, shown(sv, copy));
+    n++;
+  }
+  if (n != 3)
+    return rp__fail(ctx, RP_EFORMAT,
+                    "%s: %s '%s' is not three whole numbers", name, field,
+                    shown(sv, copy));
+  return 0;
+}
+
+/* A voxel spacing must be a positive, finite float. `text` is what the
+ * file says for `axis`: a number, or a vector whose length is v. */
+static int check_spacing(rp_context *ctx, const char *name, const char *field,
+                         int axis, const char *text, double v, float *out) {
+  char sv[64];
+  float f;
+  if (!isfinite(v))
+    return rp__fail(ctx, RP_ENOTFINITE,
+                    "%s: field '%s': axis %d value '%s' is not finite", name,
+                    field, axis, shown(sv, text));
+  if (!(v > 0.0) || v > FLT_MAX)
+    return rp__fail(ctx, RP_ERANGE,
+                    "%s: field '%s': axis %d value '%s' is not a positive "
+                    "float",
+                    name, field, axis, shown(sv, text));
+  f = (float)v;
+  if (!(f > 0.0f))
+    return rp__fail(ctx, RP_ERANGE,
+                    "%s: field '%s': axis %d value '%s' is too small", name,
+                    field, axis, shown(sv, text));
+  *out = f;
+  return 0;
+}
+
+static int parse_spacings(rp_context *ctx, const char *name,
+                          const char *field, char *value, float spacing[3]) {
+  char sv[64], copy[MAX_LINE + 1];
+  char *cursor = value, *tok;
+  int n = 0, rc;
+  double v;
+  snprintf(copy, sizeof copy, "%s", value);
+  while ((tok = next_token(&cursor)) != NULL) {
+    if (n == 3 || !parse_double(tok, &v))
+      return rp__fail(ctx, RP_EFORMAT, "%s: %s '%s' is not three numbers",
+                      name, field, shown(sv, copy));
+    if ((rc = check_spacing(ctx, name, field, n, tok, v, &spacing[n])) !=
+        0)
+      return rc;
+    n++;
+  }
+  if (n != 3)
+    return rp__fail(ctx, RP_EFORMAT, "%s: %s '%s' is not three numbers",
+                    name, field, shown(sv, copy));
+  return 0;
+}
+
+/* NRRD "space directions: (a,b,c) (d,e,f) (g,h,i)": one vector per axis in
+ * world space, whose length is that axis's spacing. "none" marks a
+ * non-spatial axis, which a 3D volume cannot have. */
+static int parse_directions(rp_context *ctx, const char *name,
+                            const char *field, const char *value,
+                            float spacing[3]) {
+  char sv[64], comp[64], vec[64];
+  const char *p = value;
+  int axis, ncomp_first = 0, rc;
+  for (axis = 0; axis < 3; axis++) {
+    const char *close;
+    double sum = 0.0;
+    int ncomp = 0;
+    size_t vn;
+    while (is_space((unsigned char)*p))
+      p++;
+    if (*p != '(')
+      return rp__fail(ctx, RP_EFORMAT,
+                      "%s: %s '%s': axis %d is not a vector '(x,y,z)'", name,
+                      field, shown(sv, value), axis);
+    close = strchr(p, ')');
+    if (close == NULL)
+      return rp__fail(ctx, RP_EFORMAT, "%s: %s '%s': missing ')'", name,
+                      field, shown(sv, value));
+    /* This axis's vector, for a message about its length. */
+    vn = (size_t)(close - p) + 1;
+    if (vn >= sizeof vec)
+      vn = sizeof vec - 1;
+    memcpy(vec, p, vn);
+    vec[vn] = '\0';
+    p++;
+    while (p <= close) {
+      const char *end = p;
+      size_t n;
+      double v;
+      while (end < close && *end != ',')
+        end++;
+      n = (size_t)(end - p);
+      if (n >= sizeof comp)
+        n = sizeof comp - 1; /* a cut number fails to parse below */
+      memcpy(comp, p, n);
+      comp[n] = '\0';
+      if (!parse_double(trim(comp), &v) || ncomp == 16)
+        return rp__fail(ctx, RP_EFORMAT,
+                        "%s: %s '%s': axis %d is not a vector of numbers",
+                        name, field, shown(sv, value), axis);
+      if (!isfinite(v))
+        return rp__fail(ctx, RP_ENOTFINITE,
+                        "%s: %s '%s': axis %d is not finite", name, field,
+                        shown(sv, value), axis);
+      sum += v * v;
+      ncomp++;
+      p = end + 1;
+    }
+    if (axis == 0)
+      ncomp_first = ncomp;
+    else if (ncomp != ncomp_first)
+      return rp__fail(ctx, RP_EFORMAT,
+                      "%s: %s '%s': vectors differ in length", name, field,
+                      shown(sv, value));
+    if ((rc = check_spacing(ctx, name, field, axis, vec, sqrt(sum),
+                            &spacing[axis])) != 0)
+      return rc;
+  }
+  while (is_space((unsigned char)*p))
+    p++;
+  if (*p != '\0')
+    return rp__fail(ctx, RP_EFORMAT,
+                    "%s: %s '%s' has more than three vectors", name, field,
+                    shown(sv, value));
+  return 0;
+}
+
+static int set_data_file(rp_context *ctx, const char *name, const char *field,
+                         const char *value, rp__volume_header *hdr) {
+  char sv[64];
+  size_t n = strlen(value);
+  if (n == 0)
+    return rp__fail(ctx, RP_EFORMAT, "%s: %s is empty", name, field);
+  if (n >= sizeof hdr->data_file)
+    return rp__fail(ctx, RP_EFORMAT, "%s: %s '%s' is too long", name, field,
+                    shown(sv, value));
+  memcpy(hdr->data_file, value, n + 1);
+  return 0;
+}
+
+int rp__volume_header_check(rp_context *ctx, const char *name,
+                            const rp__header_fields *fields,
+                            const rp__volume_header *hdr, size_t *bytes) {
+  size_t voxels;
+  int i;
+  for (i = 0; i < 3; i++)
+    if (!isfinite(hdr->spacing[i]) || !(hdr->spacing[i] > 0.0f))
+      return rp__fail(ctx, RP_ERANGE,
+                      "%s: %s: axis %d value %g must be positive and finite",
+                      name, fields->spacing, i, (double)hdr->spacing[i]);
+  if (memchr(hdr->data_file, '\0', sizeof hdr->data_file) == NULL)
+    return rp__fail(ctx, RP_EINVAL, "%s: data file name is not terminated",
+                    name);
+  /* The type first, so that rp__volume_size's messages are about sizes
+   * only and `what` can name the sizes' field. */
+  if (rp__voxel_size(hdr->type) == 0)
+    return rp__fail(ctx, RP_EUNSUPPORTED,
+                    "%s: field 'type': value %d is not a voxel type", name,
+                    (int)hdr->type);
+  /* Sizes of at least 1 and below 2^32, and the byte limit. */
+  return rp__volume_size(ctx, name, fields->dims, hdr->dims, hdr->type,
+                         &voxels, bytes);
+}
+
+void rp__volume_header_init(rp__volume_header *hdr) {
+  memset(hdr, 0, sizeof *hdr);
+  hdr->spacing[0] = hdr->spacing[1] = hdr->spacing[2] = 1.0f;
+}
+
+/* ---- NRRD ---------------------------------------------------------------- */
+
+static const type_name nrrd_types[] = {
+    {"uchar", RP_U8},           {"unsigned char", RP_U8},
+    {"uint8", RP_U8},           {"uint8_t", RP_U8},
+    {"ushort", RP_U16},         {"unsigned short", RP_U16},
+    {"unsigned short int", RP_U16}, {"uint16", RP_U16},
+    {"uint16_t", RP_U16},       {"float", RP_F32},
+    {NULL, RP_U8}};
+
+static const field_name nrrd_fields[] = {
+    {"type", F_TYPE},           {"dimension", F_DIMENSION},
+    {"sizes", F_SIZES},         {"endian", F_ENDIAN},
+    {"encoding", F_ENCODING},   {"spacings", F_SPACINGS},
+    {"space directions", F_DIRECTIONS},
+    {"data file", F_DATA_FILE}, {"datafile", F_DATA_FILE},
+    {"byte skip", F_BYTE_SKIP}, {"byteskip", F_BYTE_SKIP},
+    {"line skip", F_LINE_SKIP}, {"lineskip", F_LINE_SKIP},
+    {NULL, 0}};
+
+static unsigned field_bit(const field_name *fields, const char *field) {
+  for (; fields->name != NULL; fields++)
+    if (eq_nocase(field, fields->name))
+      return fields->bit;
+  return 0;
+}
+
+/* One NRRD field this loader uses. `value` is modified. */
+static int nrrd_field(rp_context *ctx, const char *name, unsigned bit,
+                      const char *field, char *value, rp__volume_header *hdr) {
+  char sv[64];
+  int64_t n;
+  switch (bit) {
+  case F_TYPE:
+    return parse_type(ctx, name, "type", value, nrrd_types,
+                      "uchar, ushort, float and their aliases", &hdr->type);
+  case F_DIMENSION:
+    if (!parse_i64(value, &n) || n < 1)
+      return rp__fail(ctx, RP_EFORMAT,
+                      "%s: dimension '%s' is not a positive integer", name,
+                      shown(sv, value));
+    if (n != 3)
+      return rp__fail(ctx, RP_EUNSUPPORTED,
+                      "%s: dimension %lld is not supported (only 3)", name,
+                      (long long)n);
+    return 0;
+  case F_SIZES:
+    return parse_sizes(ctx, name, "sizes", value, hdr->dims);
+  case F_ENDIAN:
+    return parse_endian(ctx, name, "endian", value, &hdr->big_endian);
+  case F_ENCODING:
+    if (eq_nocase(value, "raw"))
+      hdr->gzip = 0;
+    else if (eq_nocase(value, "gzip") || eq_nocase(value, "gz"))
+      hdr->gzip = 1;
+    else
+      return rp__fail(ctx, RP_EUNSUPPORTED,
+                      "%s: encoding '%s' is not supported (raw, gzip)", name,
+                      shown(sv, value));
+    return 0;
+  case F_SPACINGS:
+    return parse_spacings(ctx, name, "spacings", value, hdr->spacing);
+  case F_DIRECTIONS:
+    return parse_directions(ctx, name, "space directions", value,
+                            hdr->spacing);
+  case F_DATA_FILE:
+    /* "LIST" and "<format> <min> <max> <step>" name several files, one
+     * slice each: this loader reads a single file. */
+    if (strncmp(value, "LIST", 4) == 0 &&
+        (value[4] == '\0' || is_space((unsigned char)value[4])))
+      return rp__fail(ctx, RP_EUNSUPPORTED,
+                      "%s: %s 'LIST' (several files) is not supported", name,
+                      field);
+    if (strchr(value, '%') != NULL)
+      return rp__fail(ctx, RP_EUNSUPPORTED,
+                      "%s: %s '%s' (a format for several files) is not "
+                      "supported",
+                      name, field, shown(sv, value));
+    return set_data_file(ctx, name, field, value, hdr);
+  case F_BYTE_SKIP:
+    if (!parse_i64(value, &n))
+      return rp__fail(ctx, RP_EFORMAT, "%s: byte skip '%s' is not an integer",
+                      name, shown(sv, value));
+    if (n < -1)
+      return rp__fail(ctx, RP_ERANGE,
+                      "%s: byte skip %lld must be -1 or more", name,
+                      (long long)n);
+    hdr->skip_to_end = n == -1;
+    hdr->byte_skip = n == -1 ? 0 : (uint64_t)n;
+    return 0;
+  case F_LINE_SKIP:
+    if (!parse_i64(value, &n))
+      return rp__fail(ctx, RP_EFORMAT, "%s: line skip '%s' is not an integer",
+                      name, shown(sv, value));
+    if (n < 0)
+      return rp__fail(ctx, RP_ERANGE, "%s: line skip %lld must be 0 or more",
+                      name, (long long)n);
+    hdr->line_skip = (uint64_t)n;
+    return 0;
+  default:
+    return 0;
+  }
+}
+
+/* The magic line: "NRRD000N" with N from 1 to 5. */
+static int nrrd_magic(rp_context *ctx, const char *name, const char *line) {
+  char sv[64];
+  if (strlen(line) == 8 && memcmp(line, "NRRD000", 7) == 0 &&
+      is_digit((unsigned char)line[7])) {
+    if (line[7] >= '1' && line[7] <= '5')
+      return 0;
+    return rp__fail(ctx, RP_EUNSUPPORTED,
+                    "%s: NRRD version '%s' is not supported (NRRD0001 to "
+                    "NRRD0005)",
+                    name, shown(sv, line));
+  }
+  return rp__fail(ctx, RP_EFORMAT,
+                  "%s: magic '%s' is not NRRD000N (N from 1 to 5)", name,
+                  shown(sv, line));
+}
+
+int rp__nrrd_parse(rp_context *ctx, const char *name, const uint8_t *buf,
+                   size_t len, rp__volume_header *hdr, size_t *header_len) {
+  static const struct {
+    unsigned bit;
+    const char *name;
+  } required[] = {{F_TYPE, "type"},
+                  {F_DIMENSION, "dimension"},
+                  {F_SIZES, "sizes"},
+                  {F_ENCODING, "encoding"}};
+  char line[MAX_LINE + 1] = "", sv[64];
+  line_reader lr;
+  rp__volume_header h;
+  unsigned seen = 0;
+  size_t end = len, bytes = 0, i;
+  int rc;
+
+  if (ctx == NULL)
+    return RP_EINVAL;
+  if (name == NULL)
+    name = "(memory)";
+  if ((buf == NULL && len > 0) || hdr == NULL)
+    return rp__fail(ctx, RP_EINVAL, "%s: rp__nrrd_parse: NULL argument",
+                    name);
+  if (len < 4 || memcmp(buf, "NRRD", 4) != 0)
+    return rp__fail(ctx, RP_EFORMAT,
+                    "%s: not an NRRD file (it does not start with 'NRRD')",
+                    name);
+  lr.buf = buf;
+  lr.len = len;
+  lr.pos = 0;
+  lr.number = 0;
+  if ((rc = next_line(ctx, name, &lr, line)) <= 0)
+    return rc < 0 ? rc : rp__fail(ctx, RP_EFORMAT, "%s: no magic", name);
+  if ((rc = nrrd_magic(ctx, name, line)) != 0)
+    return rc;
+  rp__volume_header_init(&h);
+  for (;;) {
+    char *colon, *field, *value;
+    unsigned bit;
+    rc = next_line(ctx, name, &lr, line);
+    if (rc < 0)
+      return rc;
+    if (rc == 0)
+      break; /* header without data: detached, or data missing */
+    if (line[0] == '\0') {
+      end = lr.pos; /* an attached payload starts after the empty line */
+      break;
+    }
+    if (line[0] == '#')
+      continue;
+    colon = strchr(line, ':');
+    if (colon == NULL)
+      return rp__fail(ctx, RP_EFORMAT,
+                      "%s: line %u '%s' is not 'field: value'", name,
+                      lr.number, shown(sv, line));
+    if (colon[1] == '=')
+      continue; /* "key:=value" pairs carry nothing we use */
+    *colon = '\0';
+    field = trim(line);
+    value = trim(colon + 1);
+    bit = field_bit(nrrd_fields, field);
+    if (bit == 0)
+      continue; /* NRRD allows fields we do not need */
+    if (seen & bit)
+      return rp__fail(ctx, RP_EFORMAT, "%s: field '%s' appears twice", name,
+                      shown(sv, field));
+    seen |= bit;
+    if ((rc = nrrd_field(ctx, name, bit, field, value, &h)) != 0)
+      return rc;
+  }
+  for (i = 0; i < sizeof required / sizeof required[0]; i++)
+    if (!(seen & required[i].bit))
+      return rp__fail(ctx, RP_EFORMAT, "%s: missing field '%s'", name,
+                      required[i].name);
+  if (h.type != RP_U8 && !(seen & F_ENDIAN))
+    return rp__fail(ctx, RP_EFORMAT,
+                    "%s: missing field 'endian' (needed for type %s)", name,
+                    type_label(h.type));
+  if ((seen & F_SPACINGS) && (seen & F_DIRECTIONS))
+    return rp__fail(ctx, RP_EFORMAT,
+                    "%s: fields 'spacings' and 'space directions' exclude "
+                    "each other",
+                    name);
+  if (h.skip_to_end && h.gzip)
+    return rp__fail(ctx, RP_EUNSUPPORTED,
+                    "%s: byte skip -1 needs raw encoding, not gzip", name);
+  if ((rc = rp__volume_header_check(ctx, name, &rp__nrrd_fields_named, &h,
+                                    &bytes)) != 0)
+    return rc;
+  *hdr = h;
+  if (header_len != NULL)
+    *header_len = end;
+  return 0;
+}
+
+/* ---- Sidecar ------------------------------------------------------------- */
+
+static const type_name plain_types[] = {
+    {"uint8", RP_U8}, {"uint16", RP_U16}, {"float32", RP_F32}, {NULL, RP_U8}};
+
+static const field_name sidecar_keys[] = {
+    {"file", F_DATA_FILE}, {"dims", F_SIZES},     {"type", F_TYPE},
+    {"endian", F_ENDIAN},  {"spacing", F_SPACINGS}, {"bytes", F_BYTES},
+    {NULL, 0}};
+
+int rp__sidecar_parse(rp_context *ctx, const char *name, const uint8_t *buf,
+                      size_t len, rp__volume_header *hdr) {
+  static const struct {
+    unsigned bit;
+    const char *name;
+  } required[] = {{F_DATA_FILE, "file"}, {F_SIZES, "dims"}, {F_TYPE, "type"}};
+  char line[MAX_LINE + 1], sv[64], dt[96];
+  line_reader lr;
+  rp__volume_header h;
+  unsigned seen = 0;
+  uint64_t declared = 0;
+  size_t bytes = 0, i;
+  int rc;
+
+  if (ctx == NULL)
+    return RP_EINVAL;
+  if (name == NULL)
+    name = "(memory)";
+  if ((buf == NULL && len > 0) || hdr == NULL)
+    return rp__fail(ctx, RP_EINVAL, "%s: rp__sidecar_parse: NULL argument",
+                    name);
+  lr.buf = buf;
+  lr.len = len;
+  lr.pos = 0;
+  lr.number = 0;
+  rp__volume_header_init(&h);
+  while ((rc = next_line(ctx, name, &lr, line)) > 0) {
+    char *colon, *key, *value = trim(line);
+    unsigned bit;
+    if (value[0] == '\0' || value[0] == '#')
+      continue;
+    colon = strchr(line, ':');
+    if (colon == NULL)
+      return rp__fail(ctx, RP_EFORMAT, "%s: line %u '%s' is not 'key: value'",
+                      name, lr.number, shown(sv, value));
+    *colon = '\0';
+    key = trim(line);
+    value = trim(colon + 1);
+    bit = field_bit(sidecar_keys, key);
+    if (bit == 0)
+      continue; /* descriptive keys: min, max, mean, source, ... */
+    if (seen & bit)
+      return rp__fail(ctx, RP_EFORMAT, "%s: key '%s' appears twice", name,
+                      shown(sv, key));
+    seen |= bit;
+    switch (bit) {
+    case F_DATA_FILE:
+      rc = set_data_file(ctx, name, "file", value, &h);
+      break;
+    case F_SIZES:
+      rc = parse_sizes(ctx, name, "dims", value, h.dims);
+      break;
+    case F_TYPE:
+      rc = parse_type(ctx, name, "type", value, plain_types,
+                      "uint8, uint16, float32", &h.type);
+      break;
+    case F_ENDIAN:
+      rc = parse_endian(ctx, name, "endian", value, &h.big_endian);
+      break;
+    case F_SPACINGS:
+      rc = parse_spacings(ctx, name, "spacing", value, h.spacing);
+      break;
+    default: /* F_BYTES */
+      rc = parse_u64(value, &declared)
+               ? 0
+               : rp__fail(ctx, RP_EFORMAT,
+                          "%s: bytes '%s' is not a whole number", name,
+                          shown(sv, value));
+      break;
+    }
+    if (rc != 0)
+      return rc;
+  }
+  if (rc < 0)
+    return rc;
+  for (i = 0; i < sizeof required / sizeof required[0]; i++)
+    if (!(seen & required[i].bit))
+      return rp__fail(ctx, RP_EFORMAT, "%s: missing key '%s'", name,
+                      required[i].name);
+  if ((rc = rp__volume_header_check(ctx, name, &rp__sidecar_fields_named,
+                                    &h, &bytes)) != 0)
+    return rc;
+  if ((seen & F_BYTES) && declared != (uint64_t)bytes)
+    return rp__fail(ctx, RP_EFORMAT,
+                    "%s: bytes %llu disagrees with dims %s (%zu bytes)", name,
+                    (unsigned long long)declared,
+                    rp__volume_dims_text(dt, &h), bytes);
+  *hdr = h;
+  return 0;
+}
+
+int rp__looks_like_sidecar(const uint8_t *buf, size_t len) {
+  static const char keys[3][6] = {"file:", "dims:", "type:"};
+  int found[3] = {0, 0, 0}, k;
+  size_t pos = 0;
+  while (pos < len) {
+    const uint8_t *nl = memchr(buf + pos, '\n', len - pos);
+    size_t end = nl != NULL ? (size_t)(nl - buf) : len;
+    while (pos < end && is_space(buf[pos]))
+      pos++;
+    for (k = 0; k < 3; k++)
+      if (end - pos >= 5 && memcmp(buf + pos, keys[k], 5) == 0)
+        found[k] = 1;
+    pos = end + 1;
+  }
+  return found[0] + found[1] + found[2] >= 2;
+}
+
+/* ---- NAME_XxYxZ_TYPE.raw ----------------------------------------------- */
+
+/* "AxBxC" into dims; 0 when the text is not of that form. */
+static int parse_dims_token(const char *s, size_t n, uint64_t dims[3]) {
+  char tok[32];
+  size_t i = 0;
+  int axis;
+  for (axis = 0; axis < 3; axis++) {
+    size_t start = i;
+    while (i < n && is_digit((unsigned char)s[i]))
+      i++;
+    if (i == start || i - start >= sizeof tok)
+      return 0;
+    memcpy(tok, s + start, i - start);
+    tok[i - start] = '\0';
+    if (!parse_u64(tok, &dims[axis]))
+      return 0;
+    if (axis < 2) {
+      if (i == n || (s[i] != 'x' && s[i] != 'X'))
+        return 0;
+      i++;
+    }
+  }
+  return i == n;
+}
+
+int rp__raw_name_parse(rp_context *ctx, const char *path,
+                       rp__volume_header *hdr) {
+  const char *base = strrchr(path, '/');
+  const char *type_sep, *dims_sep, *p;
+  char type[32];
+  size_t n, stem, bytes;
+  rp__volume_header h;
+  int rc;
+  base = base != NULL ? base + 1 : path;
+  n = strlen(base);
+  if (n < 4 || !eq_nocase(base + n - 4, ".raw"))
+    return 1;
+  stem = n - 4;
+  type_sep = dims_sep = NULL;
+  for (p = base; p < base + stem; p++) {
+    if (*p == '_') {
+      dims_sep = type_sep;
+      type_sep = p;
+    }
+  }
+  if (type_sep == NULL || dims_sep == NULL || dims_sep == base)
+    return 1;
+  rp__volume_header_init(&h);
+  if (!parse_dims_token(dims_sep + 1, (size_t)(type_sep - dims_sep - 1),
+                        h.dims))
+    return 1;
+  n = (size_t)(base + stem - type_sep - 1);
+  if (n >= sizeof type)
+    n = sizeof type - 1;
+  memcpy(type, type_sep + 1, n);
+  type[n] = '\0';
+  if ((rc = parse_type(ctx, path, "type in the file name", type, plain_types,
+                       "uint8, uint16, float32", &h.type)) != 0)
+    return rc;
+  if (h.dims[0] == 0 || h.dims[1] == 0 || h.dims[2] == 0)
+    return rp__fail(ctx, RP_ERANGE,
+                    "%s: sizes in the file name must be at least 1", path);
+  if ((rc = rp__volume_header_check(ctx, path, &rp__raw_fields_named, &h,
+                                    &bytes)) != 0)
+    return rc;
+  *hdr = h;
+  return 0;
+}
