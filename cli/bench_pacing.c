@@ -327,9 +327,12 @@ static int play_sequence(const pacing_opts *o, int s,
   double median[FIGURES], column[MAX_RUNS];
   char met[5];
   int i, k, rc;
-  for (i = 0; i < (int)o->runs; i++)
+  for (i = 0; i < (int)o->runs; i++) {
+    for (k = 0; k < FIGURES; k++)
+      run[i][k] = NAN; /* a figure the run does not give */
     if ((rc = play_run(o, o->seqs[s], i, run[i])) != 0)
       return rc;
+  }
   for (k = 0; k < FIGURES; k++) {
     for (i = 0; i < (int)o->runs; i++)
       column[i] = run[i][k];

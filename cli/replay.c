@@ -671,7 +671,7 @@ static int still_open(replay *r, player *s) {
   if (r->still_ms == NULL || r->still_seg == NULL)
     return cli_error(r->ctx, "still frame", RP_ENOMEM);
   s->kind = RP_CONTROL_NONE;
-  if ((err = player_open(r, s, 0)) != 0)
+  if (player_open(r, s, 0) != 0)
     return 1;
   if (sequence_frame(r, 0, &st, &r->still_cam) != 0 ||
       post_state(r, s, &st, &r->still_cam, frame_target(r, &st)) != 0)

@@ -52,11 +52,20 @@ float rp__ao_step(const rp_ao_desc *d);
 int rp__ao_dirs(rp_context *ctx, uint32_t count, float **out);
 /* ceil(dims / 4) per axis. */
 void rp__ao_brick_grid(const uint32_t dims[3], uint32_t grid[3]);
-/* The brick mask of `tf` on `vol` (one byte per brick, 1 = full) and its
- * count of full bricks, on ctx's workers. */
-int rp__ao_brick_mask(rp_context *ctx, const rp_volume *vol,
-                      const rp_tf *tf, uint8_t **mask, uint32_t grid[3],
-                      uint64_t *full);
+/* Each 4^3 brick's value range (with a one-voxel overlap) of a volume,
+ * on ctx's workers: what every TF's brick mask is read from, kept per
+ * volume so that a new TF's AO plan does not read the voxels again. */
+typedef struct rp__ao_ranges rp__ao_ranges;
+int rp__ao_ranges_build(rp_context *ctx, const rp_volume *vol,
+                        rp__ao_ranges **out);
+void rp__ao_ranges_destroy(rp__ao_ranges *r);
+/* The id of the volume they were built from. */
+uint64_t rp__ao_ranges_volume(const rp__ao_ranges *r);
+/* rp_ao_plan_create with the volume's ranges (NULL: built and dropped
+ * here). */
+int rp__ao_plan_create(rp_context *ctx, const rp_volume *vol,
+                       const rp_tf *tf, const rp_ao_desc *desc,
+                       const rp__ao_ranges *ranges, rp_ao_plan **out);
 /* AO of one voxel, in double, with the directions, samples, offset and
  * step of `job` (its box and brick mask are not looked at). */
 uint8_t rp__ao_voxel(const rp_volume *vol, const rp_tf *tf,
@@ -79,8 +88,13 @@ void rp__ao_reference_box(const rp_volume *vol, const rp_tf *tf,
 void rp__ao_job(const rp_ao_plan *plan, const uint32_t lo[3],
                 const uint32_t end[3], float ref_step, double value_min,
                 double value_max, uint32_t lut_size, rp_ao_job *job);
-/* An rp_ao for the plan's volume and TF, data uninitialised. */
-int rp__ao_new(rp_context *ctx, const rp_ao_plan *plan, rp_ao **out);
+/* An rp_ao for the plan's volume and TF, data uninitialised. `reuse`
+ * (may be NULL) is an AO volume the new one replaces, taken in any case:
+ * of the same size, its memory is the new one's (a volume-sized
+ * allocation is tens of milliseconds of page faults on a VM, each AO
+ * run), else it is freed. */
+int rp__ao_new(rp_context *ctx, const rp_ao_plan *plan, rp_ao *reuse,
+               rp_ao **out);
 
 /* RP_EINVAL with a message unless `ao` was computed for this volume and
  * transfer function. */
@@ -100,7 +114,14 @@ int rp__ao_schedule_resolve(rp_context *ctx, const char *fn,
  * device is a job on its executor. */
 int rp__ao_run_create(rp_context *ctx, rp__executor *const *ex,
                       uint32_t count, const rp_ao_plan *plan,
-                      const rp_ao_schedule *schedule, rp_ao_run **out);
+                      const rp_ao_schedule *schedule, rp_ao *reuse,
+                      rp_ao_run **out);
+/* rp_device_group_ao_begin, the run assembling its AO in `reuse` (taken,
+ * see rp__ao_new; may be NULL). */
+struct rp_device_group;
+int rp__group_ao_begin(struct rp_device_group *g, const rp_ao_plan *plan,
+                       const rp_ao_schedule *schedule, rp_ao *reuse,
+                       rp_ao_run **out);
 
 /* backend.c: the context a device was made from, and whether it holds
  * this volume and transfer function. */

@@ -69,6 +69,12 @@ typedef struct scene {
    * renders at once. */
   uint64_t ao_tf_id;
   rp_tf *ao_tf;
+  /* The volume's brick value ranges, built with its first AO plan: a
+   * TF change's plan then reads them, not the voxels. And the last AO
+   * volume the devices were given, whose memory the next run assembles
+   * in (rp__ao_new); both go with the volume or when AO is turned off. */
+  rp__ao_ranges *ao_ranges;
+  rp_ao *ao_spare;
   int ao_waits;  /* the run's first step waits for the build lanes to build
                     the AO kernels (rp_device_group_prepare) */
 } scene;
@@ -151,6 +157,10 @@ static void take_events(rp__engine *e, rp__events *in) {
     rp_tf_destroy(s->ao_tf); /* an AO of another volume */
     s->ao_tf = NULL;
     s->ao_tf_id = 0;
+    rp__ao_ranges_destroy(s->ao_ranges);
+    s->ao_ranges = NULL;
+    rp_ao_destroy(s->ao_spare);
+    s->ao_spare = NULL;
     rp_occupancy_destroy(s->occ);
     rp_histograms_destroy(s->h);
     rp_volume_destroy(s->vol);
@@ -258,6 +268,8 @@ static int update_ao(rp__engine *e) {
     rp_tf_destroy(s->ao_tf);
     s->ao_tf = NULL;
     s->ao_tf_id = 0;
+    rp_ao_destroy(s->ao_spare);
+    s->ao_spare = NULL;
   } else if (s->ao_tf_id == s->tf->id) {
     s->ao_ready = 1; /* back to the TF whose AO the devices hold */
   } else {
@@ -266,11 +278,16 @@ static int update_ao(rp__engine *e) {
      * is ready in renders with them at once; no frame builds one. */
     s->ao_waits = rp_device_group_prepare(e->group, s->effects) == 0 &&
                   !rp_device_group_prepared(e->group, s->effects);
-    err = rp_ao_plan_create(e->ctx, s->vol, s->tf, &e->desc.ao,
-                            &s->ao_plan);
+    if (s->ao_ranges == NULL && !e->desc.ao.unbricked)
+      err = rp__ao_ranges_build(e->ctx, s->vol, &s->ao_ranges);
     if (err == 0)
-      err = rp_device_group_ao_begin(e->group, s->ao_plan,
-                                     &e->desc.ao_schedule, &s->ao_run);
+      err = rp__ao_plan_create(e->ctx, s->vol, s->tf, &e->desc.ao,
+                               s->ao_ranges, &s->ao_plan);
+    if (err == 0) {
+      err = rp__group_ao_begin(e->group, s->ao_plan, &e->desc.ao_schedule,
+                               s->ao_spare, &s->ao_run);
+      s->ao_spare = NULL; /* taken */
+    }
     if (err != 0)
       drop_ao_run(s);
   }
@@ -304,7 +321,8 @@ static int advance_ao(rp__engine *e) {
   err = rp_device_group_ao_end(e->group, s->ao_run, err, &ao, NULL);
   if (err == 0)
     err = rp_device_group_set_ao(e->group, ao);
-  rp_ao_destroy(ao);
+  rp_ao_destroy(s->ao_spare);
+  s->ao_spare = ao; /* the devices hold their copies */
   drop_ao_run(s);
   publish_ao_bytes(e);
   /* The AO the devices held before is replaced (or, failed, unknown). */
@@ -781,6 +799,8 @@ void rp__engine_destroy(rp__engine *e) {
   rp_histograms_destroy(s->h);
   rp_tf_destroy(s->tf);
   rp_tf_destroy(s->ao_tf);
+  rp__ao_ranges_destroy(s->ao_ranges);
+  rp_ao_destroy(s->ao_spare);
   rp_volume_destroy(s->vol);
   rp_device_group_destroy(e->group);
   rp__free(ctx, e->scaled);

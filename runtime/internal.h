@@ -203,6 +203,13 @@ int rp__camera_check(rp_context *ctx, const rp_camera *cam);
 void rp__tf_sample(const rp_tf *tf, double x, float rgba[4]);
 /* Largest alpha of the interpolated LUT over [x0, x1] (clamped). */
 float rp__tf_alpha_max(const rp_tf *tf, double x0, double x1);
+/* Counts of the LUT's entries with alpha above 0: prefix[i] of entries
+ * 0 .. i-1, lut_size + 1 values. */
+void rp__tf_alpha_prefix(const rp_tf *tf, uint32_t *prefix);
+/* rp__tf_alpha_max(tf, x0, x1) > 0, exactly, in constant time with the
+ * TF's prefix counts: what a mask over many intervals asks. */
+int rp__tf_alpha_any(const rp_tf *tf, const uint32_t *prefix, double x0,
+                     double x1);
 /* Mean alpha of the interpolated LUT over [x0, x1]: the exact integral of
  * the piecewise-linear function divided by the width; the value at x0 when
  * x0 == x1. Zero exactly when alpha is zero over the whole interval. */

@@ -294,6 +294,33 @@ float rp__tf_alpha_max(const rp_tf *tf, double x0, double x1) {
   return (float)m;
 }
 
+void rp__tf_alpha_prefix(const rp_tf *tf, uint32_t *prefix) {
+  int i;
+  prefix[0] = 0;
+  for (i = 0; i < tf->lut_size; i++)
+    prefix[i + 1] = prefix[i] + (tf->lut[4 * i + 3] > 0.0f);
+}
+
+int rp__tf_alpha_any(const rp_tf *tf, const uint32_t *prefix, double x0,
+                     double x1) {
+  double f0, f1;
+  int first, last;
+  if (x1 < x0) {
+    double t = x0;
+    x0 = x1, x1 = t;
+  }
+  x0 = clamp01(x0), x1 = clamp01(x1);
+  /* rp__tf_alpha_max's ends and entries, its float result above 0 read
+   * as either: a float entry above 0 keeps the maximum above 0. */
+  if ((float)fmax(alpha_at(tf, x0), alpha_at(tf, x1)) > 0.0f)
+    return 1;
+  f0 = x0 * (tf->lut_size - 1);
+  f1 = x1 * (tf->lut_size - 1);
+  first = (int)floor(f0) + 1;
+  last = (int)ceil(f1) - 1;
+  return first <= last && prefix[last + 1] > prefix[first];
+}
+
 /* Integral of alpha over [x0, x1] inside [0, 1]: trapezoids between the
  * table entries, exact for the piecewise-linear function. Every term is a
  * non-negative product, so the sum is zero only if alpha is zero on the

@@ -2,6 +2,7 @@
  * histograms rely on, and opacity correction against long double. */
 #include <float.h>
 #include <math.h>
+#include <stdlib.h>
 #include <string.h>
 
 #include "internal.h"
@@ -276,6 +277,78 @@ static void zero_is_exact(void **state) {
   rp_context_destroy(ctx);
 }
 
+/* rp__tf_alpha_any, the constant-time test an AO brick mask asks per
+ * brick, against rp__tf_alpha_max > 0, the scan it replaces: equal on
+ * every interval of 1.2 million random and edge ones (ends on table
+ * entries among them), over TFs with runs of zero alpha (a narrow window,
+ * a step, a single non-zero entry), the transparent and opaque
+ * presets. */
+static void alpha_any_is_alpha_max_above_zero(void **state) {
+  static const rp_tf_point window[4] = {{0.0f, 0, 0, 0, 0.0f},
+                                        {0.40f, 1, 1, 1, 0.0f},
+                                        {0.41f, 1, 1, 1, 0.7f},
+                                        {0.42f, 1, 1, 1, 0.0f}};
+  static const rp_tf_point step[3] = {{0.0f, 0, 0, 0, 0.0f},
+                                      {0.5f, 1, 1, 1, 0.0f},
+                                      {0.5001f, 1, 1, 1, 1e-6f}};
+  /* One table entry (512 of 1025) above 0, its neighbours 0: an
+   * interval from entry 511 or before to entry 513 exactly sees it only
+   * inside. */
+  static const rp_tf_point spike[3] = {{511.0f / 1024, 1, 1, 1, 0.0f},
+                                       {512.0f / 1024, 1, 1, 1, 0.5f},
+                                       {513.0f / 1024, 1, 1, 1, 0.0f}};
+  const char *presets[4] = {"transparent", "opaque", "ct-bone",
+                            "nearly-transparent"};
+  rp_context *ctx = rp_test_context();
+  uint64_t seed = 12345, tried = 0, on = 0;
+  int k, i;
+  (void)state;
+  for (k = 0; k < 8; k++) {
+    rp_tf *tf = NULL;
+    uint32_t *prefix;
+    if (k < 4) {
+      tf = rp_test_preset(ctx, presets[k]);
+    } else {
+      rp_tf_desc d = {0};
+      d.points = k == 4 ? window : k == 7 ? spike : step;
+      d.count = k == 4 ? 4 : 3;
+      /* 2^n + 1 entries: an interval can end exactly on an entry, where
+       * the interpolation gives its neighbour no weight. */
+      d.lut_size = k == 6 ? 9 : 1025;
+      assert_int_equal(rp_tf_create(ctx, &d, &tf), 0);
+    }
+    prefix = malloc(((size_t)tf->lut_size + 1) * sizeof *prefix);
+    assert_non_null(prefix);
+    rp__tf_alpha_prefix(tf, prefix);
+    for (i = 0; i < 150000; i++) {
+      double x0, x1;
+      int any, max;
+      seed = seed * 6364136223846793005ull + 1442695040888963407ull;
+      x0 = (double)(seed >> 11) / 9007199254740992.0 * 1.2 - 0.1;
+      seed = seed * 6364136223846793005ull + 1442695040888963407ull;
+      x1 = i % 4 == 0 ? x0 + (double)(seed >> 40) * 1e-9
+           : i % 4 == 2 ? (double)(seed >> 11) / 9007199254740992.0
+                        : (double)(seed % (uint64_t)tf->lut_size) /
+                              (tf->lut_size - 1);
+      if (i % 4 == 3)
+        x0 = (double)((seed >> 20) % (uint64_t)tf->lut_size) /
+             (tf->lut_size - 1);
+      any = rp__tf_alpha_any(tf, prefix, x0, x1);
+      max = rp__tf_alpha_max(tf, x0, x1) > 0.0f;
+      if (any != max)
+        fail_msg("TF %d: [%.17g, %.17g]: any %d, max %d", k, x0, x1, any,
+                 max);
+      tried++;
+      on += any;
+    }
+    free(prefix);
+    rp_tf_destroy(tf);
+  }
+  /* Both answers were asked often. */
+  assert_true(on > tried / 10 && on < tried - tried / 10);
+  rp_context_destroy(ctx);
+}
+
 int main(void) {
   const struct CMUnitTest tests[] = {
       cmocka_unit_test(opacity_correction_matches_long_double),
@@ -286,6 +359,7 @@ int main(void) {
       cmocka_unit_test(lut_sampling_is_the_control_point_function),
       cmocka_unit_test(alpha_mean_and_max_match_closed_form),
       cmocka_unit_test(zero_is_exact),
+      cmocka_unit_test(alpha_any_is_alpha_max_above_zero),
   };
   return cmocka_run_group_tests(tests, NULL, NULL);
 }
