@@ -45,6 +45,17 @@ extern "C" {
 
 typedef struct rp_sequence rp_sequence;
 
+/* A camera cut, when no keyframe marks one: from one frame to the next,
+ * the view direction turns by more than RP_SEQUENCE_CUT_ANGLE_DEG, the
+ * distance or the field of view changes by more than a factor of
+ * RP_SEQUENCE_CUT_RATIO (either way), or the pan moves by more than
+ * RP_SEQUENCE_CUT_PAN bounding radii. Smooth interaction stays well
+ * under each: a fast drag at 60 Hz turns a few degrees a frame, a zoom
+ * changes the distance by a few percent. */
+#define RP_SEQUENCE_CUT_ANGLE_DEG 15.0
+#define RP_SEQUENCE_CUT_RATIO 1.25
+#define RP_SEQUENCE_CUT_PAN 0.25
+
 /** The resolved state of one frame. Angles in degrees, lengths in
  *  bounding-sphere radii of the volume (the units of rp_camera_orbit). */
 typedef struct rp_sequence_state {
@@ -60,6 +71,11 @@ typedef struct rp_sequence_state {
   double fov_y_deg;
   int camera_changed; /* 1 on frame 0 and when any camera value differs
                          from the previous frame's */
+  int camera_cut;     /* 1 when the camera jumps rather than moves: a
+                         keyframe marked "cut", or a change from the
+                         previous frame beyond what smooth motion makes
+                         (RP_SEQUENCE_CUT_*; docs/sequences.md); 0 on
+                         frame 0, which has no frame before it */
   int tf;             /* index of the active transfer function, in
                          [0, rp_sequence_tf_count()) */
   int tf_changed;     /* 1 on frame 0 and when tf differs from the
@@ -104,7 +120,9 @@ int rp_sequence_parse(rp_context *ctx, const char *json, size_t len,
 void rp_sequence_destroy(rp_sequence *s);
 
 /** The built-in sequence names, NULL-terminated: "orbit", "tf-switch",
- *  "zoom-in", "mixed", "ao-tf-switch". \threadsafety any thread.
+ *  "zoom-in", "mixed", "ao-tf-switch", "tf-window", "head-motion",
+ *  "cut-switch", "target-steps", "effects-motion". \threadsafety any
+ *  thread.
  *  \since 0.1 */
 const char *const *rp_sequence_builtin_names(void);
 

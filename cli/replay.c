@@ -289,7 +289,7 @@ static int list_all(void) {
   int k;
   printf("sequences:\n");
   for (n = rp_sequence_builtin_names(); *n != NULL; n++)
-    printf("  %-12s %s\n", *n, rp_sequence_builtin_about(*n));
+    printf("  %-14s %s\n", *n, rp_sequence_builtin_about(*n));
   printf("controllers:\n");
   for (k = 0; k < RP_CONTROL_COUNT; k++)
     printf("  %s\n", rp_controller_name((rp_controller_kind)k));

@@ -26,6 +26,8 @@
 typedef struct seq_key {
   uint32_t frame;
   double az, el, dist, pan[2], fov;
+  int cut; /* "cut": the frames since the previous keyframe hold it, and
+              this one jumps */
 } seq_key;
 
 /* A step change on one of the three step tracks; only the fields of its

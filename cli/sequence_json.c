@@ -434,7 +434,7 @@ static int parse_effects(parser *p, const cJSON *v, const char *path,
 static int parse_camera(parser *p, const cJSON *v, const char *path,
                         const seq_key *prev, seq_key *key) {
   static const char *const keys[] = {"azimuth", "elevation", "distance",
-                                     "pan", "fov", "comment", NULL};
+                                     "pan", "fov", "cut", "comment", NULL};
   const cJSON *c;
   char cp[RP__SEQ_PATH_MAX], ip[RP__SEQ_PATH_MAX];
   int err;
@@ -443,6 +443,18 @@ static int parse_camera(parser *p, const cJSON *v, const char *path,
   if ((err = check_keys(p, v, path, keys)) != 0)
     return err;
   *key = *prev;
+  key->cut = 0;
+  if ((c = cJSON_GetObjectItemCaseSensitive(v, "cut")) != NULL) {
+    child_path(cp, path, "cut");
+    if (!cJSON_IsBool(c))
+      return wrong_type(p, cp, "true or false", c);
+    /* A cut jumps from the previous keyframe; before the first one the
+     * camera already holds still at it. */
+    if (cJSON_IsTrue(c) && p->s->key_count == 0)
+      return fail(p, RP_EFORMAT, cp, "a cut needs an earlier camera "
+                  "keyframe to cut from");
+    key->cut = cJSON_IsTrue(c);
+  }
   if ((c = cJSON_GetObjectItemCaseSensitive(v, "azimuth")) != NULL) {
     child_path(cp, path, "azimuth");
     if ((err = want_range(p, c, cp, -RP__SEQ_LIMIT, RP__SEQ_LIMIT,
@@ -835,7 +847,7 @@ static int read_file(parser *p, const char *path, char **buf, size_t *len) {
   char *data;
   int fd, err;
   if (stat(path, &st) != 0) {
-    char list[128];
+    char list[256];
     err = errno;
     if (err != ENOENT && err != ENOTDIR)
       return fail(p, RP_EIO, NULL, "cannot stat: %s", strerror(err));

@@ -267,6 +267,198 @@ static void builtin_mixed_changes_everything(void **state) {
   rp_context_destroy(ctx);
 }
 
+/* tf-window: TF k, from frame 5k, is a tent over [0.03k, 0.03k + 0.13]
+ * peaking at 0.8; worked out here at three frames and compared with
+ * every LUT entry (entry i sits at x = i / (n - 1)). */
+static void check_window(rp_context *ctx, const rp_sequence *s,
+                         uint32_t frame, int want_tf, double lo) {
+  rp_sequence_state st = frame_of(s, frame);
+  double hi = lo + 0.13, mid = lo + 0.065, worst = 0.0;
+  const float *lut;
+  rp_tf *tf = NULL;
+  int n = 0, i, inside = 0;
+  assert_int_equal(st.tf, want_tf);
+  assert_int_equal(rp_sequence_tf_create(ctx, s, st.tf, &tf), 0);
+  lut = rp_tf_lut(tf, &n);
+  for (i = 0; i < n; i++) {
+    double x = (double)i / (n - 1);
+    double want = x <= lo || x >= hi ? 0.0
+                                     : 0.8 * (1.0 - fabs(x - mid) / 0.065);
+    worst = fmax(worst, fabs(lut[4 * i + 3] - want));
+    inside += lut[4 * i + 3] > 0.0f;
+  }
+  if (worst > 1e-4)
+    fail_msg("frame %u: alpha off the window [%g, %g] by %g", frame, lo,
+             hi, worst);
+  /* The window is 0.13 of the range: about that share of the entries. */
+  assert_true(abs(inside - (int)(0.13 * (n - 1))) <= 2);
+  rp_tf_destroy(tf);
+}
+
+static void builtin_tf_window_slides(void **state) {
+  rp_context *ctx = rp_test_context();
+  rp_sequence *s = NULL;
+  rp_sequence_state st;
+  uint32_t f;
+  (void)state;
+  assert_int_equal(rp_sequence_load(ctx, "tf-window", &s), 0);
+  assert_int_equal(rp_sequence_frames(s), 150);
+  assert_int_equal(rp_sequence_tf_count(s), 30);
+  for (f = 1; f < 150; f++) {
+    st = frame_of(s, f);
+    assert_int_equal(st.tf, (int)(f / 5));
+    assert_int_equal(st.tf_changed, f % 5 == 0);
+    /* An orbit of 1 degree a frame: motion, never a cut. */
+    assert_true(fabs(st.azimuth_deg - f) < 1e-9);
+    assert_true(st.camera_changed && !st.camera_cut);
+    assert_false(st.effects_changed || st.target_changed);
+  }
+  check_window(ctx, s, 0, 0, 0.0);
+  check_window(ctx, s, 77, 15, 0.45);
+  check_window(ctx, s, 149, 29, 0.87);
+  rp_sequence_destroy(s);
+  rp_context_destroy(ctx);
+}
+
+static void builtin_head_motion_jitters_while_approaching(void **state) {
+  rp_context *ctx = rp_test_context();
+  rp_sequence *s = NULL;
+  rp_sequence_state st, prev;
+  uint32_t f;
+  int turns = 0;
+  (void)state;
+  assert_int_equal(rp_sequence_load(ctx, "head-motion", &s), 0);
+  assert_int_equal(rp_sequence_frames(s), 121);
+  /* Frame 6, halfway between the keys of frames 4 (azimuth 33,
+   * elevation 22, distance 3.34) and 8 (27, 20, 3.28). */
+  st = frame_of(s, 6);
+  assert_true(fabs(st.azimuth_deg - 30.0) < 1e-9);
+  assert_true(fabs(st.elevation_deg - 21.0) < 1e-9);
+  assert_true(fabs(st.distance - 3.31) < 1e-9);
+  st = frame_of(s, 120);
+  assert_true(st.azimuth_deg == 27.0 && st.elevation_deg == 20.0 &&
+              st.distance == 1.6);
+  prev = frame_of(s, 0);
+  for (f = 1; f < 121; f++) {
+    st = frame_of(s, f);
+    assert_true(st.camera_changed && !st.camera_cut);
+    assert_false(st.tf_changed || st.effects_changed || st.target_changed);
+    assert_true(st.azimuth_deg >= 27.0 && st.azimuth_deg <= 33.0);
+    assert_true(st.elevation_deg >= 18.0 && st.elevation_deg <= 22.0);
+    assert_true(st.distance < prev.distance);
+    /* The azimuth turns back every 4 frames. */
+    if (f >= 2) {
+      rp_sequence_state pp = frame_of(s, f - 2);
+      turns += (st.azimuth_deg - prev.azimuth_deg) *
+                   (prev.azimuth_deg - pp.azimuth_deg) < 0;
+    }
+    prev = st;
+  }
+  assert_int_equal(turns, 120 / 4 - 1);
+  rp_sequence_destroy(s);
+  rp_context_destroy(ctx);
+}
+
+/* A copy of `src` without any `what`. */
+static char *without(const char *src, const char *what) {
+  size_t n = strlen(what);
+  char *out = malloc(strlen(src) + 1), *d = out;
+  assert_non_null(out);
+  while (*src != '\0') {
+    if (strncmp(src, what, n) == 0)
+      src += n;
+    else
+      *d++ = *src++;
+  }
+  *d = '\0';
+  return out;
+}
+
+static void check_cut_switch(const rp_sequence *s) {
+  rp_sequence_state st;
+  uint32_t f;
+  int cuts = 0;
+  assert_int_equal(rp_sequence_frames(s), 150);
+  for (f = 1; f < 150; f++) {
+    st = frame_of(s, f);
+    assert_int_equal(st.camera_cut, f % 30 == 0);
+    assert_int_equal(st.tf_changed, f % 30 == 0);
+    assert_true(st.camera_changed);
+    cuts += st.camera_cut && st.tf_changed;
+  }
+  assert_int_equal(cuts, 4);
+  /* Half-way through the second shot: 0.5 degrees a frame from 120. */
+  st = frame_of(s, 45);
+  assert_true(fabs(st.azimuth_deg - 127.5) < 1e-9);
+  assert_true(st.elevation_deg == 35.0 && st.distance == 1.6);
+  st = frame_of(s, 60);
+  assert_true(st.azimuth_deg == 250.0 && st.tf == 2);
+}
+
+/* Each cut is marked, and each also jumps far enough for the rule alone
+ * (RP_SEQUENCE_CUT_*): without the marks, the same frames are cuts. */
+static void builtin_cut_switch_cuts_with_switches(void **state) {
+  rp_context *ctx = rp_test_context();
+  rp_sequence *s = NULL;
+  char *unmarked = without(rp_sequence_builtin_json("cut-switch"),
+                           ",\n                \"cut\": true");
+  (void)state;
+  assert_null(strstr(unmarked, "cut\""));
+  assert_int_equal(rp_sequence_load(ctx, "cut-switch", &s), 0);
+  check_cut_switch(s);
+  rp_sequence_destroy(s);
+  s = parse_ok(ctx, unmarked);
+  check_cut_switch(s);
+  rp_sequence_destroy(s);
+  free(unmarked);
+  rp_context_destroy(ctx);
+}
+
+static void builtin_target_steps_steps(void **state) {
+  rp_context *ctx = rp_test_context();
+  rp_sequence *s = NULL;
+  rp_sequence_state st;
+  uint32_t f;
+  (void)state;
+  assert_int_equal(rp_sequence_load(ctx, "target-steps", &s), 0);
+  assert_int_equal(rp_sequence_frames(s), 150);
+  for (f = 1; f < 150; f++) {
+    st = frame_of(s, f);
+    assert_true(st.target_fraction == (f < 50 ? 0.5 : f < 100 ? 0.2 : 0.8));
+    assert_int_equal(st.target_changed, f == 50 || f == 100);
+    assert_true(fabs(st.azimuth_deg - f) < 1e-9 && !st.camera_cut);
+    assert_false(st.tf_changed || st.effects_changed);
+  }
+  rp_sequence_destroy(s);
+  rp_context_destroy(ctx);
+}
+
+static void builtin_effects_motion_toggles(void **state) {
+  static const uint32_t plain = RP_EFFECT_ERT | RP_EFFECT_SKIP;
+  static const uint32_t want[6] = {
+      plain, plain | RP_EFFECT_SHADING, plain,
+      plain | RP_EFFECT_SHADING | RP_EFFECT_AO, plain | RP_EFFECT_SHADING,
+      plain};
+  rp_context *ctx = rp_test_context();
+  rp_sequence *s = NULL;
+  rp_sequence_state st;
+  uint32_t f;
+  (void)state;
+  assert_int_equal(rp_sequence_load(ctx, "effects-motion", &s), 0);
+  assert_int_equal(rp_sequence_frames(s), 150);
+  for (f = 1; f < 150; f++) {
+    st = frame_of(s, f);
+    assert_int_equal(st.effects, want[f / 25]);
+    assert_int_equal(st.effects_changed, f % 25 == 0);
+    /* Mid-motion: the camera moves on every frame, a toggle's too. */
+    assert_true(st.camera_changed && !st.camera_cut);
+    assert_true(fabs(st.distance - (3.0 - 1.2 * f / 149.0)) < 1e-9);
+    assert_false(st.tf_changed || st.target_changed);
+  }
+  rp_sequence_destroy(s);
+  rp_context_destroy(ctx);
+}
+
 /* ---- resolution ---------------------------------------------------------- */
 
 static void camera_interpolates_linearly(void **state) {
@@ -326,6 +518,58 @@ static void camera_interpolates_linearly(void **state) {
     assert_true(st.distance == 3 && st.azimuth_deg == 100);
     assert_int_equal(st.camera_changed, f == 24);
   }
+  rp_sequence_destroy(s);
+  rp_context_destroy(ctx);
+}
+
+/* Each limit of the cut rule met just under and just over, one value at
+ * a time on consecutive frames; then marked cuts: a small move marked is
+ * a cut, a mark that moves nothing is none, and a mark holds the camera
+ * until its frame. */
+static void camera_cuts_by_rule_and_by_mark(void **state) {
+  static const char doc[] =
+      "{\"frames\": 20, \"tfs\": [\"ramp\"], \"events\": [\n"
+      " {\"frame\": 0, \"camera\": {\"azimuth\": 0, \"elevation\": 0,\n"
+      "  \"distance\": 2, \"fov\": 40, \"pan\": [0, 0]}},\n"
+      " {\"frame\": 1, \"camera\": {\"azimuth\": 14}},\n"
+      " {\"frame\": 2, \"camera\": {\"azimuth\": 30}},\n"
+      " {\"frame\": 3, \"camera\": {\"distance\": 2.4}},\n"
+      " {\"frame\": 4, \"camera\": {\"distance\": 3.12}},\n"
+      " {\"frame\": 5, \"camera\": {\"fov\": 48}},\n"
+      " {\"frame\": 6, \"camera\": {\"fov\": 62.4}},\n"
+      " {\"frame\": 7, \"camera\": {\"pan\": [0.2, 0]}},\n"
+      " {\"frame\": 8, \"camera\": {\"pan\": [0.2, 0.3]}},\n"
+      " {\"frame\": 9, \"camera\": {\"elevation\": 90}},\n"
+      " {\"frame\": 10, \"camera\": {\"azimuth\": 210}},\n"
+      " {\"frame\": 11, \"camera\": {\"elevation\": 85}},\n"
+      " {\"frame\": 12, \"camera\": {\"elevation\": 80, \"cut\": true}},\n"
+      " {\"frame\": 13, \"camera\": {\"cut\": true}},\n"
+      " {\"frame\": 19, \"camera\": {\"azimuth\": 250, \"cut\": true}}]}";
+  /* 14 degrees, 16; distance x1.2, x1.3; fov x1.2, x1.3; pan 0.2, 0.3;
+   * 90 degrees up; azimuth turned at the pole (the same view); 5 degrees
+   * down; 5 more, marked; a mark that moves nothing; the hold; the jump
+   * the last mark makes. */
+  static const int changed[20] = {1, 1, 1, 1, 1, 1, 1, 1, 1, 1,
+                                  1, 1, 1, 0, 0, 0, 0, 0, 0, 1};
+  static const int cut[20] = {0, 0, 1, 0, 1, 0, 1, 0, 1, 1,
+                              0, 0, 1, 0, 0, 0, 0, 0, 0, 1};
+  rp_context *ctx = rp_test_context();
+  rp_sequence *s = parse_ok(ctx, doc);
+  rp_sequence_state st;
+  uint32_t f;
+  (void)state;
+  for (f = 1; f < 20; f++) {
+    st = frame_of(s, f);
+    if (st.camera_changed != changed[f] || st.camera_cut != cut[f])
+      fail_msg("frame %u: changed %d cut %d; want %d and %d", f,
+               st.camera_changed, st.camera_cut, changed[f], cut[f]);
+  }
+  st = frame_of(s, 0);
+  assert_true(st.camera_changed && !st.camera_cut);
+  st = frame_of(s, 18);
+  assert_true(st.azimuth_deg == 210.0 && st.elevation_deg == 80.0);
+  st = frame_of(s, 19);
+  assert_true(st.azimuth_deg == 250.0);
   rp_sequence_destroy(s);
   rp_context_destroy(ctx);
 }
@@ -654,7 +898,13 @@ static const bad_case bad_cases[] = {
      "events[0].camera.elevation: 91 is outside [-90, 90]"},
     {DOC("{\"frame\": 0, \"camera\": {\"azimut\": 10}}"), RP_EFORMAT,
      "events[0].camera: unknown key \"azimut\" (known: azimuth, elevation,"
-     " distance, pan, fov, comment)"},
+     " distance, pan, fov, cut, comment)"},
+    {DOC(EV0 ", {\"frame\": 3, \"camera\": {\"cut\": 1}}"), RP_EFORMAT,
+     "events[1].camera.cut: expected true or false, got 1"},
+    {DOC("{\"frame\": 0, \"tf\": 0}, {\"frame\": 3, \"camera\": "
+         "{\"azimuth\": 90, \"cut\": true}}"),
+     RP_EFORMAT, "events[1].camera.cut: a cut needs an earlier camera "
+     "keyframe to cut from"},
     {DOC("{\"frame\": 0, \"camera\": {\"pan\": [1]}}"), RP_EFORMAT,
      "events[0].camera.pan: expected an array of 2 numbers [right, up], "
      "got an array"},
@@ -801,7 +1051,10 @@ static void file_errors(void **state) {
                                              "such file, and not a built-in "
                                              "sequence (built-ins: orbit, "
                                              "tf-switch, zoom-in, mixed, "
-                                             "ao-tf-switch)"));
+                                             "ao-tf-switch, tf-window, "
+                                             "head-motion, cut-switch, "
+                                             "target-steps, "
+                                             "effects-motion)"));
   /* A near miss of a built-in name is a missing file too. */
   assert_int_equal(rp_sequence_load(ctx, "orbits", &s), RP_ENOENT);
   assert_int_equal(rp_sequence_load(ctx, rp_test_tmp_dir(), &s), RP_EIO);
@@ -889,6 +1142,12 @@ int main(void) {
       cmocka_unit_test(builtin_tf_switch_alternates),
       cmocka_unit_test(builtin_zoom_in_ends_inside),
       cmocka_unit_test(builtin_mixed_changes_everything),
+      cmocka_unit_test(builtin_tf_window_slides),
+      cmocka_unit_test(builtin_head_motion_jitters_while_approaching),
+      cmocka_unit_test(builtin_cut_switch_cuts_with_switches),
+      cmocka_unit_test(builtin_target_steps_steps),
+      cmocka_unit_test(builtin_effects_motion_toggles),
+      cmocka_unit_test(camera_cuts_by_rule_and_by_mark),
       cmocka_unit_test(camera_interpolates_linearly),
       cmocka_unit_test(azimuth_is_taken_as_written),
       cmocka_unit_test(steps_hold_until_the_next_change),
