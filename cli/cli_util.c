@@ -361,6 +361,15 @@ double cli_median(double *v, int n) {
   return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
 }
 
+double cli_quantile(double *v, int n, double p) {
+  double k;
+  if (n <= 0)
+    return NAN;
+  qsort(v, (size_t)n, sizeof *v, cmp_double);
+  k = ceil(p * n - 1e-9);
+  return v[k < 1 ? 0 : k > n ? n - 1 : (int)k - 1];
+}
+
 void cli_gnuplot_string(FILE *g, const char *s) {
   fputc('\'', g);
   for (; *s != '\0'; s++) {

@@ -67,6 +67,12 @@ int cli_parse_devices(const char *option, const char *spec,
                       uint32_t max, uint32_t *n);
 /* Median of n > 0 values; sorts them in place. */
 double cli_median(double *v, int n);
+/* The p-quantile (0 < p <= 1) of n values by nearest rank: the smallest
+ * of them with at least p n values at or under it, v[ceil(p n) - 1]
+ * once sorted (p n within 1e-9 of a whole number counts as that
+ * number, so that 0.95 x 20 is 19). No interpolation: every quantile is
+ * a frame that happened. Sorts v in place; NaN for n = 0. */
+double cli_quantile(double *v, int n, double p);
 /* Writes s as a gnuplot single-quoted literal ('' is a quote), so that a
  * path cannot end the string or inject commands. */
 void cli_gnuplot_string(FILE *g, const char *s);

@@ -604,11 +604,11 @@ static int player_start(replay *r, player *p) {
 
 /* The recorded row of frame f from the runtime's stats. */
 static void fill_row(const replay *r, const player *p, uint32_t f,
-                     int tf_changed, frame_row *row) {
+                     uint32_t events, frame_row *row) {
   const rp_frame_stats *st = &p->st;
   uint32_t i;
   row->frame = f;
-  row->tf_changed = tf_changed;
+  row->events = events;
   row->passes = (int)st->passes;
   row->target_ms = st->target_ms;
   row->measured_ms = st->measured_ms;
@@ -655,7 +655,7 @@ static int play_frame(replay *r, player *p, uint32_t i) {
             p->st.devices_lost, p->st.devices_alive);
   p->devices_alive = p->st.devices_alive;
   if (i >= r->o.settle)
-    fill_row(r, p, f, st.tf_changed && f > 0, &p->rows[f]);
+    fill_row(r, p, f, replay_frame_events(&st), &p->rows[f]);
   return 0;
 }
 
@@ -922,8 +922,11 @@ static int replay_main(int argc, char **argv, cli_pacing_goals *goals) {
   if (play(&r, players, nctl) != 0)
     goto out;
   for (k = 0; k < nctl; k++) {
-    replay_summarise(kinds[k], rows[k], r.frames,
-                     rp_space_max_density(&r.space), &sums[k]);
+    if (replay_summarise(kinds[k], rows[k], r.frames,
+                         rp_space_max_density(&r.space), &sums[k]) != 0) {
+      cli_error(r.ctx, "summary", RP_ENOMEM);
+      goto out;
+    }
     sums[k].devices_alive = players[k].devices_alive;
   }
   memset(&res, 0, sizeof res);

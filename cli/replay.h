@@ -41,11 +41,40 @@ typedef struct device_row {
   double strip_share; /* the tail strips it took (rp_group_desc) */
 } device_row;
 
+/* What happens on a recorded frame, from its sequence state
+ * (replay_frame_events): bits of a mask. */
+#define REPLAY_EV_TF 1u      /* a TF switch */
+#define REPLAY_EV_CUT 2u     /* a camera cut (docs/sequences.md) */
+#define REPLAY_EV_EFFECTS 4u /* the effect set changed */
+#define REPLAY_EV_TARGET 8u  /* the target changed */
+
+/* The report's event classes (docs/pacing.md): class 0 is smooth, class
+ * c > 0 holds the frames of event bit c - 1 and the REPLAY_CLASS_AFTER
+ * frames after each (replay_frame_classes). A rule that reacts to the
+ * last frame learns of an event from the event frame's own time, so the
+ * miss the event costs it lands on that frame and the next one or two;
+ * counted as smooth, they would flatter it on the event. A frame in the
+ * reach of several events counts in each of their classes; smooth
+ * frames are in the reach of none. */
+#define REPLAY_CLASSES 5
+#define REPLAY_CLASS_AFTER 2
+
+/* What a controller's frames of one class came to; NaN figures for a
+ * class without frames. */
+typedef struct class_stats {
+  uint32_t frames;
+  double miss_rate;      /* share with measured_ms > target_ms */
+  double share_over_1_2; /* share with measured_ms > 1.2 target_ms */
+  double p95, p99;       /* of measured_ms / target_ms (cli_quantile) */
+  double mean_density;
+} class_stats;
+
 /* One recorded frame of one controller: what its runtime reported
  * (rp_frame_stats). */
 typedef struct frame_row {
   uint32_t frame;
-  int passes, tf_changed;
+  int passes;
+  uint32_t events; /* REPLAY_EV_* */
   double target_ms, measured_ms, predicted_ms;
   double pass_predicted_ms; /* the cost model's t' of the last pass */
   double probe_ms;  /* the probe and the controller's decision */
@@ -88,6 +117,7 @@ typedef struct summary {
   double pred_rmse_ms, sigma_err_30, overhead_ms, mean_ms, mean_target;
   double mean_imbalance; /* --devices */
   uint32_t devices_alive; /* --devices: at the end of the run */
+  class_stats classes[REPLAY_CLASSES];
 } summary;
 
 /* What the report needs of a finished replay. */
@@ -109,8 +139,18 @@ typedef struct replay_result {
  * (its rho kept); `work` holds n doubles. */
 void replay_noise_stats(const double *ms, const uint32_t *seg, uint32_t n,
                         double *work, noise_floor *out);
-void replay_summarise(rp_controller_kind kind, const frame_row *rows,
-                      uint32_t n, double rho_max, summary *s);
+/* The events of sequence frame `st`: 0 on frame 0, which the settle
+ * frames played before it was recorded. */
+uint32_t replay_frame_events(const rp_sequence_state *st);
+/* The events whose reach frame i of `rows` (indexed by frame) is in:
+ * those of frames i - REPLAY_CLASS_AFTER to i; 0 for a smooth frame. */
+uint32_t replay_frame_classes(const frame_row *rows, uint32_t i);
+/* Class c's name: "smooth", "tf_switch", "camera_cut", "effect_toggle",
+ * "target_change". */
+const char *replay_class_name(int c);
+/* The summary of one controller's n rows; 0, or RP_ENOMEM. */
+int replay_summarise(rp_controller_kind kind, const frame_row *rows,
+                     uint32_t n, double rho_max, summary *s);
 /* The goals as ratios within this run; NaN where the controllers a
  * figure compares were not played. */
 void replay_goals(const replay_result *r, const summary *sums, int nctl,

@@ -86,17 +86,84 @@ static int write_noise_csv(const replay_result *r) {
   return 0;
 }
 
-/* Frames after a TF switch that still count as the switch's: a reactive
- * rule learns of the switch from the switch frame's own time, so its
- * overshoot lands on that frame and the one or two after it. */
-#define SWITCH_AFTER 2
+/* ---- Event classes ------------------------------------------------------ */
 
-void replay_summarise(rp_controller_kind kind, const frame_row *rows,
-                      uint32_t n, double rho_max, summary *s) {
-  uint32_t i, over = 0, sig_n = 0, open_n = 0, since_switch = UINT32_MAX;
+static const char *const CLASS_NAMES[REPLAY_CLASSES] = {
+    "smooth", "tf_switch", "camera_cut", "effect_toggle", "target_change"};
+
+const char *replay_class_name(int c) {
+  return c >= 0 && c < REPLAY_CLASSES ? CLASS_NAMES[c] : "?";
+}
+
+uint32_t replay_frame_events(const rp_sequence_state *st) {
+  if (st->frame == 0)
+    return 0;
+  return (st->tf_changed ? REPLAY_EV_TF : 0u) |
+         (st->camera_cut ? REPLAY_EV_CUT : 0u) |
+         (st->effects_changed ? REPLAY_EV_EFFECTS : 0u) |
+         (st->target_changed ? REPLAY_EV_TARGET : 0u);
+}
+
+uint32_t replay_frame_classes(const frame_row *rows, uint32_t i) {
+  uint32_t ev = 0, j = i > REPLAY_CLASS_AFTER ? i - REPLAY_CLASS_AFTER : 0;
+  for (; j <= i; j++)
+    ev |= rows[j].events;
+  return ev;
+}
+
+/* A mask of events as a CSV field: their classes' names joined by '+',
+ * or `none`. */
+static void class_field(FILE *f, uint32_t mask, const char *none) {
+  int c, any = 0;
+  if (mask == 0) {
+    fputs(none, f);
+    return;
+  }
+  for (c = 1; c < REPLAY_CLASSES; c++)
+    if (mask & (1u << (c - 1))) {
+      fprintf(f, "%s%s", any ? "+" : "", CLASS_NAMES[c]);
+      any = 1;
+    }
+}
+
+/* Every class's figures over n rows; `work` holds n doubles. */
+static void summarise_classes(const frame_row *rows, uint32_t n,
+                              double *work, class_stats *out) {
+  int c;
+  for (c = 0; c < REPLAY_CLASSES; c++) {
+    class_stats *cs = &out[c];
+    uint32_t i, miss = 0, over = 0;
+    double dens = 0.0;
+    memset(cs, 0, sizeof *cs);
+    for (i = 0; i < n; i++) {
+      const frame_row *w = &rows[i];
+      uint32_t m = replay_frame_classes(rows, i);
+      if (c == 0 ? m != 0 : (m & (1u << (c - 1))) == 0)
+        continue;
+      work[cs->frames++] = w->measured_ms / w->target_ms;
+      miss += w->measured_ms > w->target_ms;
+      over += w->measured_ms > 1.2 * w->target_ms;
+      dens += w->rho;
+    }
+    if (cs->frames == 0) {
+      cs->miss_rate = cs->share_over_1_2 = cs->mean_density = NAN;
+      cs->p95 = cs->p99 = NAN;
+      continue;
+    }
+    cs->miss_rate = (double)miss / cs->frames;
+    cs->share_over_1_2 = (double)over / cs->frames;
+    cs->mean_density = dens / cs->frames;
+    cs->p95 = cli_quantile(work, (int)cs->frames, 0.95);
+    cs->p99 = cli_quantile(work, (int)cs->frames, 0.99);
+  }
+}
+
+int replay_summarise(rp_controller_kind kind, const frame_row *rows,
+                     uint32_t n, double rho_max, summary *s) {
+  uint32_t i, over = 0, sig_n = 0, open_n = 0;
   double se_open = 0;
   double se = 0, se_rel = 0, pe = 0, sig = 0, dens = 0, ov = 0, oh = 0;
-  double mt = 0, mm = 0, imb = 0;
+  double mt = 0, mm = 0, imb = 0, *work;
   memset(s, 0, sizeof(*s));
   s->kind = kind;
   s->frames = n;
@@ -113,10 +180,9 @@ void replay_summarise(rp_controller_kind kind, const frame_row *rows,
     }
     if (rel > ov)
       ov = rel;
-    since_switch = w->tf_changed ? 0
-                   : since_switch < UINT32_MAX ? since_switch + 1
-                                               : since_switch;
-    if (since_switch <= SWITCH_AFTER && rel > s->switch_over)
+    /* A switch's overshoot: on the frames of the tf_switch class. */
+    if ((replay_frame_classes(rows, i) & REPLAY_EV_TF) &&
+        rel > s->switch_over)
       s->switch_over = rel;
     over += w->measured_ms > 1.2 * w->target_ms;
     dens += w->rho;
@@ -135,7 +201,7 @@ void replay_summarise(rp_controller_kind kind, const frame_row *rows,
     imb += w->imbalance;
   }
   if (n == 0)
-    return;
+    return 0;
   s->rmse_ms = sqrt(se / n);
   s->rmse_rel = sqrt(se_rel / n);
   s->rmse_open_ms = open_n > 0 ? sqrt(se_open / open_n) : 0.0;
@@ -148,6 +214,11 @@ void replay_summarise(rp_controller_kind kind, const frame_row *rows,
   s->mean_target = mt / n;
   s->mean_ms = mm / n;
   s->mean_imbalance = imb / n;
+  if ((work = malloc(n * sizeof *work)) == NULL)
+    return RP_ENOMEM;
+  summarise_classes(rows, n, work, s->classes);
+  free(work);
+  return 0;
 }
 
 /* ---- Output -------------------------------------------------------------- */
@@ -156,7 +227,9 @@ void replay_summarise(rp_controller_kind kind, const frame_row *rows,
  * dev<i>_busy_ms, dev<i>_raycast_ms, dev<i>_samples for every device and
  * the frame's imbalance, all of its last pass, and, after the AO and
  * upload columns, dev<i>_tail_share: the predicted cost of the tail
- * strips each device took. */
+ * strips each device took. The last two columns name the frame's own
+ * events ("none" without) and the classes it counts in ("smooth"
+ * without), joined by '+'. */
 static int write_csv(const char *path, const summary *sums,
                      frame_row *const *rows, int nctl, uint32_t n,
                      uint32_t ndev) {
@@ -178,7 +251,7 @@ static int write_csv(const char *path, const summary *sums,
           ndev > 0 ? ",imbalance" : "");
   for (j = 0; j < ndev; j++)
     fprintf(f, ",dev%u_tail_share", j);
-  fprintf(f, ",pass_predicted_ms\n");
+  fprintf(f, ",pass_predicted_ms,events,classes\n");
   for (k = 0; k < nctl; k++) {
     for (i = 0; i < n; i++) {
       const frame_row *w = &rows[k][i];
@@ -189,7 +262,7 @@ static int write_csv(const char *path, const summary *sums,
               w->measured_ms - w->target_ms, w->passes, w->rho,
               (double)w->step, (double)w->scale, w->samples_est,
               (unsigned long long)w->samples, w->sigma_pred_ns, w->sigma_ns,
-              w->probe_ms, w->tf_changed);
+              w->probe_ms, (w->events & REPLAY_EV_TF) != 0);
       for (j = 0; j < ndev; j++)
         fprintf(f, ",%.9g,%.4f,%.4f,%llu", w->dev[j].share,
                 w->dev[j].busy_ms, w->dev[j].raycast_ms,
@@ -200,11 +273,35 @@ static int write_csv(const char *path, const summary *sums,
               w->upload_pred_ms);
       for (j = 0; j < ndev; j++)
         fprintf(f, ",%.5f", w->dev[j].strip_share);
-      fprintf(f, ",%.6f\n", w->pass_predicted_ms);
+      fprintf(f, ",%.6f,", w->pass_predicted_ms);
+      class_field(f, w->events, "none");
+      fputc(',', f);
+      class_field(f, replay_frame_classes(rows[k], i), CLASS_NAMES[0]);
+      fputc('\n', f);
     }
   }
   return fclose(f) == 0 ? 0 : 1;
 }
+
+/* One colour per controller, the same in every panel and plot: left to
+ * gnuplot, a line's colour follows its place in the plot command, which
+ * the target line, drawn first in the top panel only, shifted by one
+ * against the bottom panel. The target is black. The colours are Okabe
+ * and Ito's, told apart with the common colour-vision deficiencies, but
+ * for ue5's: a dark brown, as their orange was hard to tell from
+ * predicted's vermillion in thin lines. */
+static const char *const CONTROLLER_COLOURS[] = {
+    "#999999", /* none */
+    "#56b4e9", /* last-frame */
+    "#009e73", /* two-pass */
+    "#d55e00", /* predicted */
+    "#0072b2", /* vtk */
+    "#8c510a", /* ue5 */
+    "#cc79a7", /* valve */
+};
+_Static_assert(sizeof CONTROLLER_COLOURS / sizeof CONTROLLER_COLOURS[0] ==
+                   RP_CONTROL_COUNT,
+               "a colour for every controller");
 
 /* Frame times of every controller against the target (top) and their
  * densities (bottom), like seed 000 Fig. 5, drawn by gnuplot from the
@@ -231,8 +328,9 @@ static int write_plot(const char *png, const char *csv, const summary *sums,
           rp_controller_name(sums[0].kind));
   for (k = 0; k < nctl; k++)
     fprintf(g, ", '' skip 1 using 2:(strcol(1) eq '%s' ? $4 : 1/0) "
-               "with lines title '%s'",
+               "with lines lw 1.5 lc rgb '%s' title '%s'",
             rp_controller_name(sums[k].kind),
+            CONTROLLER_COLOURS[sums[k].kind],
             rp_controller_name(sums[k].kind));
   fprintf(g, "\nset xlabel 'frame'\n"
              "set ylabel 'density (1 = base step, full size)'\n"
@@ -241,8 +339,9 @@ static int write_plot(const char *png, const char *csv, const summary *sums,
     fprintf(g, "%s", k ? ", " : "");
     cli_gnuplot_string(g, csv);
     fprintf(g, " skip 1 using 2:(strcol(1) eq '%s' ? $8 : 1/0) "
-               "with lines title '%s'",
+               "with lines lw 1.5 lc rgb '%s' title '%s'",
             rp_controller_name(sums[k].kind),
+            CONTROLLER_COLOURS[sums[k].kind],
             rp_controller_name(sums[k].kind));
   }
   fprintf(g, "\nunset multiplot\n");
@@ -285,8 +384,10 @@ static int write_device_plot(const char *png, const char *csv,
   fprintf(g, "\n");
   for (k = 0; k < nctl; k++) {
     const char *name = rp_controller_name(sums[k].kind);
-    fprintf(g, "set title '%s: busy'\nset ylabel 'ms'\nset yrange [*:*]\n"
-               "plot ", name);
+    /* The lines are devices; the controller's colour is its titles'. */
+    fprintf(g, "set title '%s: busy' textcolor rgb '%s'\nset ylabel 'ms'\n"
+               "set yrange [*:*]\nplot ", name,
+            CONTROLLER_COLOURS[sums[k].kind]);
     /* A frame the device had no region in is a gap, not a 0. */
     for (i = 0; i < n; i++) {
       char label[96];
@@ -299,8 +400,9 @@ static int write_device_plot(const char *png, const char *csv,
               name, 20 + 4 * i, 18 + 4 * i, i + 1);
       cli_gnuplot_string(g, label);
     }
-    fprintf(g, "\nset title '%s: shares'\nset ylabel 'share'\n"
-               "set yrange [0:1]\nplot ", name);
+    fprintf(g, "\nset title '%s: shares' textcolor rgb '%s'\n"
+               "set ylabel 'share'\nset yrange [0:1]\nplot ", name,
+            CONTROLLER_COLOURS[sums[k].kind]);
     for (i = 0; i < n; i++) {
       uint32_t j;
       fprintf(g, "%s", i ? ", " : "");
@@ -318,6 +420,31 @@ static int write_device_plot(const char *png, const char *csv,
   }
   fprintf(g, "unset multiplot\n");
   return cli_plot_close(&plot, "raypace replay");
+}
+
+/* A figure, or null where it does not exist (NaN). */
+static void add_figure(cJSON *o, const char *name, double v) {
+  if (isfinite(v))
+    cJSON_AddNumberToObject(o, name, v);
+  else
+    cJSON_AddNullToObject(o, name);
+}
+
+/* "classes": {"smooth": {...}, "tf_switch": {...}, ...}, every class,
+ * with null figures where it has no frames. */
+static void add_classes(cJSON *o, const summary *s) {
+  cJSON *cl = cJSON_AddObjectToObject(o, "classes");
+  int c;
+  for (c = 0; c < REPLAY_CLASSES; c++) {
+    const class_stats *cs = &s->classes[c];
+    cJSON *e = cJSON_AddObjectToObject(cl, CLASS_NAMES[c]);
+    cJSON_AddNumberToObject(e, "frames", cs->frames);
+    add_figure(e, "miss_rate", cs->miss_rate);
+    add_figure(e, "share_over_1_2", cs->share_over_1_2);
+    add_figure(e, "p95", cs->p95);
+    add_figure(e, "p99", cs->p99);
+    add_figure(e, "mean_density", cs->mean_density);
+  }
 }
 
 static void print_json(const replay_result *r, const summary *s) {
@@ -338,11 +465,9 @@ static void print_json(const replay_result *r, const summary *s) {
   cJSON_AddNumberToObject(o, "share_over_1_2", s->share_over_20);
   cJSON_AddNumberToObject(o, "mean_density", s->mean_density);
   cJSON_AddNumberToObject(o, "prediction_rmse_ms", s->pred_rmse_ms);
-  if (isfinite(s->sigma_err_30))
-    cJSON_AddNumberToObject(o, "sigma_error_after_30", s->sigma_err_30);
-  else
-    cJSON_AddNullToObject(o, "sigma_error_after_30");
+  add_figure(o, "sigma_error_after_30", s->sigma_err_30);
   cJSON_AddNumberToObject(o, "overhead_ms", s->overhead_ms);
+  add_classes(o, s);
   if (r->noise.frames > 0) {
     cJSON *n = cJSON_AddObjectToObject(o, "noise");
     cJSON_AddNumberToObject(n, "frames", r->noise.frames);
@@ -407,6 +532,28 @@ static void print_table(const replay_result *r, const summary *sums, int nctl) {
     if (r->o->ndevices > 0)
       printf(" %7.3f %6u", s->mean_imbalance, s->devices_alive);
     printf("\n");
+  }
+}
+
+/* The per-class section after the table: a row per class with frames
+ * and controller played. */
+static void print_classes(const summary *sums, int nctl) {
+  int c, k;
+  printf("per event class (an event's frame and the %d after it; a frame "
+         "near several events counts in each; smooth: near none):\n",
+         REPLAY_CLASS_AFTER);
+  printf("%-14s %6s  %-11s %6s %7s %7s %7s %9s\n", "class", "frames",
+         "controller", "miss", ">1.2T", "p95 t/T", "p99 t/T", "density");
+  for (c = 0; c < REPLAY_CLASSES; c++) {
+    for (k = 0; k < nctl; k++) {
+      const class_stats *cs = &sums[k].classes[c];
+      if (cs->frames == 0)
+        continue;
+      printf("%-14s %6u  %-11s %5.1f%% %6.1f%% %7.3f %7.3f %9.4f\n",
+             CLASS_NAMES[c], cs->frames, rp_controller_name(sums[k].kind),
+             100 * cs->miss_rate, 100 * cs->share_over_1_2, cs->p95,
+             cs->p99, cs->mean_density);
+    }
   }
 }
 
@@ -534,6 +681,7 @@ int replay_report(const replay_result *r, const summary *sums,
   } else {
     print_table(r, sums, nctl);
     print_goals(r, sums, nctl);
+    print_classes(sums, nctl);
   }
   /* Without --csv the plot's data goes to PLOT.csv, removed after. */
   if (o->plot != NULL && o->csv == NULL &&

@@ -219,6 +219,43 @@ has "replay goals alone" "no reactive controller played"
 if grep -qi "nan" "$dir/out"; then
   echo "FAIL: replay one controller prints a NaN"; cat "$dir/out"
   fails=$((fails + 1)); else pass=$((pass + 1)); fi
+# Per event class: cut-switch cuts the camera and switches the TF on
+# frames 30 and 60; each event's class holds its frame and the two after
+# it, smooth the other 58 of 64. The classes of the CSV's last column,
+# counted here, and the predicted controller's smooth p95 (nearest rank:
+# the ceil(0.95 n)-th of its t/target sorted) against the JSON's.
+check "replay classes" "$rp" replay gen:ml:16 --backend reference \
+  --sequence cut-switch --frames 64 --settle 1 --size 16x16 --json --quiet \
+  --csv "$dir/cl.csv"
+class_of() { # class_of CLASS FIELD: predicted's figure for that class
+  grep '"controller":"predicted"' "$dir/out" |
+    sed -n "s/.*\"$1\":{[^}]*\"$2\":\([-0-9.e+]*\).*/\1/p"
+}
+if [ "$(head -1 "$dir/cl.csv" | cut -d, -f16)" = tf_switch ] &&
+   [ "$(head -1 "$dir/cl.csv" | awk -F, '{ print $(NF - 1) "," $NF }')" = \
+     "events,classes" ] &&
+   [ "$(awk -F, '$1 == "vtk" && ($2 == 30 || $2 == 60) { print $(NF - 1) }' \
+       "$dir/cl.csv" | sort -u)" = "tf_switch+camera_cut" ] &&
+   [ "$(awk -F, '$1 == "vtk" && $2 == 32 { print $(NF - 1) "/" $NF }' \
+       "$dir/cl.csv")" = "none/tf_switch+camera_cut" ] &&
+   [ "$(awk -F, '$1 == "predicted" && $NF == "smooth"' "$dir/cl.csv" |
+       wc -l)" -eq 58 ] && [ "$(class_of smooth frames)" = 58 ] &&
+   [ "$(class_of tf_switch frames)" = 6 ] &&
+   [ "$(class_of camera_cut frames)" = 6 ] &&
+   [ "$(class_of effect_toggle frames)" = 0 ] &&
+   grep -q '"effect_toggle":{"frames":0,"miss_rate":null' "$dir/out"; then
+  pass=$((pass + 1)); else
+  echo "FAIL: replay classes"; head -1 "$dir/cl.csv"; cat "$dir/out"
+  fails=$((fails + 1)); fi
+p95=$(awk -F, '$1 == "predicted" && $NF == "smooth" { print $4 / $3 }' \
+        "$dir/cl.csv" | sort -g |
+      awk '{ v[NR] = $1 } END { k = int(0.95 * NR); if (k < 0.95 * NR) k++
+                                print v[k] }')
+if awk -v a="$p95" -v b="$(class_of smooth p95)" \
+     'BEGIN { exit !(b > 0 && a / b > 0.99 && a / b < 1.01) }'; then
+  pass=$((pass + 1)); else
+  echo "FAIL: replay classes p95: $p95 from the CSV, $(class_of smooth p95)"
+  fails=$((fails + 1)); fi
 # bench pacing: each sequence's median is the middle of its three runs'
 # figures, picked here from the JSON by awk for two of them.
 check "bench pacing json" "$rp" bench pacing gen:ml:16 --backend reference \
@@ -453,7 +490,7 @@ if "$rp" render gen:ml:8 --size 8x8 --backend opencl -o "$g" \
     --budget-mb 0.2 --brick-size 8 --sequence orbit --frames 6 --settle 1 \
     --size 64x64 --controller predicted --quiet --csv "$dir/oc.csv"
   if head -1 "$dir/oc.csv" |
-     grep -q "upload_ms,upload_predicted_ms,pass_predicted_ms$"
+     grep -q "upload_ms,upload_predicted_ms,pass_predicted_ms,events,classes$"
   then pass=$((pass + 1)); else
     echo "FAIL: replay csv lacks upload columns"; head -1 "$dir/oc.csv"
     fails=$((fails + 1)); fi
@@ -469,7 +506,7 @@ has "replay devices alive" '"devices_alive":'
 cols="tf_switch,dev0_share,dev0_busy_ms,dev0_raycast_ms,dev0_samples"
 cols="$cols,dev1_share,dev1_busy_ms,dev1_raycast_ms,dev1_samples,imbalance"
 cols="$cols,ao_ms,ao,upload_ms,upload_predicted_ms"
-cols="$cols,dev0_tail_share,dev1_tail_share,pass_predicted_ms"
+cols="$cols,dev0_tail_share,dev1_tail_share,pass_predicted_ms,events,classes"
 # The shares sum to 1. The default tail (the fewest bottom tile rows
 # holding 0.15 of the cost, never every row) is cut when the scaled
 # image, rp_scaled_size of the 32x32 output at the row's scale, has two

@@ -1,0 +1,170 @@
+/* What replay reports per event class (cli/replay_report.c), worked out
+ * again here the slow way on made-up frames:
+ * - a quantile is the nearest rank's: the smallest value with at least
+ *   p n of the values at or under it, found by counting, not sorting;
+ * - a frame's classes are those of the events on it and on the two
+ *   frames before it, found here by marking forward from each event;
+ * - each class's frames, miss rate, share over 1.2x, p95, p99 and mean
+ *   density, and the TF-switch overshoot, from those marks. */
+#include <math.h>
+#include <stdint.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "replay.h"
+#include "test_util.h"
+
+/* A small LCG, so that the made-up frames are the same on every run. */
+static uint32_t next(uint32_t *s) {
+  *s = *s * 1664525u + 1013904223u;
+  return *s >> 8;
+}
+
+/* Nearest rank by counting: the smallest v[i] with at least pct % of the
+ * n values <= it; exact in integers. */
+static double brute_quantile(const double *v, int n, int pct) {
+  double best = INFINITY;
+  int i, j;
+  for (i = 0; i < n; i++) {
+    int at_or_under = 0;
+    for (j = 0; j < n; j++)
+      at_or_under += v[j] <= v[i];
+    if (100 * at_or_under >= pct * n && v[i] < best)
+      best = v[i];
+  }
+  return best;
+}
+
+static void quantile_is_nearest_rank(void **state) {
+  static const int pcts[] = {1, 50, 90, 95, 99, 100};
+  uint32_t seed = 7;
+  double v[64], w[64];
+  int n, k, i;
+  (void)state;
+  for (n = 1; n <= 64; n++) {
+    for (i = 0; i < n; i++)
+      /* Few distinct values, so that ties are common. */
+      v[i] = (double)(next(&seed) % 17) * 0.25;
+    for (k = 0; k < (int)(sizeof pcts / sizeof pcts[0]); k++) {
+      double got;
+      memcpy(w, v, (size_t)n * sizeof *v);
+      got = cli_quantile(w, n, pcts[k] / 100.0);
+      if (got != brute_quantile(v, n, pcts[k]))
+        fail_msg("n %d, p%d: %g, counting says %g", n, pcts[k], got,
+                 brute_quantile(v, n, pcts[k]));
+    }
+  }
+  /* Twenty values 1..20: p95 is the 19th, p99 the 20th. */
+  for (i = 0; i < 20; i++)
+    w[i] = 20 - i;
+  assert_true(cli_quantile(w, 20, 0.95) == 19.0);
+  assert_true(cli_quantile(w, 20, 0.99) == 20.0);
+  assert_true(isnan(cli_quantile(w, 0, 0.5)));
+}
+
+static void events_come_from_the_state(void **state) {
+  rp_sequence_state st;
+  (void)state;
+  memset(&st, 0, sizeof st);
+  st.frame = 7;
+  assert_int_equal(replay_frame_events(&st), 0);
+  st.tf_changed = st.camera_cut = 1;
+  st.camera_changed = 1; /* motion alone is no event */
+  assert_int_equal(replay_frame_events(&st), REPLAY_EV_TF | REPLAY_EV_CUT);
+  st.effects_changed = st.target_changed = 1;
+  assert_int_equal(replay_frame_events(&st),
+                   REPLAY_EV_TF | REPLAY_EV_CUT | REPLAY_EV_EFFECTS |
+                       REPLAY_EV_TARGET);
+  /* Frame 0's flags are all set, but the settle frames played it. */
+  st.frame = 0;
+  assert_int_equal(replay_frame_events(&st), 0);
+  assert_string_equal(replay_class_name(0), "smooth");
+  assert_string_equal(replay_class_name(1), "tf_switch");
+  assert_string_equal(replay_class_name(2), "camera_cut");
+  assert_string_equal(replay_class_name(3), "effect_toggle");
+  assert_string_equal(replay_class_name(4), "target_change");
+}
+
+#define N 400
+
+static void classes_add_up(void **state) {
+  static frame_row rows[N];
+  static int in[N][REPLAY_CLASSES];
+  static double ratios[N];
+  uint32_t seed = 11, i, j;
+  summary s;
+  double switch_over = 0.0;
+  int c;
+  (void)state;
+  memset(rows, 0, sizeof rows);
+  memset(in, 0, sizeof in);
+  for (i = 0; i < N; i++) {
+    frame_row *w = &rows[i];
+    uint32_t r = next(&seed) % 100;
+    w->frame = i;
+    /* Events now and then, some together, some two frames apart. */
+    w->events = i == 0 ? 0
+                : r < 4 ? REPLAY_EV_TF
+                : r < 7 ? REPLAY_EV_TF | REPLAY_EV_CUT
+                : r < 10 ? REPLAY_EV_EFFECTS
+                : r < 13 ? REPLAY_EV_TARGET
+                : 0;
+    w->target_ms = 10.0 + (double)(next(&seed) % 5);
+    w->measured_ms = w->target_ms * (0.6 + (next(&seed) % 1000) * 0.0008);
+    w->rho = 0.01 * (1 + next(&seed) % 100);
+  }
+  /* Each event marks its frame and the two after it. */
+  for (i = 0; i < N; i++)
+    for (c = 1; c < REPLAY_CLASSES; c++)
+      if (rows[i].events & (1u << (c - 1)))
+        for (j = i; j <= i + 2 && j < N; j++)
+          in[j][c] = 1;
+  for (i = 0; i < N; i++) {
+    in[i][0] = !(in[i][1] || in[i][2] || in[i][3] || in[i][4]);
+    if (in[i][1])
+      switch_over = fmax(switch_over, rows[i].measured_ms /
+                                          rows[i].target_ms - 1.0);
+  }
+  assert_int_equal(replay_summarise(RP_CONTROL_PREDICTED, rows, N, 1.0, &s),
+                   0);
+  assert_true(fabs(s.switch_over - switch_over) < 1e-12);
+  for (c = 0; c < REPLAY_CLASSES; c++) {
+    const class_stats *cs = &s.classes[c];
+    uint32_t frames = 0, miss = 0, over = 0;
+    double dens = 0.0;
+    for (i = 0; i < N; i++) {
+      const frame_row *w = &rows[i];
+      if (!in[i][c])
+        continue;
+      ratios[frames++] = w->measured_ms / w->target_ms;
+      miss += w->measured_ms > w->target_ms;
+      over += w->measured_ms > 1.2 * w->target_ms;
+      dens += w->rho;
+    }
+    if (frames <= 20) /* every class is exercised */
+      fail_msg("class %d: %u frames", c, frames);
+    assert_int_equal(cs->frames, frames);
+    assert_true(fabs(cs->miss_rate - (double)miss / frames) < 1e-12);
+    assert_true(fabs(cs->share_over_1_2 - (double)over / frames) < 1e-12);
+    assert_true(fabs(cs->mean_density - dens / frames) < 1e-12);
+    assert_true(cs->p95 == brute_quantile(ratios, (int)frames, 95));
+    assert_true(cs->p99 == brute_quantile(ratios, (int)frames, 99));
+  }
+  /* A class no frame is in has no figures. */
+  for (i = 0; i < N; i++)
+    rows[i].events &= ~REPLAY_EV_TARGET;
+  assert_int_equal(replay_summarise(RP_CONTROL_PREDICTED, rows, N, 1.0, &s),
+                   0);
+  assert_int_equal(s.classes[4].frames, 0);
+  assert_true(isnan(s.classes[4].miss_rate) && isnan(s.classes[4].p95) &&
+              isnan(s.classes[4].mean_density));
+}
+
+int main(void) {
+  const struct CMUnitTest tests[] = {
+      cmocka_unit_test(quantile_is_nearest_rank),
+      cmocka_unit_test(events_come_from_the_state),
+      cmocka_unit_test(classes_add_up),
+  };
+  return cmocka_run_group_tests(tests, NULL, NULL);
+}
