@@ -107,6 +107,9 @@ static void usage(FILE *f) {
       "(default 10)\n"
       "  --frames N            play only the first N frames\n"
       "  --seed N              ERT pre-pass seed (default 1)\n"
+      "  --miss-rate Q         predicted: the share of frames allowed over\n"
+      "                        the target, in (0, 0.5] (default 0.05), or\n"
+      "                        'none' to aim at the target itself\n"
       "  --no-noise            no still frame: by default, after each\n"
       "                        round of every controller's frame, a\n"
       "                        runtime of its own renders the first\n"
@@ -193,6 +196,7 @@ static int parse_opts(int argc, char **argv, replay_opts *o) {
       {"settle", required_argument, 0, 'S'},
       {"frames", required_argument, 0, 'n'},
       {"seed", required_argument, 0, 'e'},
+      {"miss-rate", required_argument, 0, 'R'},
       {"no-noise", no_argument, 0, 'N'},
       {"noise-csv", required_argument, 0, 'W'},
       {"csv", required_argument, 0, 'C'},
@@ -253,6 +257,15 @@ static int parse_opts(int argc, char **argv, replay_opts *o) {
     case 'S': bad = cli_parse_u32(optarg, 100000, &o->settle); break;
     case 'n': bad = cli_parse_u32(optarg, 10000000, &o->frames); break;
     case 'e': bad = cli_parse_u32(optarg, UINT32_MAX, &o->seed); break;
+    case 'R':
+      /* "none" for the rule before the contract: aim at the target. */
+      if (strcmp(optarg, "none") == 0) {
+        o->miss_rate = -1.0;
+      } else {
+        bad = cli_parse_positive(optarg, &v) || v > 0.5f;
+        o->miss_rate = v;
+      }
+      break;
     case 'N': o->no_noise = 1; break;
     case 'W': o->noise_csv = optarg; break;
     case 'C': o->csv = optarg; break;
@@ -526,6 +539,7 @@ static int player_open(replay *r, player *p, int quiet_nodev) {
   d.height = r->o.height;
   d.space = r->space;
   d.ert_seed = r->o.seed;
+  d.miss_rate = r->o.miss_rate;
   if (r->o.ndevices > 0) {
     d.devices = r->o.devices;
     d.device_count = r->o.ndevices;
