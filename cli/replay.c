@@ -110,6 +110,9 @@ static void usage(FILE *f) {
       "  --miss-rate Q         predicted: the share of frames allowed over\n"
       "                        the target, in (0, 0.5] (default 0.05), or\n"
       "                        'none' to aim at the target itself\n"
+      "  --headroom H          the reactive rules: the share of the target\n"
+      "                        kept free, in (0, 0.9] (default: each\n"
+      "                        rule's own)\n"
       "  --no-noise            no still frame: by default, after each\n"
       "                        round of every controller's frame, a\n"
       "                        runtime of its own renders the first\n"
@@ -197,6 +200,7 @@ static int parse_opts(int argc, char **argv, replay_opts *o) {
       {"frames", required_argument, 0, 'n'},
       {"seed", required_argument, 0, 'e'},
       {"miss-rate", required_argument, 0, 'R'},
+      {"headroom", required_argument, 0, 'H'},
       {"no-noise", no_argument, 0, 'N'},
       {"noise-csv", required_argument, 0, 'W'},
       {"csv", required_argument, 0, 'C'},
@@ -257,6 +261,10 @@ static int parse_opts(int argc, char **argv, replay_opts *o) {
     case 'S': bad = cli_parse_u32(optarg, 100000, &o->settle); break;
     case 'n': bad = cli_parse_u32(optarg, 10000000, &o->frames); break;
     case 'e': bad = cli_parse_u32(optarg, UINT32_MAX, &o->seed); break;
+    case 'H':
+      bad = cli_parse_positive(optarg, &v) || v > 0.9f;
+      o->headroom = v;
+      break;
     case 'R':
       /* "none" for the rule before the contract: aim at the target. */
       if (strcmp(optarg, "none") == 0) {
@@ -540,6 +548,7 @@ static int player_open(replay *r, player *p, int quiet_nodev) {
   d.space = r->space;
   d.ert_seed = r->o.seed;
   d.miss_rate = r->o.miss_rate;
+  d.headroom = r->o.headroom;
   if (r->o.ndevices > 0) {
     d.devices = r->o.devices;
     d.device_count = r->o.ndevices;

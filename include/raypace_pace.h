@@ -145,6 +145,14 @@ typedef struct rp_controller_desc {
    * 0: 0.05; negative: no margin, the frame aimed at the target itself
    * (the rule before 0.3). \since 0.3 */
   double miss_rate;
+  /* The reactive rules: the share of the target kept free, in [0, 0.9]:
+   * LAST_FRAME and TWO_PASS aim at (1 - headroom) of it, VTK divides
+   * the target by it, UE5 takes it for its targeted headroom, VALVE
+   * scales its thresholds (70, 85, 90 %) by (1 - headroom). 0: each
+   * rule's own (UE5's 10 %, none for the others). What buys a reactive
+   * rule fewer late frames, for comparing rules at equal miss rates
+   * (raypace bench pacing --pareto). \since 0.3 */
+  double headroom;
 } rp_controller_desc;
 
 /** `ctx` is kept: failed calls on the controller leave their message in

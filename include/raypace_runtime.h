@@ -267,6 +267,10 @@ typedef struct rp_runtime_desc {
    * controller learns (rp_frame_stats.margin). In (0, 0.5]; 0: 0.05;
    * negative: no margin, frames aimed at the target itself. \since 0.3 */
   double miss_rate;
+  /* The reactive controllers' headroom (rp_controller_desc.headroom): the
+   * share of the target they keep free; 0: each rule's own. For research
+   * comparisons at equal miss rates. \since 0.3 */
+  double headroom;
   double target_ms;       /* 0: 1000 / 60 */
   uint32_t width, height; /* viewport; 0: 512 x 512 */
   uint32_t effects;       /* RP_EFFECT_*; 0: none */

@@ -201,7 +201,8 @@ static int check_desc(rp_context *ctx, const rp_controller_desc *d) {
            {"raise_limit", d->raise_limit},
            {"vtk_f", d->vtk_f},
            {"tune_time_us", d->tune_time_us},
-           {"miss_rate", d->miss_rate}};
+           {"miss_rate", d->miss_rate},
+           {"headroom", d->headroom}};
   size_t i;
   if ((unsigned)d->kind >= RP_CONTROL_COUNT)
     return rp__fail(ctx, RP_EINVAL, "controller: field 'kind' = %d is not "
@@ -226,6 +227,10 @@ static int check_desc(rp_context *ctx, const rp_controller_desc *d) {
   if (d->tune_time_us < 0)
     return rp__fail(ctx, RP_EINVAL, "controller: field 'tune_time_us' = %g "
                     "is negative", d->tune_time_us);
+  if (d->headroom < 0 || d->headroom > 0.9)
+    return rp__fail(ctx, RP_EINVAL, "controller: field 'headroom' = %g is "
+                    "not in [0, 0.9] (a share of the target kept free)",
+                    d->headroom);
   if (d->miss_rate > 0.5)
     return rp__fail(ctx, RP_EINVAL, "controller: field 'miss_rate' = %g is "
                     "over 0.5 (a share of frames late; negative: no "
@@ -238,6 +243,9 @@ static int check_desc(rp_context *ctx, const rp_controller_desc *d) {
 static double clampd(double v, double lo, double hi) {
   return v < lo ? lo : v > hi ? hi : v;
 }
+
+/* The share of the target a reactive rule aims at: 1 - headroom. */
+static double aim(const rp_controller *c) { return 1.0 - c->d.headroom; }
 
 /* The one exit for densities: finite and inside [rho_min, rho_max]. A
  * rule that produced NaN (it should not) repeats last frame's density. */
@@ -340,7 +348,8 @@ void rp_controller_destroy(rp_controller *c) {
 
 /* Seed 000 §7 "Last frame", with §6.1's damping: rho * target / t_last. */
 static double rule_last_frame(const rp_controller *c, double target) {
-  return damp(c, scale_to(c->rho_last, target, c->t_last), c->rho_last);
+  return damp(c, scale_to(c->rho_last, aim(c) * target, c->t_last),
+              c->rho_last);
 }
 
 /* VTK: isd' = isd * sqrt(t_last * f / budget), isd clamped to [1, 10],
@@ -354,7 +363,7 @@ static double vtk_factor(const rp_controller *c, double target) {
 
 static double rule_vtk(const rp_controller *c, double target) {
   double isd = 1.0 / sqrt(c->rho_last);
-  isd *= sqrt(c->t_last * vtk_factor(c, target) / target);
+  isd *= sqrt(c->t_last * vtk_factor(c, target) / (aim(c) * target));
   isd = clampd(isd, VTK_ISD_MIN, VTK_ISD_MAX);
   return 1.0 / (isd * isd);
 }
@@ -377,7 +386,8 @@ static double rule_vtk(const rp_controller *c, double target) {
  * apply to frames measured synchronously. Returns s. */
 static double ue_decide(rp_controller *c, double budget) {
   const double smin = sqrt(c->d.rho_min), smax = sqrt(c->d.rho_max);
-  const double T = budget * (1.0 - UE_HEADROOM);
+  const double T =
+      budget * (1.0 - (c->d.headroom > 0 ? c->d.headroom : UE_HEADROOM));
   double s = c->ue_frac, sum = 0, wsum = 0, w = 1, next;
   int k, n = c->ue_n, panic = 1, over = 1, take;
   if (n <= UE_PANIC)
@@ -428,8 +438,9 @@ static double ue_decide(rp_controller *c, double budget) {
  * rule as the project states it (3 frames over 90 %, or 1 over 85 %
  * extrapolated from the last two). Returns the level. */
 static int valve_decide(rp_controller *c, double budget) {
-  const double lo = VALVE_LOW * budget, pr = VALVE_PREDICT * budget,
-               hi = VALVE_HIGH * budget;
+  const double lo = VALVE_LOW * aim(c) * budget,
+               pr = VALVE_PREDICT * aim(c) * budget,
+               hi = VALVE_HIGH * aim(c) * budget;
   const double *t = c->v_t;
   int level = c->v_level;
   if (c->v_since >= VALVE_WAIT + 3 && t[0] > hi && t[1] > hi && t[2] > hi)
@@ -631,10 +642,11 @@ int rp_controller_end_pass(rp_controller *c, double pass_ms, int *again,
   t = c->frame_ms + pass_ms;
   c->pass++;
   if (c->d.kind == RP_CONTROL_TWO_PASS && c->pass == 1 &&
-      pass_ms < 0.5 * c->target) {
+      pass_ms < 0.5 * aim(c) * c->target) {
     /* Under half the budget: extrapolate linearly to what is left of it
      * and render again; no damping (the paper's mode has none). */
-    double r2 = emit(c, scale_to(c->rho_pass, c->target - pass_ms, pass_ms));
+    double r2 = emit(c, scale_to(c->rho_pass, aim(c) * c->target - pass_ms,
+                                 pass_ms));
     if (r2 > c->rho_pass) {
       c->frame_ms = t;
       c->rho_pass = r2;

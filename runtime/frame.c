@@ -400,6 +400,7 @@ static int make_controller(rp__engine *e) {
   cd.rho_max = rp_space_max_density(&e->space);
   cd.rho_start = s->density;
   cd.miss_rate = e->desc.miss_rate;
+  cd.headroom = e->desc.headroom;
   if (e->clock_dev != NULL)
     cd.tune_time_us = VIRTUAL_TUNE_TIME_US;
   if ((err = rp_controller_create(e->ctx, &cd, &c)) != 0)

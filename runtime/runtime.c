@@ -446,6 +446,10 @@ static int check_desc(rp_context *ctx, const rp_runtime_desc *d) {
     return rp__fail(ctx, RP_ERANGE, "%s: desc->miss_rate is %g; a share of "
                     "frames late, at most 0.5 (0: 0.05; negative: no "
                     "margin)", fn, d->miss_rate);
+  if (!(d->headroom >= 0.0 && d->headroom <= 0.9))
+    return rp__fail(ctx, isfinite(d->headroom) ? RP_ERANGE : RP_ENOTFINITE,
+                    "%s: desc->headroom is %g; a share of the target kept "
+                    "free, in [0, 0.9]", fn, d->headroom);
   if (d->density != 0.0 &&
       (err = check_density(ctx, fn, "desc->density", &d->space,
                            d->density)) != 0)

@@ -1,7 +1,9 @@
 /* The predicted controller's deadline contract (DESIGN section 12,
- * rp_controller_desc.miss_rate), on synthetic plants whose frame time is
- * a known function of the density times seeded log-normal noise, so that
- * the share of late frames has a closed-form expectation:
+ * rp_controller_desc.miss_rate), and the reactive rules' headroom that
+ * sets theirs (rp_controller_desc.headroom). The contract is tested on
+ * synthetic plants whose frame time is a known function of the density
+ * times seeded log-normal noise, so that the share of late frames has a
+ * closed-form expectation:
  * - stationary: the model is the plant's mean, the log residuals are the
  *   noise, N(0, sd); asked 1, 5 and 20 %, the measured share of frames
  *   over the target must land within four binomial standard deviations
@@ -157,12 +159,99 @@ static void bad_miss_rate(void **state) {
   rp_context_destroy(ctx);
 }
 
+/* ---- The reactive rules' headroom ------------------------------------- */
+
+/* A noise-free plant t = 8 rho (no fixed cost): each rule's fixed point
+ * with headroom h, worked out from its rule:
+ * - last-frame: rho' = rho (1 - h) T / t, so t' = (1 - h) T at once;
+ * - two-pass: the first pass at a quarter of the last density, then
+ *   what is left of (1 - h) T, so the frame totals (1 - h) T;
+ * - VTK: isd'^2 = isd^2 t f / ((1 - h) T), t = 8 / isd^2, so
+ *   t' = (1 - h) T / f at once (f = 1.66 under a second);
+ * - UE5: it aims at T (1 - h) and ends there (within its 2 % step);
+ * - Valve: every frame ends under its 90 % threshold, scaled by 1 - h. */
+static double plant8(void *user, double rho) {
+  (void)user;
+  return 8.0 * rho;
+}
+
+static double headroom_frame(rp_controller *c, double target, int *passes) {
+  double rho, t = 0.0;
+  int again = 1;
+  *passes = 0;
+  assert_int_equal(rp_controller_begin_frame(c, target, plant8, NULL, &rho),
+                   0);
+  while (again) {
+    double pass = 8.0 * rho;
+    t += pass;
+    (*passes)++;
+    assert_int_equal(rp_controller_end_pass(c, pass, &again, &rho), 0);
+  }
+  return t;
+}
+
+static void reactive_headroom(void **state) {
+  static const rp_controller_kind kinds[5] = {
+      RP_CONTROL_LAST_FRAME, RP_CONTROL_TWO_PASS, RP_CONTROL_VTK,
+      RP_CONTROL_UE5, RP_CONTROL_VALVE};
+  rp_context *ctx = rp_test_context();
+  const double h = 0.3, T = 2.0, want = (1.0 - h) * T;
+  int k, i, passes;
+  (void)state;
+  for (k = 0; k < 5; k++) {
+    rp_controller_desc d = {0};
+    rp_controller *c = NULL;
+    double t = 0.0, worst = 0.0;
+    d.kind = kinds[k];
+    d.headroom = h;
+    d.rho_min = 1e-3;
+    assert_int_equal(rp_controller_create(ctx, &d, &c), 0);
+    for (i = 0; i < 300; i++) {
+      t = headroom_frame(c, T, &passes);
+      if (i >= 200)
+        worst = fmax(worst, t);
+    }
+    print_message("%s, headroom %g: last frame %.6f of target %g\n",
+                  rp_controller_name(kinds[k]), h, t, T);
+    switch (kinds[k]) {
+    case RP_CONTROL_LAST_FRAME:
+      assert_true(fabs(t - want) < 1e-9);
+      break;
+    case RP_CONTROL_TWO_PASS:
+      assert_int_equal(passes, 2);
+      assert_true(fabs(t - want) < 1e-9);
+      break;
+    case RP_CONTROL_VTK:
+      assert_true(fabs(t - want / (1.0 + 0.66)) < 1e-9);
+      break;
+    case RP_CONTROL_UE5:
+      assert_true(fabs(t / want - 1.0) < 0.02);
+      break;
+    default: /* Valve: its ladder under 0.9 (1 - h) T */
+      assert_true(worst <= 0.9 * want && worst > 0.7 * want / 1.15);
+      break;
+    }
+    rp_controller_destroy(c);
+  }
+  /* Out of range. */
+  {
+    rp_controller_desc d = {0};
+    rp_controller *c = NULL;
+    d.kind = RP_CONTROL_LAST_FRAME;
+    d.headroom = 0.95;
+    assert_int_equal(rp_controller_create(ctx, &d, &c), RP_EINVAL);
+    assert_non_null(strstr(rp_last_error(ctx), "headroom"));
+  }
+  rp_context_destroy(ctx);
+}
+
 int main(void) {
   const struct CMUnitTest tests[] = {
       cmocka_unit_test(stationary_rates),
       cmocka_unit_test(drifting_rates),
       cmocka_unit_test(no_margin_is_late_half_the_time),
       cmocka_unit_test(bad_miss_rate),
+      cmocka_unit_test(reactive_headroom),
   };
   return cmocka_run_group_tests(tests, NULL, NULL);
 }
