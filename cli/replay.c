@@ -183,6 +183,26 @@ static int check_opts(replay_opts *o) {
   return 0;
 }
 
+/* --headroom (c 'H') and --miss-rate ('R'); 1 for a bad value. */
+static int parse_aim(int c, const char *arg, replay_opts *o) {
+  float v = 0.0f;
+  if (c == 'H') {
+    if (cli_parse_positive(arg, &v) || v > 0.9f)
+      return 1;
+    o->headroom = v;
+    return 0;
+  }
+  /* "none" for the rule before the contract: aim at the target. */
+  if (strcmp(arg, "none") == 0) {
+    o->miss_rate = -1.0;
+    return 0;
+  }
+  if (cli_parse_positive(arg, &v) || v > 0.5f)
+    return 1;
+  o->miss_rate = v;
+  return 0;
+}
+
 static int parse_opts(int argc, char **argv, replay_opts *o) {
   static const struct option opts[] = {
       {"sequence", required_argument, 0, 'q'},
@@ -262,18 +282,7 @@ static int parse_opts(int argc, char **argv, replay_opts *o) {
     case 'n': bad = cli_parse_u32(optarg, 10000000, &o->frames); break;
     case 'e': bad = cli_parse_u32(optarg, UINT32_MAX, &o->seed); break;
     case 'H':
-      bad = cli_parse_positive(optarg, &v) || v > 0.9f;
-      o->headroom = v;
-      break;
-    case 'R':
-      /* "none" for the rule before the contract: aim at the target. */
-      if (strcmp(optarg, "none") == 0) {
-        o->miss_rate = -1.0;
-      } else {
-        bad = cli_parse_positive(optarg, &v) || v > 0.5f;
-        o->miss_rate = v;
-      }
-      break;
+    case 'R': bad = parse_aim(c, optarg, o); break;
     case 'N': o->no_noise = 1; break;
     case 'W': o->noise_csv = optarg; break;
     case 'C': o->csv = optarg; break;
