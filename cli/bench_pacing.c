@@ -74,7 +74,8 @@ static void usage(FILE *f) {
       "  --quiet               no per-run progress on stderr\n\n"
       "Passed to each replay (see raypace replay --help): --target-ms,\n"
       "--target-fraction, --space, --base-step, --min-step, --size,\n"
-      "--backend, --device, --settle, --frames, --seed.\n\n"
+      "--backend, --device, --settle, --frames, --seed, --miss-rate,\n"
+      "--headroom.\n\n"
       "Columns: ratio = the predicted controller's target RMSE over the\n"
       "best of last-frame, vtk, ue5 and valve (goal <= %g), on all\n"
       "frames and on those whose target was reachable; noise = where\n"
@@ -237,6 +238,8 @@ static int parse_opts(int argc, char **argv, pacing_opts *o) {
       {"settle", required_argument, 0, 'p'},
       {"frames", required_argument, 0, 'p'},
       {"seed", required_argument, 0, 'p'},
+      {"miss-rate", required_argument, 0, 'p'},
+      {"headroom", required_argument, 0, 'p'},
       {0, 0, 0, 0}};
   int c, li = 0;
   memset(o, 0, sizeof *o);

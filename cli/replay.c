@@ -107,6 +107,12 @@ static void usage(FILE *f) {
       "(default 10)\n"
       "  --frames N            play only the first N frames\n"
       "  --seed N              ERT pre-pass seed (default 1)\n"
+      "  --miss-rate Q         predicted: the share of frames allowed over\n"
+      "                        the target, in (0, 0.5] (default 0.05), or\n"
+      "                        'none' to aim at the target itself\n"
+      "  --headroom H          the reactive rules: the share of the target\n"
+      "                        kept free, in (0, 0.9] (default: each\n"
+      "                        rule's own)\n"
       "  --no-noise            no still frame: by default, after each\n"
       "                        round of every controller's frame, a\n"
       "                        runtime of its own renders the first\n"
@@ -177,6 +183,26 @@ static int check_opts(replay_opts *o) {
   return 0;
 }
 
+/* --headroom (c 'H') and --miss-rate ('R'); 1 for a bad value. */
+static int parse_aim(int c, const char *arg, replay_opts *o) {
+  float v = 0.0f;
+  if (c == 'H') {
+    if (cli_parse_positive(arg, &v) || v > 0.9f)
+      return 1;
+    o->headroom = v;
+    return 0;
+  }
+  /* "none" for the rule before the contract: aim at the target. */
+  if (strcmp(arg, "none") == 0) {
+    o->miss_rate = -1.0;
+    return 0;
+  }
+  if (cli_parse_positive(arg, &v) || v > 0.5f)
+    return 1;
+  o->miss_rate = v;
+  return 0;
+}
+
 static int parse_opts(int argc, char **argv, replay_opts *o) {
   static const struct option opts[] = {
       {"sequence", required_argument, 0, 'q'},
@@ -193,6 +219,8 @@ static int parse_opts(int argc, char **argv, replay_opts *o) {
       {"settle", required_argument, 0, 'S'},
       {"frames", required_argument, 0, 'n'},
       {"seed", required_argument, 0, 'e'},
+      {"miss-rate", required_argument, 0, 'R'},
+      {"headroom", required_argument, 0, 'H'},
       {"no-noise", no_argument, 0, 'N'},
       {"noise-csv", required_argument, 0, 'W'},
       {"csv", required_argument, 0, 'C'},
@@ -253,6 +281,8 @@ static int parse_opts(int argc, char **argv, replay_opts *o) {
     case 'S': bad = cli_parse_u32(optarg, 100000, &o->settle); break;
     case 'n': bad = cli_parse_u32(optarg, 10000000, &o->frames); break;
     case 'e': bad = cli_parse_u32(optarg, UINT32_MAX, &o->seed); break;
+    case 'H':
+    case 'R': bad = parse_aim(c, optarg, o); break;
     case 'N': o->no_noise = 1; break;
     case 'W': o->noise_csv = optarg; break;
     case 'C': o->csv = optarg; break;
@@ -526,6 +556,8 @@ static int player_open(replay *r, player *p, int quiet_nodev) {
   d.height = r->o.height;
   d.space = r->space;
   d.ert_seed = r->o.seed;
+  d.miss_rate = r->o.miss_rate;
+  d.headroom = r->o.headroom;
   if (r->o.ndevices > 0) {
     d.devices = r->o.devices;
     d.device_count = r->o.ndevices;

@@ -19,6 +19,8 @@ typedef struct replay_opts {
   const char *volume, *sequence, *controller, *backend, *csv, *plot;
   const char *trace, *noise_csv;
   double target_ms, target_fraction;
+  double miss_rate; /* --miss-rate; 0: the runtime's default */
+  double headroom;  /* --headroom; 0: each reactive rule's own */
   uint32_t device, width, height, settle, frames, seed;
   int no_noise; /* --no-noise: no still frame */
   float base_step;

@@ -601,12 +601,15 @@ typedef enum rp_controller_kind {
   RP_CONTROL_TWO_PASS = 2,   /* pass at rho_last / 4; if under half the
                                 target, extrapolate to the rest and
                                 render again */
-  RP_CONTROL_PREDICTED = 3,  /* ours: rp_tune on the caller's model;
-                                no rise after a frame that took over
-                                1.5x its prediction; a damped rise
-                                lifted at half the target (lift 0.5)
-                                after one within 1.2x of it, on a
-                                scene still priced within 1.2x */
+  RP_CONTROL_PREDICTED = 3,  /* ours: rp_tune on the caller's model,
+                                aimed at target e^-m, m the margin
+                                that keeps a share miss_rate of frames
+                                late (learned online); no rise after a
+                                frame that took over 1.5x its
+                                prediction; a damped rise lifted at
+                                half the target (lift 0.5) after one
+                                within 1.2x of it, on a scene still
+                                priced within 1.2x */
   RP_CONTROL_VTK = 4,        /* isd' = isd sqrt(t_last f / target),
                                 isd in [1, 10], rho = 1 / isd^2 */
   RP_CONTROL_UE5 = 5,        /* UE5 dynamic resolution, rho = s^2 */

@@ -137,6 +137,22 @@ typedef struct rp_controller_desc {
   double tune_time_us; /* PREDICTED: the tuner's wall-clock budget per
                           frame (rp_tune_desc.max_time_us), >= 0; 0: its
                           default, 200 */
+  /* PREDICTED: the share of frames allowed over their target (DESIGN
+   * section 12). The controller aims each frame at target * exp(-m),
+   * m the (1 - a) quantile of its recent log residuals ln(t / t'), and
+   * moves a after every frame toward the asked rate (adaptive conformal
+   * inference): runtime/control.c states the rule. In (0, 0.5];
+   * 0: 0.05; negative: no margin, the frame aimed at the target itself
+   * (the rule before 0.3). \since 0.3 */
+  double miss_rate;
+  /* The reactive rules: the share of the target kept free, in [0, 0.9]:
+   * LAST_FRAME and TWO_PASS aim at (1 - headroom) of it, VTK divides
+   * the target by it, UE5 takes it for its targeted headroom, VALVE
+   * scales its thresholds (70, 85, 90 %) by (1 - headroom). 0: each
+   * rule's own (UE5's 10 %, none for the others). What buys a reactive
+   * rule fewer late frames, for comparing rules at equal miss rates
+   * (raypace bench pacing --pareto). \since 0.3 */
+  double headroom;
 } rp_controller_desc;
 
 /** `ctx` is kept: failed calls on the controller leave their message in
@@ -159,6 +175,11 @@ RP_API void rp_controller_reset(rp_controller *c);
 RP_API int rp_controller_begin_frame(rp_controller *c, double target_ms,
                                      rp_predict_fn predict, void *user,
                                      double *rho);
+/** PREDICTED: the log-margin m of the open frame, or of the last one
+ *  when none is open (its first pass was aimed at target * exp(-m));
+ *  0 for the other kinds, with no margin, and before the first frame.
+ *  \since 0.3 */
+RP_API double rp_controller_margin(const rp_controller *c);
 /** After each render pass of the frame, its measured time (ms, >= 0 and
  *  finite, else RP_ERANGE/RP_ENOTFINITE with the frame still open and
  *  nothing learned). Sets *again to 1 and *rho to the next pass's density

@@ -170,6 +170,10 @@ typedef struct rp_frame_stats {
    * (the pass, without brick uploads when it had some; NaN when the
    * frame teaches nothing, see train_ms). \since 0.2 */
   double pass_predicted_ms;
+  /* The predicted controller's log-margin m: the frame was aimed at
+   * target * exp(-m) so that its share of late frames holds to
+   * rp_runtime_desc.miss_rate; 0 for the other controllers. \since 0.3 */
+  double margin;
   double samples_predicted, fetches, sigma_predicted_ns;
   double raycast_ms, learn_ms;
   /* Per stage. Zero when the stage did not run for this frame. */
@@ -257,6 +261,16 @@ typedef struct rp_runtime_desc {
    * (rp_space_min_density and rp_space_max_density, raypace_pace.h). See
    * rp_runtime_set_density. \since 0.2 */
   double density;
+  /* RP_CONTROL_PREDICTED's deadline contract: the share of frames
+   * allowed over their target (rp_controller_desc.miss_rate, DESIGN
+   * section 12); each frame is aimed under the target by a margin the
+   * controller learns (rp_frame_stats.margin). In (0, 0.5]; 0: 0.05;
+   * negative: no margin, frames aimed at the target itself. \since 0.3 */
+  double miss_rate;
+  /* The reactive controllers' headroom (rp_controller_desc.headroom): the
+   * share of the target they keep free; 0: each rule's own. For research
+   * comparisons at equal miss rates. \since 0.3 */
+  double headroom;
   double target_ms;       /* 0: 1000 / 60 */
   uint32_t width, height; /* viewport; 0: 512 x 512 */
   uint32_t effects;       /* RP_EFFECT_*; 0: none */

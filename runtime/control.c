@@ -77,6 +77,38 @@
 #define PREDICT_CLOSE 1.2
 #define PREDICT_LIFT 0.5
 
+/* predicted's deadline contract (DESIGN section 12): each frame is aimed
+ * at target * exp(-m). Its log residual r = ln(t / t') exceeds m exactly
+ * when the frame is late (the target binding), so m must be the (1 - q)
+ * quantile of r. The residuals' law drifts (a cold model, a new TF, a
+ * zoom the model lags behind), so m is tracked online, in the
+ * residuals' own scale: m = mean + k * spread, mean and spread
+ * exponentially weighted (weight MISS_BETA: a surprise fades over some
+ * tens of frames, not a window's length), and k moved after each frame
+ * by k += MISS_GAMMA (late - q), late = r > m: the stochastic-
+ * approximation step of online quantile tracking, the same as adaptive
+ * conformal inference (Gibbs and Candes, 2021) takes on its level. Its
+ * long-run share of late frames is q whatever the law, as long as k
+ * stays inside its bounds; in the residuals' scale, a device whose noise
+ * shrinks gets a margin that shrinks with it at once, where a step in
+ * absolute terms would creep down at q of a step per frame. */
+#define MISS_DEFAULT 0.05
+/* The log residuals' spread assumed before any is seen: the model's on
+ * a scene it knows is about 0.17 (PREDICT_TRUST), a new one's more. */
+#define MISS_PRIOR_SD 0.2
+#define MISS_BETA 0.15
+#define MISS_GAMMA 0.1
+/* The spread used is never under this: on a noise-free device k would
+ * otherwise multiply nothing. */
+#define MISS_SPREAD_MIN 0.005
+/* The margin's bounds: under e^-0.5 a frame would aim past 1.6x its
+ * target, over e^1.5 under a quarter of it; beyond both the residuals
+ * say the model is not worth following, and the damping takes over. */
+#define MISS_MARGIN_MIN (-0.5)
+#define MISS_MARGIN_MAX 1.5
+#define MISS_K_MAX 10.0
+#define MISS_RESIDUAL_MAX 3.0
+
 struct rp_controller {
   rp_context *ctx;
   rp_controller_desc d; /* defaults filled in */
@@ -101,6 +133,11 @@ struct rp_controller {
    * last three frame times, newest first. */
   int v_top, v_level, v_since;
   double v_t[3];
+  /* predicted's contract: the residuals' weighted mean and spread
+   * (mean absolute deviation), the quantile in spreads, and the open
+   * (or last) frame's margin. */
+  double r_mean, r_spread, k, margin;
+  int binding; /* the open (or last) frame's target bound its density */
 };
 
 /* ---- names and desc ---------------------------------------------------- */
@@ -147,6 +184,8 @@ static rp_controller_desc controller_defaults(const rp_controller_desc *in) {
     d.rho_start = fmax(d.rho_min, fmin(1.0, d.rho_max));
   if (d.raise_limit == 0)
     d.raise_limit = RP__RAISE_LIMIT;
+  if (d.miss_rate == 0)
+    d.miss_rate = MISS_DEFAULT;
   /* vtk_f = 0 stays: VTK's own f depends on each frame's target, so
    * vtk_factor() resolves it per frame. */
   return d;
@@ -161,7 +200,9 @@ static int check_desc(rp_context *ctx, const rp_controller_desc *d) {
            {"rho_start", d->rho_start},
            {"raise_limit", d->raise_limit},
            {"vtk_f", d->vtk_f},
-           {"tune_time_us", d->tune_time_us}};
+           {"tune_time_us", d->tune_time_us},
+           {"miss_rate", d->miss_rate},
+           {"headroom", d->headroom}};
   size_t i;
   if ((unsigned)d->kind >= RP_CONTROL_COUNT)
     return rp__fail(ctx, RP_EINVAL, "controller: field 'kind' = %d is not "
@@ -186,6 +227,14 @@ static int check_desc(rp_context *ctx, const rp_controller_desc *d) {
   if (d->tune_time_us < 0)
     return rp__fail(ctx, RP_EINVAL, "controller: field 'tune_time_us' = %g "
                     "is negative", d->tune_time_us);
+  if (d->headroom < 0 || d->headroom > 0.9)
+    return rp__fail(ctx, RP_EINVAL, "controller: field 'headroom' = %g is "
+                    "not in [0, 0.9] (a share of the target kept free)",
+                    d->headroom);
+  if (d->miss_rate > 0.5)
+    return rp__fail(ctx, RP_EINVAL, "controller: field 'miss_rate' = %g is "
+                    "over 0.5 (a share of frames late; negative: no "
+                    "margin)", d->miss_rate);
   return 0;
 }
 
@@ -194,6 +243,9 @@ static int check_desc(rp_context *ctx, const rp_controller_desc *d) {
 static double clampd(double v, double lo, double hi) {
   return v < lo ? lo : v > hi ? hi : v;
 }
+
+/* The share of the target a reactive rule aims at: 1 - headroom. */
+static double aim(const rp_controller *c) { return 1.0 - c->d.headroom; }
 
 /* The one exit for densities: finite and inside [rho_min, rho_max]. A
  * rule that produced NaN (it should not) repeats last frame's density. */
@@ -239,6 +291,8 @@ static void valve_init(rp_controller *c) {
   c->v_since = 0;
 }
 
+static double normal_quantile(double p);
+
 /* ---- create / reset ---------------------------------------------------- */
 
 void rp_controller_reset(rp_controller *c) {
@@ -256,6 +310,12 @@ void rp_controller_reset(rp_controller *c) {
   c->ue_since = 0;
   valve_init(c);
   memset(c->v_t, 0, sizeof c->v_t);
+  c->r_mean = 0.0;
+  /* A normal law's mean absolute deviation is 0.8 of its deviation. */
+  c->r_spread = 0.8 * MISS_PRIOR_SD;
+  c->k = c->d.miss_rate > 0 ? normal_quantile(1.0 - c->d.miss_rate) / 0.8
+                            : 0.0;
+  c->margin = 0.0;
 }
 
 int rp_controller_create(rp_context *ctx, const rp_controller_desc *desc,
@@ -288,7 +348,8 @@ void rp_controller_destroy(rp_controller *c) {
 
 /* Seed 000 §7 "Last frame", with §6.1's damping: rho * target / t_last. */
 static double rule_last_frame(const rp_controller *c, double target) {
-  return damp(c, scale_to(c->rho_last, target, c->t_last), c->rho_last);
+  return damp(c, scale_to(c->rho_last, aim(c) * target, c->t_last),
+              c->rho_last);
 }
 
 /* VTK: isd' = isd * sqrt(t_last * f / budget), isd clamped to [1, 10],
@@ -302,7 +363,7 @@ static double vtk_factor(const rp_controller *c, double target) {
 
 static double rule_vtk(const rp_controller *c, double target) {
   double isd = 1.0 / sqrt(c->rho_last);
-  isd *= sqrt(c->t_last * vtk_factor(c, target) / target);
+  isd *= sqrt(c->t_last * vtk_factor(c, target) / (aim(c) * target));
   isd = clampd(isd, VTK_ISD_MIN, VTK_ISD_MAX);
   return 1.0 / (isd * isd);
 }
@@ -325,7 +386,8 @@ static double rule_vtk(const rp_controller *c, double target) {
  * apply to frames measured synchronously. Returns s. */
 static double ue_decide(rp_controller *c, double budget) {
   const double smin = sqrt(c->d.rho_min), smax = sqrt(c->d.rho_max);
-  const double T = budget * (1.0 - UE_HEADROOM);
+  const double T =
+      budget * (1.0 - (c->d.headroom > 0 ? c->d.headroom : UE_HEADROOM));
   double s = c->ue_frac, sum = 0, wsum = 0, w = 1, next;
   int k, n = c->ue_n, panic = 1, over = 1, take;
   if (n <= UE_PANIC)
@@ -376,8 +438,9 @@ static double ue_decide(rp_controller *c, double budget) {
  * rule as the project states it (3 frames over 90 %, or 1 over 85 %
  * extrapolated from the last two). Returns the level. */
 static int valve_decide(rp_controller *c, double budget) {
-  const double lo = VALVE_LOW * budget, pr = VALVE_PREDICT * budget,
-               hi = VALVE_HIGH * budget;
+  const double lo = VALVE_LOW * aim(c) * budget,
+               pr = VALVE_PREDICT * aim(c) * budget,
+               hi = VALVE_HIGH * aim(c) * budget;
   const double *t = c->v_t;
   int level = c->v_level;
   if (c->v_since >= VALVE_WAIT + 3 && t[0] > hi && t[1] > hi && t[2] > hi)
@@ -394,6 +457,51 @@ static int valve_decide(rp_controller *c, double budget) {
     c->v_since = 0;
   }
   return c->v_level;
+}
+
+/* ---- predicted's deadline contract -------------------------------------- */
+
+/* The standard normal's p-quantile, p in (0, 1): Abramowitz and Stegun
+ * 26.2.23, within 4.5e-4 (the margin needs two digits). */
+static double normal_quantile(double p) {
+  double q = p < 0.5 ? p : 1.0 - p, t = sqrt(-2.0 * log(q)), z;
+  z = t - (2.515517 + t * (0.802853 + t * 0.010328)) /
+              (1.0 + t * (1.432788 + t * (0.189269 + t * 0.001308)));
+  return p < 0.5 ? -z : z;
+}
+
+/* The margin the contract gives the next frame. */
+static double contract_margin(const rp_controller *c) {
+  return clampd(c->r_mean + c->k * fmax(c->r_spread, MISS_SPREAD_MIN),
+                MISS_MARGIN_MIN, MISS_MARGIN_MAX);
+}
+
+/* After a frame of time t against `target` whose prediction was `pred`:
+ * on a frame the target bound (the tuner aimed at it, no clamp or
+ * damping between), late or not moves k; then the residual goes into
+ * the mean and spread. An unpriced frame teaches nothing. A frame the
+ * target did not bind (at the top density, a rise damped) would teach
+ * k that frames are never late, and the first frame it binds again
+ * would pay for it. */
+static void contract_learn(rp_controller *c, double t, double target,
+                           double pred) {
+  double r;
+  if (!(pred > 0.0) || !(t > 0.0) || !isfinite(pred))
+    return;
+  /* Logs apart (t / pred can overflow or vanish), and a frame off by
+   * more than e^3 = 20x moves the statistics no more than one 20x off:
+   * it says the model is wrong, not how wrong. */
+  r = clampd(log(t) - log(pred), -MISS_RESIDUAL_MAX, MISS_RESIDUAL_MAX);
+  if (c->binding)
+    c->k = clampd(c->k + MISS_GAMMA * ((t > target ? 1.0 : 0.0) -
+                                       c->d.miss_rate),
+                  -MISS_K_MAX, MISS_K_MAX);
+  c->r_spread += MISS_BETA * (fabs(r - c->r_mean) - c->r_spread);
+  c->r_mean += MISS_BETA * (r - c->r_mean);
+}
+
+double rp_controller_margin(const rp_controller *c) {
+  return c != NULL ? c->margin : 0.0;
 }
 
 /* ---- frame life cycle -------------------------------------------------- */
@@ -436,7 +544,8 @@ int rp_controller_begin_frame(rp_controller *c, double target_ms,
     int priced = c->frames > 0 && c->pred_ms > 0;
     int err;
     memset(&td, 0, sizeof td);
-    td.target_ms = target_ms;
+    c->margin = c->d.miss_rate > 0 ? contract_margin(c) : 0.0;
+    td.target_ms = target_ms * exp(-c->margin);
     td.rho_prev = c->rho_last; /* rho_start before the first frame */
     td.rho_min = c->d.rho_min;
     td.rho_max = c->d.rho_max;
@@ -454,12 +563,14 @@ int rp_controller_begin_frame(rp_controller *c, double target_ms,
       return rp__fail(c->ctx, err, "controller: rp_tune failed (%s)",
                       rp_err_name(err));
     r = res.rho;
+    c->binding = !res.limited;
     if (priced && c->t_last > PREDICT_TRUST * c->pred_ms &&
         r > c->rho_last) {
       /* Held, priced at the held density when the model can: one
        * prediction past rp_tune's max_iters and time. */
       r = c->rho_last;
       res.predicted_ms = predict(user, r);
+      c->binding = 0;
     }
     c->pred_ms = res.predicted_ms;
     break;
@@ -490,6 +601,8 @@ int rp_controller_begin_frame(rp_controller *c, double target_ms,
  * density was rho. */
 static void end_frame(rp_controller *c, double t, double rho) {
   int k;
+  if (c->d.kind == RP_CONTROL_PREDICTED && c->d.miss_rate > 0)
+    contract_learn(c, t, c->target, c->pred_ms);
   c->open = 0;
   c->frames++;
   c->rho_last = rho;
@@ -529,10 +642,11 @@ int rp_controller_end_pass(rp_controller *c, double pass_ms, int *again,
   t = c->frame_ms + pass_ms;
   c->pass++;
   if (c->d.kind == RP_CONTROL_TWO_PASS && c->pass == 1 &&
-      pass_ms < 0.5 * c->target) {
+      pass_ms < 0.5 * aim(c) * c->target) {
     /* Under half the budget: extrapolate linearly to what is left of it
      * and render again; no damping (the paper's mode has none). */
-    double r2 = emit(c, scale_to(c->rho_pass, c->target - pass_ms, pass_ms));
+    double r2 = emit(c, scale_to(c->rho_pass, aim(c) * c->target - pass_ms,
+                                 pass_ms));
     if (r2 > c->rho_pass) {
       c->frame_ms = t;
       c->rho_pass = r2;

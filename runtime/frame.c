@@ -399,6 +399,8 @@ static int make_controller(rp__engine *e) {
   cd.rho_min = rp_space_min_density(&e->space);
   cd.rho_max = rp_space_max_density(&e->space);
   cd.rho_start = s->density;
+  cd.miss_rate = e->desc.miss_rate;
+  cd.headroom = e->desc.headroom;
   if (e->clock_dev != NULL)
     cd.tune_time_us = VIRTUAL_TUNE_TIME_US;
   if ((err = rp_controller_create(e->ctx, &cd, &c)) != 0)
@@ -663,6 +665,7 @@ static int render_frame(rp__engine *e) {
                                        &rho)) != 0)
     return err;
   st->predict_ms = rp__engine_now_ms(e) - t0;
+  st->margin = rp_controller_margin(s->controller);
   while (again) {
     predict_pass(e, rho);
     upload_before = st->upload_ms;

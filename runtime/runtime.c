@@ -439,6 +439,17 @@ static int check_desc(rp_context *ctx, const rp_runtime_desc *d) {
   if (d->ao_frame_share < 0.0 || d->ao_frame_share > 1.0)
     return rp__fail(ctx, RP_ERANGE, "%s: desc->ao_frame_share is %g; must "
                     "be in (0, 1] (0: 0.25)", fn, d->ao_frame_share);
+  if (!isfinite(d->miss_rate))
+    return rp__fail(ctx, RP_ENOTFINITE, "%s: desc->miss_rate is %g", fn,
+                    d->miss_rate);
+  if (d->miss_rate > 0.5)
+    return rp__fail(ctx, RP_ERANGE, "%s: desc->miss_rate is %g; a share of "
+                    "frames late, at most 0.5 (0: 0.05; negative: no "
+                    "margin)", fn, d->miss_rate);
+  if (!(d->headroom >= 0.0 && d->headroom <= 0.9))
+    return rp__fail(ctx, isfinite(d->headroom) ? RP_ERANGE : RP_ENOTFINITE,
+                    "%s: desc->headroom is %g; a share of the target kept "
+                    "free, in [0, 0.9]", fn, d->headroom);
   if (d->density != 0.0 &&
       (err = check_density(ctx, fn, "desc->density", &d->space,
                            d->density)) != 0)

@@ -307,7 +307,8 @@ static void test_ao_switch_back(void **state) {
 /* A runtime on the test device, noise `noise_sd` (negative: none). */
 static rp_runtime *open_test_device(rp_context *ctx, seen *s,
                                     rp_controller_kind kind, double noise_sd,
-                                    float min_step, double target_ms) {
+                                    float min_step, double target_ms,
+                                    double miss_rate) {
   rp_runtime_desc d;
   rp_test_backend_desc t;
   rp_runtime *rt = NULL;
@@ -322,6 +323,7 @@ static rp_runtime *open_test_device(rp_context *ctx, seen *s,
   d.target_ms = target_ms;
   d.space.space = RP_SPACE_HYBRID;
   d.space.min_step = min_step;
+  d.miss_rate = miss_rate;
   assert_int_equal(rp_runtime_create(ctx, &d, &rt), 0);
   return rt;
 }
@@ -341,7 +343,7 @@ static void test_min_step(void **state) {
   assert_int_equal(rp_tf_create_preset(ctx, "ct-bone", &tfs[0]), 0);
   for (k = 0; k < 2; k++) {
     rp_runtime *rt = open_test_device(ctx, s, RP_CONTROL_PREDICTED, -1.0,
-                                      min_steps[k], 1000.0);
+                                      min_steps[k], 1000.0, 0.0);
     post_events(rt, ctx, 0, tfs);
     for (f = 0; f < 12; f++)
       assert_int_equal(rp_runtime_step(rt), 0);
@@ -356,12 +358,14 @@ static void test_min_step(void **state) {
   free(s);
 }
 
-/* Plays a 60-frame orbit (3 degrees a frame, a TF switch at frame 30)
- * under `kind` at `target` and returns the frames' measured times over
- * the target in ratio[], their densities in rho[]. */
+/* Plays an n-frame orbit (3 degrees a frame, the TF switched at frame
+ * 30 and then every 150) under `kind` at `target` and returns the
+ * frames' measured times over the target in ratio[], their densities in
+ * rho[]. */
 static void orbit_on_test_device(rp_context *ctx, rp_controller_kind kind,
                                  double noise_sd, double target,
-                                 double *ratio, double *rho) {
+                                 double miss_rate, int n, double *ratio,
+                                 double *rho) {
   rp_tf *tfs[2] = {NULL, NULL};
   rp_volume *vol = make_volume(ctx, 24);
   seen *s = calloc(1, sizeof *s);
@@ -370,12 +374,14 @@ static void orbit_on_test_device(rp_context *ctx, rp_controller_kind kind,
   assert_non_null(s);
   assert_int_equal(rp_tf_create_preset(ctx, "ct-soft", &tfs[0]), 0);
   assert_int_equal(rp_tf_create_preset(ctx, "ct-bone", &tfs[1]), 0);
-  rt = open_test_device(ctx, s, kind, noise_sd, 0.0f, target);
+  rt = open_test_device(ctx, s, kind, noise_sd, 0.0f, target, miss_rate);
   assert_int_equal(rp_runtime_set_volume(rt, make_volume(ctx, 24)), 0);
-  for (i = 0; i < 60; i++) {
+  for (i = 0; i < n; i++) {
     rp_camera cam = orbit(vol, 3.0f * (float)i);
-    if (i == 0 || i == 30)
-      assert_int_equal(rp_runtime_set_tf(rt, tfs[i == 30]), 0);
+    if (i == 0 || (i >= 30 && (i - 30) % 150 == 0))
+      assert_int_equal(rp_runtime_set_tf(rt, tfs[i >= 30 &&
+                                                  (i - 30) / 150 % 2 == 0]),
+                       0);
     assert_int_equal(rp_runtime_set_camera(rt, &cam), 0);
     assert_int_equal(rp_runtime_step(rt), 0);
     ratio[i] = s->last.measured_ms / target;
@@ -395,8 +401,10 @@ static void test_pacing_deterministic(void **state) {
   double r1[60], r2[60], d1[60], d2[60];
   int i;
   (void)state;
-  orbit_on_test_device(ctx, RP_CONTROL_PREDICTED, 0.02, 0.3, r1, d1);
-  orbit_on_test_device(ctx, RP_CONTROL_PREDICTED, 0.02, 0.3, r2, d2);
+  orbit_on_test_device(ctx, RP_CONTROL_PREDICTED, 0.02, 0.3, 0.0, 60, r1,
+                       d1);
+  orbit_on_test_device(ctx, RP_CONTROL_PREDICTED, 0.02, 0.3, 0.0, 60, r2,
+                       d2);
   for (i = 0; i < 60; i++) {
     assert_true(r1[i] == r2[i]);
     assert_true(d1[i] == d2[i]);
@@ -408,40 +416,66 @@ static void test_pacing_deterministic(void **state) {
  * the controller none's first frames. */
 static double full_frame_ms(rp_context *ctx) {
   double ratio[60], rho[60];
-  orbit_on_test_device(ctx, RP_CONTROL_NONE, -1.0, 1.0, ratio, rho);
+  orbit_on_test_device(ctx, RP_CONTROL_NONE, -1.0, 1.0, 0.0, 60, ratio,
+                       rho);
   assert_true(rho[59] == 1.0);
   return ratio[59];
 }
 
-/* Half the density-1 frame as the target: on a noise-free device the
- * predicted controller holds every frame after its first ten within
- * 10 % of the target, also through the TF switch at 30; with the device's
- * 2 % noise none is over 1.2x the target, and its RMS error is under 6 %
- * (three times the noise: the model learns the formula, not the
- * noise). Measured: worst 0.067 noise-free; RMS 0.030 with noise. */
+/* Half the density-1 frame as the target, on a noise-free device: the
+ * predicted controller's first frames are late (a cold model prices
+ * them at about half their time), its deadline contract then aims it
+ * under the target while its residuals say the model was wrong, and
+ * from frame 5 no frame is over 1.05x the target, through the TF switch
+ * at 30; once that surprise has faded from its residuals (25 frames
+ * later) every frame is within 10 % under it. Measured: 1.74 and 1.42 at
+ * frames 0 and 1, at most 0.994 after; 0.81 to 0.83 at 44 to 50, while
+ * the switch's residuals still widen the margin; 0.93 to 0.95 at 54 to
+ * 59. */
 static void test_pacing_holds_target(void **state) {
   rp_context *ctx = rp_test_context();
   double target = 0.5 * full_frame_ms(ctx), ratio[60], rho[60];
-  double se = 0.0, worst = 0.0;
-  int i, n = 0, over = 0;
+  int i;
   (void)state;
-  orbit_on_test_device(ctx, RP_CONTROL_PREDICTED, -1.0, target, ratio, rho);
-  for (i = 10; i < 60; i++) {
-    worst = fmax(worst, fabs(ratio[i] - 1.0));
-    assert_true(rho[i] < 1.0); /* the target binds */
+  orbit_on_test_device(ctx, RP_CONTROL_PREDICTED, -1.0, target, 0.0, 60,
+                       ratio, rho);
+  for (i = 5; i < 60; i++)
+    assert_true(ratio[i] <= 1.05);
+  for (i = 55; i < 60; i++)
+    assert_true(ratio[i] > 0.9 && rho[i] < 1.0);
+  rp_context_destroy(ctx);
+}
+
+/* The contract through the runtime: 600 frames of an orbit with a TF
+ * switch every 150, the device's times with 5 % log-normal noise, half
+ * the density-1 frame as the target. Asked 5 and 20 %, the share of late
+ * frames after the 50th is within four binomial deviations of it; with
+ * no margin (the rule before the contract) it is near half. */
+static void test_pacing_miss_rates(void **state) {
+  static const double asked[2] = {0.05, 0.2};
+  rp_context *ctx = rp_test_context();
+  double target = 0.5 * full_frame_ms(ctx), *ratio, *rho;
+  int k, i, n = 600, scored = 550;
+  (void)state;
+  ratio = malloc((size_t)n * sizeof *ratio);
+  rho = malloc((size_t)n * sizeof *rho);
+  assert_non_null(ratio);
+  assert_non_null(rho);
+  for (k = 0; k < 3; k++) {
+    double q = k < 2 ? asked[k] : -1.0, late = 0.0;
+    orbit_on_test_device(ctx, RP_CONTROL_PREDICTED, 0.05, target, q, n,
+                         ratio, rho);
+    for (i = n - scored; i < n; i++)
+      late += ratio[i] > 1.0;
+    late /= scored;
+    print_message("miss_rate %g: late %.4f\n", q, late);
+    if (k < 2)
+      assert_true(fabs(late - q) <= 4.0 * sqrt(q * (1 - q) / scored));
+    else
+      assert_true(late > 0.35);
   }
-  print_message("noise-free: worst |t / target - 1| %.3f\n", worst);
-  assert_true(worst < 0.10);
-  orbit_on_test_device(ctx, RP_CONTROL_PREDICTED, 0.02, target, ratio, rho);
-  for (i = 10; i < 60; i++) {
-    se += (ratio[i] - 1.0) * (ratio[i] - 1.0);
-    over += ratio[i] > 1.2;
-    n++;
-  }
-  print_message("2 %% noise: rms %.3f, %d of %d over 1.2x\n", sqrt(se / n),
-                over, n);
-  assert_int_equal(over, 0);
-  assert_true(sqrt(se / n) < 0.06);
+  free(ratio);
+  free(rho);
   rp_context_destroy(ctx);
 }
 
@@ -454,6 +488,7 @@ int main(void) {
       cmocka_unit_test(test_min_step),
       cmocka_unit_test(test_pacing_deterministic),
       cmocka_unit_test(test_pacing_holds_target),
+      cmocka_unit_test(test_pacing_miss_rates),
   };
   return cmocka_run_group_tests(tests, NULL, NULL);
 }

@@ -730,6 +730,9 @@ static rp_controller *make(rp_context *ctx, rp_controller_kind kind,
   d.kind = kind;
   d.rho_start = rho_start;
   d.tune_time_us = NO_TIME_LIMIT_US;
+  /* The closed forms here are of each rule aiming at the target itself;
+   * predicted's deadline contract has tests of its own. */
+  d.miss_rate = -1.0;
   assert_int_equal(rp_controller_create(ctx, &d, &c), 0);
   assert_non_null(c);
   return c;
