@@ -113,6 +113,12 @@ static void usage(FILE *f) {
       "  --headroom H          the reactive rules: the share of the target\n"
       "                        kept free, in (0, 0.9] (default: each\n"
       "                        rule's own)\n"
+      "  --split R             where the predicted controller's error\n"
+      "                        comes from: each of its frames again on a\n"
+      "                        runtime of its own at its density, then R\n"
+      "                        (2..50) times more unchanged; the pass's\n"
+      "                        error split into context, switching,\n"
+      "                        model and noise (docs/pacing.md)\n"
       "  --no-noise            no still frame: by default, after each\n"
       "                        round of every controller's frame, a\n"
       "                        runtime of its own renders the first\n"
@@ -170,6 +176,12 @@ static int check_opts(replay_opts *o) {
                                                 "(not with --devices)");
     return 2;
   }
+  if (o->split > 0 && (o->ndevices > 1 || o->mem.budget_bytes)) {
+    fprintf(stderr, "raypace replay: --split renders on one device in "
+                    "core (not with two or more --devices, nor with "
+                    "--budget-mb)\n");
+    return 2;
+  }
   if (o->devices_spec != NULL && o->trace != NULL) {
     fprintf(stderr, "raypace replay: --trace records one device's cost "
                     "model; a group has one per device (not with "
@@ -221,6 +233,7 @@ static int parse_opts(int argc, char **argv, replay_opts *o) {
       {"seed", required_argument, 0, 'e'},
       {"miss-rate", required_argument, 0, 'R'},
       {"headroom", required_argument, 0, 'H'},
+      {"split", required_argument, 0, 'X'},
       {"no-noise", no_argument, 0, 'N'},
       {"noise-csv", required_argument, 0, 'W'},
       {"csv", required_argument, 0, 'C'},
@@ -283,6 +296,10 @@ static int parse_opts(int argc, char **argv, replay_opts *o) {
     case 'e': bad = cli_parse_u32(optarg, UINT32_MAX, &o->seed); break;
     case 'H':
     case 'R': bad = parse_aim(c, optarg, o); break;
+    case 'X':
+      bad = cli_parse_u32(optarg, REPLAY_SPLIT_MAX, &o->split) ||
+            o->split < 2;
+      break;
     case 'N': o->no_noise = 1; break;
     case 'W': o->noise_csv = optarg; break;
     case 'C': o->csv = optarg; break;
@@ -330,49 +347,6 @@ static int list_all(void) {
 
 /* ---- Players: a runtime each --------------------------------------------- */
 
-typedef struct replay replay;
-
-/* One runtime and the sequence's events it was last given. */
-typedef struct player {
-  replay *r;
-  rp_controller_kind kind;
-  rp_runtime *rt;
-  frame_row *rows;       /* the recorded frames; NULL for the still */
-  int tf;                /* the TF index posted; -1: none yet */
-  uint32_t effects;
-  int have_effects;
-  double target;
-  rp_camera cam;
-  int have_cam;
-  rp_frame_stats st;     /* the last frame's */
-  uint32_t step_no;      /* frames stepped in the sequence (--trace) */
-  int tracing;           /* its controller plays: frames are numbered */
-  uint32_t devices_alive; /* --devices: after its frames */
-} player;
-
-struct replay {
-  replay_opts o;
-  rp_context *ctx;
-  rp_volume *vol; /* for cameras; each runtime loads a volume of its own */
-  rp_tf **tfs;
-  int tf_count;
-  rp_sequence *seq;
-  uint32_t frames;
-  rp_space_desc space;
-  const char *backend; /* what the runtimes open: --backend, or the
-                          reference when nothing else is here */
-  double full_ms;     /* frame time without adaptation, at the start */
-  double seq_target0; /* the sequence's first target, ms */
-  rp_camera still_cam;
-  double *still_ms;   /* per recorded frame */
-  uint32_t *still_seg;
-  int still_tf;
-  uint32_t still_effects;
-  noise_floor noise;
-  char device_names[RP_GROUP_MAX_DEVICES][168];
-  FILE *trace; /* --trace */
-};
-
 /* --trace: every frame the runtime's cost model learned from, from its
  * first (the warm-up's included: the model is the runtime's, which
  * learns from all of them). The columns are rp_cost_train's arguments
@@ -413,7 +387,7 @@ static void on_frame(rp_runtime *rt, const rp_frame *fr, void *user) {
 }
 
 /* Steps one frame; 1 (printed) when it failed. */
-static int step(player *p, const char *what) {
+int replay_step(player *p, const char *what) {
   int err = rp_runtime_step(p->rt);
   if (err == 0)
     return 0;
@@ -431,7 +405,7 @@ static int post_failed(const char *what, int err) {
 /* Posts what frame `st` changes for p's runtime: its TF, camera,
  * effects and target, each only when it differs from what p's runtime
  * was last given (an app posts what changed). */
-static int post_state(replay *r, player *p, const rp_sequence_state *st,
+int replay_post_state(replay *r, player *p, const rp_sequence_state *st,
                       const rp_camera *cam, double target) {
   int err;
   if (st->tf != p->tf) {
@@ -466,7 +440,7 @@ static double seq_target_ms(const replay *r, const rp_sequence_state *st) {
 
 /* The target of a frame: the sequence's, rescaled so that its first
  * target becomes the command line's when one was given. */
-static double frame_target(const replay *r, const rp_sequence_state *st) {
+double replay_frame_target(const replay *r, const rp_sequence_state *st) {
   double t = seq_target_ms(r, st);
   if (r->o.target_ms > 0)
     return r->o.target_ms * t / r->seq_target0;
@@ -476,7 +450,7 @@ static double frame_target(const replay *r, const rp_sequence_state *st) {
 }
 
 /* Frame f's state and camera. */
-static int sequence_frame(replay *r, uint32_t f, rp_sequence_state *st,
+int replay_sequence_frame(replay *r, uint32_t f, rp_sequence_state *st,
                           rp_camera *cam) {
   int err;
   if ((err = rp_sequence_frame(r->seq, f, st)) != 0)
@@ -496,7 +470,7 @@ static int warm_set(player *p, uint32_t effects) {
   p->effects = effects;
   p->have_effects = 1;
   for (n = 0; n < WARM_MAX_FRAMES && cli_now() - t0 < WARM_MAX_S; n++) {
-    if (step(p, "warm-up") != 0)
+    if (replay_step(p, "warm-up") != 0)
       return 1;
     if (p->st.effects == effects)
       return 0;
@@ -513,8 +487,8 @@ static int warm(replay *r, player *p) {
   rp_sequence_state st, first;
   rp_camera cam;
   uint32_t sets[32], nsets = 0, i, k;
-  if (sequence_frame(r, 0, &first, &cam) != 0 ||
-      post_state(r, p, &first, &cam, 0.0) != 0)
+  if (replay_sequence_frame(r, 0, &first, &cam) != 0 ||
+      replay_post_state(r, p, &first, &cam, 0.0) != 0)
     return 1;
   for (i = 1; i < r->frames; i++) {
     if (rp_sequence_frame(r->seq, i, &st) != 0)
@@ -538,7 +512,7 @@ static int warm(replay *r, player *p) {
 /* A runtime for p's controller, warmed up, with a volume of its own.
  * RP_ENODEV comes back unprinted when the device cannot be had, so that
  * the caller can fall back; any other failure is printed and 1. */
-static int player_open(replay *r, player *p, int quiet_nodev) {
+int replay_player_open(replay *r, player *p, int quiet_nodev) {
   rp_runtime_desc d;
   rp_volume *vol = NULL;
   int err;
@@ -588,7 +562,7 @@ static int player_open(replay *r, player *p, int quiet_nodev) {
   return warm(r, p);
 }
 
-static void player_close(player *p) {
+void replay_player_close(player *p) {
   rp_runtime_destroy(p->rt);
   p->rt = NULL;
 }
@@ -601,10 +575,10 @@ static int calibrate(replay *r, player *p) {
   rp_camera cam;
   double t[CALIBRATE_FRAMES];
   int i;
-  if (sequence_frame(r, 0, &st, &cam) != 0)
+  if (replay_sequence_frame(r, 0, &st, &cam) != 0)
     return 1;
   for (i = 0; i < CALIBRATE_FRAMES; i++) {
-    if (step(p, "calibration") != 0)
+    if (replay_step(p, "calibration") != 0)
       return 1;
     t[i] = p->st.measured_ms;
   }
@@ -624,8 +598,8 @@ static int player_start(replay *r, player *p) {
   rp_sequence_state st;
   rp_camera cam;
   int err;
-  if (sequence_frame(r, 0, &st, &cam) != 0 ||
-      post_state(r, p, &st, &cam, frame_target(r, &st)) != 0)
+  if (replay_sequence_frame(r, 0, &st, &cam) != 0 ||
+      replay_post_state(r, p, &st, &cam, replay_frame_target(r, &st)) != 0)
     return 1;
   if ((err = rp_runtime_set_controller(p->rt, p->kind)) != 0)
     return post_failed("controller", err);
@@ -646,6 +620,10 @@ static void fill_row(const replay *r, const player *p, uint32_t f,
   row->measured_ms = st->measured_ms;
   row->predicted_ms = st->predicted_ms;
   row->pass_predicted_ms = st->pass_predicted_ms;
+  row->render_ms = st->render_ms;
+  row->effects = st->effects;
+  row->margin = st->margin;
+  row->split_first_ms = row->split_ms = row->split_sd_ms = NAN;
   row->probe_ms = st->probe_ms + st->predict_ms;
   row->ao_ms = st->ao_ms;
   row->ao = (st->effects & RP_EFFECT_AO) != 0;
@@ -677,9 +655,9 @@ static int play_frame(replay *r, player *p, uint32_t i) {
   uint32_t f = i < r->o.settle ? 0 : i - r->o.settle;
   rp_sequence_state st;
   rp_camera cam;
-  if (sequence_frame(r, f, &st, &cam) != 0 ||
-      post_state(r, p, &st, &cam, frame_target(r, &st)) != 0 ||
-      step(p, "frame") != 0)
+  if (replay_sequence_frame(r, f, &st, &cam) != 0 ||
+      replay_post_state(r, p, &st, &cam, replay_frame_target(r, &st)) != 0 ||
+      replay_step(p, "frame") != 0)
     return 1;
   p->step_no++;
   if (p->st.devices_lost > 0 && !r->o.quiet)
@@ -703,15 +681,15 @@ static int still_open(replay *r, player *s) {
   if (r->still_ms == NULL || r->still_seg == NULL)
     return cli_error(r->ctx, "still frame", RP_ENOMEM);
   s->kind = RP_CONTROL_NONE;
-  if (player_open(r, s, 0) != 0)
+  if (replay_player_open(r, s, 0) != 0)
     return 1;
-  if (sequence_frame(r, 0, &st, &r->still_cam) != 0 ||
-      post_state(r, s, &st, &r->still_cam, frame_target(r, &st)) != 0)
+  if (replay_sequence_frame(r, 0, &st, &r->still_cam) != 0 ||
+      replay_post_state(r, s, &st, &r->still_cam, replay_frame_target(r, &st)) != 0)
     return 1;
   if ((err = rp_runtime_set_controller(s->rt, RP_CONTROL_LAST_FRAME)) != 0)
     return post_failed("controller", err);
   for (i = 0; i < STILL_AIM_FRAMES; i++)
-    if (step(s, "still frame") != 0)
+    if (replay_step(s, "still frame") != 0)
       return 1;
   r->noise.rho = s->st.rho;
   if ((err = rp_runtime_set_density(s->rt, r->noise.rho)) != 0 ||
@@ -727,9 +705,9 @@ static int still_open(replay *r, player *s) {
 static int still_frame(replay *r, player *s, uint32_t f) {
   rp_sequence_state st;
   rp_camera cam;
-  if (sequence_frame(r, f, &st, &cam) != 0 ||
-      post_state(r, s, &st, &r->still_cam, 0.0) != 0 ||
-      step(s, "still frame") != 0)
+  if (replay_sequence_frame(r, f, &st, &cam) != 0 ||
+      replay_post_state(r, s, &st, &r->still_cam, 0.0) != 0 ||
+      replay_step(s, "still frame") != 0)
     return 1;
   r->still_seg[f] = f == 0 ? 0
                     : r->still_seg[f - 1] +
@@ -753,14 +731,14 @@ static int play_in_turn(replay *r, player *ps, int n) {
   int k, rc = 1, err;
   memset(&still, 0, sizeof still);
   for (k = 1; k < n; k++) {
-    if ((err = player_open(r, &ps[k], 1)) == RP_ENODEV ||
+    if ((err = replay_player_open(r, &ps[k], 1)) == RP_ENODEV ||
         (err != 0 && ps[k].rt == NULL)) {
       if (!r->o.quiet)
         fprintf(stderr, "replay: no device for each controller (%s): "
                         "each plays the whole sequence in turn\n",
                 rp_last_error(r->ctx));
       while (k > 0)
-        player_close(&ps[k--]);
+        replay_player_close(&ps[k--]);
       return -1;
     }
     if (err != 0)
@@ -799,7 +777,7 @@ static int play_in_turn(replay *r, player *ps, int n) {
   }
   rc = 0;
 out:
-  player_close(&still);
+  replay_player_close(&still);
   return rc;
 }
 
@@ -811,14 +789,14 @@ static int play_one_by_one(replay *r, player *ps, int n) {
   for (k = 0; k < n; k++) {
     if (!r->o.quiet && n > 1)
       fprintf(stderr, "replay: %s ...\n", rp_controller_name(ps[k].kind));
-    if (ps[k].rt == NULL && player_open(r, &ps[k], 0) != 0)
+    if (ps[k].rt == NULL && replay_player_open(r, &ps[k], 0) != 0)
       return 1;
     if (player_start(r, &ps[k]) != 0)
       return 1;
     for (i = 0; i < total; i++)
       if (play_frame(r, &ps[k], i) != 0)
         return 1;
-    player_close(&ps[k]);
+    replay_player_close(&ps[k]);
   }
   return 0;
 }
@@ -827,7 +805,7 @@ static int play_one_by_one(replay *r, player *ps, int n) {
 static int play(replay *r, player *ps, int n) {
   int in_turn = n > 1 && r->o.ndevices == 0 && r->o.mem.budget_bytes == 0;
   int rc = 1, k;
-  if (player_open(r, &ps[0], 0) != 0 || calibrate(r, &ps[0]) != 0)
+  if (replay_player_open(r, &ps[0], 0) != 0 || calibrate(r, &ps[0]) != 0)
     goto out;
   if (in_turn && (rc = play_in_turn(r, ps, n)) >= 0)
     goto out;
@@ -841,7 +819,7 @@ out:
         snprintf(r->device_names[i], sizeof r->device_names[i], "%s",
                  ps[k].st.devices[i].name);
     }
-    player_close(&ps[k]);
+    replay_player_close(&ps[k]);
   }
   return rc;
 }
@@ -924,6 +902,14 @@ static int replay_main(int argc, char **argv, cli_pacing_goals *goals) {
     return list_all();
   if ((rc = controllers_of(r.o.controller, kinds, &nctl)) != 0)
     return rc;
+  for (k = 0; k < nctl && kinds[k] != RP_CONTROL_PREDICTED; k++)
+    ;
+  if (r.o.split > 0 && k == nctl) {
+    fprintf(stderr, "raypace replay: --split splits the predicted "
+                    "controller's error: --controller %s does not play "
+                    "it\n", r.o.controller);
+    return 2;
+  }
   if (r.o.plot != NULL && !cli_have_gnuplot()) {
     fprintf(stderr, "raypace replay: --plot needs gnuplot (Debian "
                     "gnuplot-nox)\n");
@@ -953,6 +939,9 @@ static int replay_main(int argc, char **argv, cli_pacing_goals *goals) {
   }
   if (play(&r, players, nctl) != 0)
     goto out;
+  for (k = 0; r.o.split > 0 && k < nctl; k++)
+    if (kinds[k] == RP_CONTROL_PREDICTED && replay_split(&r, rows[k]) != 0)
+      goto out;
   for (k = 0; k < nctl; k++) {
     if (replay_summarise(kinds[k], rows[k], r.frames,
                          rp_space_max_density(&r.space), &sums[k]) != 0) {
@@ -960,6 +949,8 @@ static int replay_main(int argc, char **argv, cli_pacing_goals *goals) {
       goto out;
     }
     sums[k].devices_alive = players[k].devices_alive;
+    if (r.o.split > 0 && kinds[k] == RP_CONTROL_PREDICTED)
+      replay_split_summarise(rows[k], r.frames, r.o.split, &sums[k].split);
   }
   memset(&res, 0, sizeof res);
   res.o = &r.o;

@@ -21,6 +21,8 @@ typedef struct replay_opts {
   double target_ms, target_fraction;
   double miss_rate; /* --miss-rate; 0: the runtime's default */
   double headroom;  /* --headroom; 0: each reactive rule's own */
+  uint32_t split;   /* --split R: repeats of each frame; 0: no split */
+#define REPLAY_SPLIT_MAX 50
   uint32_t device, width, height, settle, frames, seed;
   int no_noise; /* --no-noise: no still frame */
   float base_step;
@@ -79,6 +81,14 @@ typedef struct frame_row {
   uint32_t events; /* REPLAY_EV_* */
   double target_ms, measured_ms, predicted_ms;
   double pass_predicted_ms; /* the cost model's t' of the last pass */
+  double render_ms; /* the render passes (rp_frame_stats.render_ms) */
+  uint32_t effects; /* rendered */
+  double margin;    /* the predicted controller's (rp_frame_stats) */
+  /* --split (replay_split.c): the same frame on a runtime of its own,
+   * at the same density: its first render after the frame before, and
+   * the median and standard deviation of the R renders right after it.
+   * NaN where not measured. */
+  double split_first_ms, split_ms, split_sd_ms;
   double probe_ms;  /* the probe and the controller's decision */
   double ao_ms;     /* the AO step (in measured_ms) */
   int ao;           /* rendered with AO */
@@ -109,6 +119,28 @@ typedef struct noise_floor {
   double max_over; /* slowest frame / its segment's median - 1 */
 } noise_floor;
 
+/* --split: where the predicted controller's error comes from
+ * (docs/pacing.md, "Where the error comes from"). Over its single-pass
+ * frames whose split run rendered the same effects, each term a share
+ * of the frame's target: the pass's error (render - t') is the sum of
+ * - context: render - first, what running in the replay (interleaved
+ *   with the other controllers' runtimes, or not) added to the frame;
+ * - switching: first - settled, what the first render at the frame's
+ *   settings, right after the frame before's, costs over the same frame
+ *   rendered again and again (new step or scale, buffers, kernels,
+ *   caches);
+ * - model: settled - t', the cost model's own error;
+ * and noise is the repeats' own spread (the machine at fixed settings),
+ * part of each term. `outside` is the frame's error (measured -
+ * predicted) less the pass's: what happened outside the render passes
+ * after the decision. */
+typedef struct error_split {
+  uint32_t frames, repeats;
+  double pass_rms, context_rms, switch_rms, model_rms, noise_rms;
+  double pass_mean, context_mean, switch_mean, model_mean;
+  double frame_rms, outside_rms;
+} error_split;
+
 typedef struct summary {
   rp_controller_kind kind;
   uint32_t frames;
@@ -120,6 +152,7 @@ typedef struct summary {
   double mean_imbalance; /* --devices */
   uint32_t devices_alive; /* --devices: at the end of the run */
   class_stats classes[REPLAY_CLASSES];
+  error_split split; /* --split: the predicted controller's */
 } summary;
 
 /* What the report needs of a finished replay. */
@@ -134,6 +167,78 @@ typedef struct replay_result {
   const double *still_ms;      /* per recorded frame, or NULL */
   const uint32_t *still_seg;
 } replay_result;
+
+typedef struct replay replay;
+
+/* ---- replay.c: the players (for replay_split.c) ---------------------- */
+
+/* One runtime and the sequence's events it was last given. */
+typedef struct player {
+  replay *r;
+  rp_controller_kind kind;
+  rp_runtime *rt;
+  frame_row *rows;       /* the recorded frames; NULL for the still */
+  int tf;                /* the TF index posted; -1: none yet */
+  uint32_t effects;
+  int have_effects;
+  double target;
+  rp_camera cam;
+  int have_cam;
+  rp_frame_stats st;     /* the last frame's */
+  uint32_t step_no;      /* frames stepped in the sequence (--trace) */
+  int tracing;           /* its controller plays: frames are numbered */
+  uint32_t devices_alive; /* --devices: after its frames */
+} player;
+
+struct replay {
+  replay_opts o;
+  rp_context *ctx;
+  rp_volume *vol; /* for cameras; each runtime loads a volume of its own */
+  rp_tf **tfs;
+  int tf_count;
+  rp_sequence *seq;
+  uint32_t frames;
+  rp_space_desc space;
+  const char *backend; /* what the runtimes open: --backend, or the
+                          reference when nothing else is here */
+  double full_ms;     /* frame time without adaptation, at the start */
+  double seq_target0; /* the sequence's first target, ms */
+  rp_camera still_cam;
+  double *still_ms;   /* per recorded frame */
+  uint32_t *still_seg;
+  int still_tf;
+  uint32_t still_effects;
+  noise_floor noise;
+  char device_names[RP_GROUP_MAX_DEVICES][168];
+  FILE *trace; /* --trace */
+};
+
+/* Steps p's runtime one frame; 1 (printed) when it failed. */
+int replay_step(player *p, const char *what);
+/* Posts what frame `st` changes for p's runtime (each only when it
+ * differs from what it was last given); 0 or 1 (printed). */
+int replay_post_state(replay *r, player *p, const rp_sequence_state *st,
+                      const rp_camera *cam, double target);
+/* The target of frame `st`, as the command line scales it. */
+double replay_frame_target(const replay *r, const rp_sequence_state *st);
+/* Frame f's state and camera; 0 or 1 (printed). */
+int replay_sequence_frame(replay *r, uint32_t f, rp_sequence_state *st,
+                          rp_camera *cam);
+/* A warm runtime for p->kind with a volume of its own; RP_ENODEV
+ * unprinted with quiet_nodev, any other failure printed and 1. */
+int replay_player_open(replay *r, player *p, int quiet_nodev);
+void replay_player_close(player *p);
+
+/* ---- replay_split.c ---------------------------------------------------- */
+
+/* --split: replays the predicted controller's recorded frames `rows` on
+ * a runtime of its own (controller none, each frame at the density the
+ * controller chose) and fills their split_* figures; 0 or 1
+ * (printed). */
+int replay_split(replay *r, frame_row *rows);
+/* The split's figures over n rows into *out. */
+void replay_split_summarise(const frame_row *rows, uint32_t n,
+                            uint32_t repeats, error_split *out);
 
 /* ---- replay_report.c ---------------------------------------------------- */
 

@@ -227,7 +227,9 @@ int replay_summarise(rp_controller_kind kind, const frame_row *rows,
  * dev<i>_busy_ms, dev<i>_raycast_ms, dev<i>_samples for every device and
  * the frame's imbalance, all of its last pass, and, after the AO and
  * upload columns, dev<i>_tail_share: the predicted cost of the tail
- * strips each device took. The last two columns name the frame's own
+ * strips each device took. Then the render passes' time, the predicted
+ * controller's margin and --split's three figures (NaN without). The
+ * last two columns name the frame's own
  * events ("none" without) and the classes it counts in ("smooth"
  * without), joined by '+'. */
 static int write_csv(const char *path, const summary *sums,
@@ -251,7 +253,8 @@ static int write_csv(const char *path, const summary *sums,
           ndev > 0 ? ",imbalance" : "");
   for (j = 0; j < ndev; j++)
     fprintf(f, ",dev%u_tail_share", j);
-  fprintf(f, ",pass_predicted_ms,events,classes\n");
+  fprintf(f, ",pass_predicted_ms,render_ms,margin,split_first_ms,"
+             "split_ms,split_sd_ms,events,classes\n");
   for (k = 0; k < nctl; k++) {
     for (i = 0; i < n; i++) {
       const frame_row *w = &rows[k][i];
@@ -273,7 +276,9 @@ static int write_csv(const char *path, const summary *sums,
               w->upload_pred_ms);
       for (j = 0; j < ndev; j++)
         fprintf(f, ",%.5f", w->dev[j].strip_share);
-      fprintf(f, ",%.6f,", w->pass_predicted_ms);
+      fprintf(f, ",%.6f,%.6f,%.5f,%.6f,%.6f,%.6f,", w->pass_predicted_ms,
+              w->render_ms, w->margin, w->split_first_ms, w->split_ms,
+              w->split_sd_ms);
       class_field(f, w->events, "none");
       fputc(',', f);
       class_field(f, replay_frame_classes(rows[k], i), CLASS_NAMES[0]);
@@ -447,6 +452,24 @@ static void add_classes(cJSON *o, const summary *s) {
   }
 }
 
+/* "error_split": --split's figures (replay.h, error_split). */
+static void add_split(cJSON *o, const error_split *e) {
+  cJSON *x = cJSON_AddObjectToObject(o, "error_split");
+  cJSON_AddNumberToObject(x, "frames", e->frames);
+  cJSON_AddNumberToObject(x, "repeats", e->repeats);
+  add_figure(x, "pass_rms", e->pass_rms);
+  add_figure(x, "context_rms", e->context_rms);
+  add_figure(x, "switch_rms", e->switch_rms);
+  add_figure(x, "model_rms", e->model_rms);
+  add_figure(x, "noise_rms", e->noise_rms);
+  add_figure(x, "pass_mean", e->pass_mean);
+  add_figure(x, "context_mean", e->context_mean);
+  add_figure(x, "switch_mean", e->switch_mean);
+  add_figure(x, "model_mean", e->model_mean);
+  add_figure(x, "frame_rms", e->frame_rms);
+  add_figure(x, "outside_rms", e->outside_rms);
+}
+
 static void print_json(const replay_result *r, const summary *s) {
   cJSON *o = cJSON_CreateObject();
   char *text;
@@ -468,6 +491,8 @@ static void print_json(const replay_result *r, const summary *s) {
   add_figure(o, "sigma_error_after_30", s->sigma_err_30);
   cJSON_AddNumberToObject(o, "overhead_ms", s->overhead_ms);
   add_classes(o, s);
+  if (s->split.frames > 0)
+    add_split(o, &s->split);
   if (r->noise.frames > 0) {
     cJSON *n = cJSON_AddObjectToObject(o, "noise");
     cJSON_AddNumberToObject(n, "frames", r->noise.frames);
@@ -533,6 +558,35 @@ static void print_table(const replay_result *r, const summary *sums, int nctl) {
       printf(" %7.3f %6u", s->mean_imbalance, s->devices_alive);
     printf("\n");
   }
+}
+
+/* --split's section: each term's rms and mean as a share of the
+ * target, and its mean square as a share of the pass error's. */
+static void print_split(const summary *sums, int nctl) {
+  const error_split *e = NULL;
+  int k;
+  for (k = 0; k < nctl; k++)
+    if (sums[k].split.frames > 0)
+      e = &sums[k].split;
+  if (e == NULL)
+    return;
+  printf("\nwhere predicted's error comes from (--split: %u frames, %u "
+         "repeats each; share of the target):\n"
+         "%-10s %8s %8s %8s\n", e->frames, e->repeats, "term", "rms",
+         "mean", "ms/ms");
+  {
+    const char *names[] = {"pass", "context", "switching", "model"};
+    const double rms[] = {e->pass_rms, e->context_rms, e->switch_rms,
+                          e->model_rms};
+    const double mean[] = {e->pass_mean, e->context_mean, e->switch_mean,
+                           e->model_mean};
+    int i;
+    for (i = 0; i < 4; i++)
+      printf("%-10s %8.4f %+8.4f %8.3f\n", names[i], rms[i], mean[i],
+             rms[i] * rms[i] / (e->pass_rms * e->pass_rms));
+  }
+  printf("%-10s %8.4f\n%-10s %8.4f\n%-10s %8.4f\n", "noise",
+         e->noise_rms, "frame", e->frame_rms, "outside", e->outside_rms);
 }
 
 /* The per-class section after the table: a row per class with frames
@@ -681,6 +735,7 @@ int replay_report(const replay_result *r, const summary *sums,
   } else {
     print_table(r, sums, nctl);
     print_goals(r, sums, nctl);
+    print_split(sums, nctl);
     print_classes(sums, nctl);
   }
   /* Without --csv the plot's data goes to PLOT.csv, removed after. */

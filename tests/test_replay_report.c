@@ -160,11 +160,77 @@ static void classes_add_up(void **state) {
               isnan(s.classes[4].mean_density));
 }
 
+/* --split's summary: each term's rms and mean worked out again here over
+ * the frames that have a split; the means add up to the pass error's,
+ * as the terms do frame by frame. */
+static void split_terms_add_up(void **state) {
+  static frame_row rows[N];
+  uint32_t seed = 5, i, m = 0;
+  double q[6] = {0}, mean[4] = {0};
+  error_split e;
+  (void)state;
+  memset(rows, 0, sizeof rows);
+  for (i = 0; i < N; i++) {
+    frame_row *w = &rows[i];
+    double x[5];
+    int k;
+    for (k = 0; k < 5; k++)
+      x[k] = 5.0 + (next(&seed) % 1000) * 0.01;
+    w->target_ms = x[0];
+    w->render_ms = x[1];
+    w->split_first_ms = x[2];
+    w->split_ms = x[3];
+    w->pass_predicted_ms = x[4];
+    w->split_sd_ms = 0.001 * (next(&seed) % 100);
+    w->measured_ms = w->render_ms + 0.5;
+    w->predicted_ms = w->pass_predicted_ms + 0.25;
+    if (i % 7 == 3) /* no split on these */
+      w->split_ms = NAN;
+  }
+  for (i = 0; i < N; i++) {
+    const frame_row *w = &rows[i];
+    double t = w->target_ms, v[6];
+    int k;
+    if (isnan(w->split_ms))
+      continue;
+    v[0] = (w->render_ms - w->pass_predicted_ms) / t;
+    v[1] = (w->render_ms - w->split_first_ms) / t;
+    v[2] = (w->split_first_ms - w->split_ms) / t;
+    v[3] = (w->split_ms - w->pass_predicted_ms) / t;
+    v[4] = w->split_sd_ms / t;
+    v[5] = 0.25 / t; /* outside: 0.5 measured, 0.25 predicted */
+    for (k = 0; k < 6; k++)
+      q[k] += v[k] * v[k];
+    for (k = 0; k < 4; k++)
+      mean[k] += v[k];
+    m++;
+  }
+  replay_split_summarise(rows, N, 4, &e);
+  assert_int_equal(e.frames, m);
+  assert_int_equal(e.repeats, 4);
+  assert_true(fabs(e.pass_rms - sqrt(q[0] / m)) < 1e-12);
+  assert_true(fabs(e.context_rms - sqrt(q[1] / m)) < 1e-12);
+  assert_true(fabs(e.switch_rms - sqrt(q[2] / m)) < 1e-12);
+  assert_true(fabs(e.model_rms - sqrt(q[3] / m)) < 1e-12);
+  assert_true(fabs(e.noise_rms - sqrt(q[4] / m)) < 1e-12);
+  assert_true(fabs(e.outside_rms - sqrt(q[5] / m)) < 1e-12);
+  assert_true(fabs(e.pass_mean - mean[0] / m) < 1e-12);
+  assert_true(fabs(e.pass_mean - (e.context_mean + e.switch_mean +
+                                   e.model_mean)) < 1e-12);
+  /* No frame with a split: no figures. */
+  for (i = 0; i < N; i++)
+    rows[i].split_ms = NAN;
+  replay_split_summarise(rows, N, 4, &e);
+  assert_int_equal(e.frames, 0);
+  assert_true(isnan(e.pass_rms) && isnan(e.model_mean));
+}
+
 int main(void) {
   const struct CMUnitTest tests[] = {
       cmocka_unit_test(quantile_is_nearest_rank),
       cmocka_unit_test(events_come_from_the_state),
       cmocka_unit_test(classes_add_up),
+      cmocka_unit_test(split_terms_add_up),
   };
   return cmocka_run_group_tests(tests, NULL, NULL);
 }

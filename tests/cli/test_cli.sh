@@ -256,6 +256,43 @@ if awk -v a="$p95" -v b="$(class_of smooth p95)" \
   pass=$((pass + 1)); else
   echo "FAIL: replay classes p95: $p95 from the CSV, $(class_of smooth p95)"
   fails=$((fails + 1)); fi
+# --split on the deterministic test device. Without timing noise
+# (noise=0) the same frame costs the same whatever ran
+# before it, so context, switching and noise are 0 and the whole pass
+# error is the model's. With a log-normal noise of 0.1, the repeats'
+# spread (noise_rms) is that noise on the settled time: within 0.6x and
+# 1.2x of 0.1 x rms(split_ms / target) worked out from the CSV (the
+# depth pass's own draw dilutes it, a sample sd of 5 runs short).
+split_of() { # split_of FIELD: the error split's figure
+  sed -n "s/.*\"error_split\":{[^}]*\"$1\":\([-0-9.e+]*\).*/\1/p" \
+    "$dir/out"
+}
+check "replay split exact" "$rp" replay gen:ml:32 --devices test:noise=0 \
+  --sequence mixed --frames 60 --size 32x32 --controller predicted \
+  --split 3 --json --quiet
+if awk -v c="$(split_of context_rms)" -v s="$(split_of switch_rms)" \
+     -v n="$(split_of noise_rms)" -v m="$(split_of model_rms)" \
+     -v p="$(split_of pass_rms)" -v f="$(split_of frames)" \
+     'BEGIN { exit !(f > 40 && p > 0.001 && c < 1e-9 && s < 1e-9 &&
+                     n < 1e-9 && (m - p) ^ 2 < 1e-18) }'; then
+  pass=$((pass + 1)); else
+  echo "FAIL: replay split exact"; cat "$dir/out"; fails=$((fails + 1)); fi
+check "replay split noise" "$rp" replay gen:ml:32 --devices test:noise=0.1 \
+  --sequence mixed --frames 60 --size 32x32 --controller predicted \
+  --split 5 --json --quiet --csv "$dir/split.csv"
+want=$(awk -F, 'NR == 1 { for (i = 1; i <= NF; i++) col[$i] = i }
+                NR > 1 && $col["split_ms"] != "nan" {
+                  q += ($col["split_ms"] / $col["target_ms"]) ^ 2; n++ }
+                END { print 0.1 * sqrt(q / n) }' "$dir/split.csv")
+if awk -v a="$(split_of noise_rms)" -v b="$want" \
+     'BEGIN { exit !(b > 0 && a / b > 0.6 && a / b < 1.2) }'; then
+  pass=$((pass + 1)); else
+  echo "FAIL: replay split noise: $(split_of noise_rms), want ~$want"
+  fails=$((fails + 1)); fi
+refuse "replay split needs predicted" "does not play it" "$rp" replay \
+  gen:ml:16 --backend reference --controller vtk --split 3
+refuse "replay split repeats" "bad value '1' for --split" "$rp" replay \
+  gen:ml:16 --backend reference --split 1
 # bench pacing: each sequence's median is the middle of its three runs'
 # figures, picked here from the JSON by awk for two of them.
 check "bench pacing json" "$rp" bench pacing gen:ml:16 --backend reference \
@@ -490,7 +527,8 @@ if "$rp" render gen:ml:8 --size 8x8 --backend opencl -o "$g" \
     --budget-mb 0.2 --brick-size 8 --sequence orbit --frames 6 --settle 1 \
     --size 64x64 --controller predicted --quiet --csv "$dir/oc.csv"
   if head -1 "$dir/oc.csv" |
-     grep -q "upload_ms,upload_predicted_ms,pass_predicted_ms,events,classes$"
+     grep -q "upload_ms,upload_predicted_ms,pass_predicted_ms,render_ms,\
+margin,split_first_ms,split_ms,split_sd_ms,events,classes$"
   then pass=$((pass + 1)); else
     echo "FAIL: replay csv lacks upload columns"; head -1 "$dir/oc.csv"
     fails=$((fails + 1)); fi
@@ -506,7 +544,8 @@ has "replay devices alive" '"devices_alive":'
 cols="tf_switch,dev0_share,dev0_busy_ms,dev0_raycast_ms,dev0_samples"
 cols="$cols,dev1_share,dev1_busy_ms,dev1_raycast_ms,dev1_samples,imbalance"
 cols="$cols,ao_ms,ao,upload_ms,upload_predicted_ms"
-cols="$cols,dev0_tail_share,dev1_tail_share,pass_predicted_ms,events,classes"
+cols="$cols,dev0_tail_share,dev1_tail_share,pass_predicted_ms,render_ms"
+cols="$cols,margin,split_first_ms,split_ms,split_sd_ms,events,classes"
 # The shares sum to 1. The default tail (the fewest bottom tile rows
 # holding 0.15 of the cost, never every row) is cut when the scaled
 # image, rp_scaled_size of the 32x32 output at the row's scale, has two
