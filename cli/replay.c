@@ -623,6 +623,7 @@ static void fill_row(const replay *r, const player *p, uint32_t f,
   row->render_ms = st->render_ms;
   row->effects = st->effects;
   row->margin = st->margin;
+  row->novelty = st->novelty;
   row->split_first_ms = row->split_ms = row->split_sd_ms = NAN;
   row->probe_ms = st->probe_ms + st->predict_ms;
   row->ao_ms = st->ao_ms;

@@ -84,6 +84,7 @@ typedef struct frame_row {
   double render_ms; /* the render passes (rp_frame_stats.render_ms) */
   uint32_t effects; /* rendered */
   double margin;    /* the predicted controller's (rp_frame_stats) */
+  double novelty;   /* the cost model's, when the controller decided */
   /* --split (replay_split.c): the same frame on a runtime of its own,
    * at the same density: its first render after the frame before, and
    * the median and standard deviation of the R renders right after it.

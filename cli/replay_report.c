@@ -228,7 +228,8 @@ int replay_summarise(rp_controller_kind kind, const frame_row *rows,
  * the frame's imbalance, all of its last pass, and, after the AO and
  * upload columns, dev<i>_tail_share: the predicted cost of the tail
  * strips each device took. Then the render passes' time, the predicted
- * controller's margin and --split's three figures (NaN without). The
+ * controller's margin, the model's novelty of the frame and --split's
+ * three figures (NaN without). The
  * last two columns name the frame's own
  * events ("none" without) and the classes it counts in ("smooth"
  * without), joined by '+'. */
@@ -253,7 +254,7 @@ static int write_csv(const char *path, const summary *sums,
           ndev > 0 ? ",imbalance" : "");
   for (j = 0; j < ndev; j++)
     fprintf(f, ",dev%u_tail_share", j);
-  fprintf(f, ",pass_predicted_ms,render_ms,margin,split_first_ms,"
+  fprintf(f, ",pass_predicted_ms,render_ms,margin,novelty,split_first_ms,"
              "split_ms,split_sd_ms,events,classes\n");
   for (k = 0; k < nctl; k++) {
     for (i = 0; i < n; i++) {
@@ -276,9 +277,9 @@ static int write_csv(const char *path, const summary *sums,
               w->upload_pred_ms);
       for (j = 0; j < ndev; j++)
         fprintf(f, ",%.5f", w->dev[j].strip_share);
-      fprintf(f, ",%.6f,%.6f,%.5f,%.6f,%.6f,%.6f,", w->pass_predicted_ms,
-              w->render_ms, w->margin, w->split_first_ms, w->split_ms,
-              w->split_sd_ms);
+      fprintf(f, ",%.6f,%.6f,%.5f,%.4f,%.6f,%.6f,%.6f,",
+              w->pass_predicted_ms, w->render_ms, w->margin, w->novelty,
+              w->split_first_ms, w->split_ms, w->split_sd_ms);
       class_field(f, w->events, "none");
       fputc(',', f);
       class_field(f, replay_frame_classes(rows[k], i), CLASS_NAMES[0]);

@@ -180,6 +180,15 @@ RP_API int rp_controller_begin_frame(rp_controller *c, double target_ms,
  *  0 for the other kinds, with no margin, and before the first frame.
  *  \since 0.3 */
 RP_API double rp_controller_margin(const rp_controller *c);
+/** PREDICTED: how new the coming frame is to the cost model, in [0, 1]
+ *  (rp_cost_estimate.novelty at the last density), before its
+ *  rp_controller_begin_frame. The contract keeps the residuals of novel
+ *  frames (over 0.5) apart from the others' and holds each group to the
+ *  miss rate on its own: a model wrong on a new scene then widens the
+ *  margin of the next new scene, not of every frame. Out of range or
+ *  NaN is taken as 1; never set, every frame counts as familiar. Other
+ *  kinds ignore it. \since 0.3 */
+RP_API void rp_controller_set_novelty(rp_controller *c, double novelty);
 /** After each render pass of the frame, its measured time (ms, >= 0 and
  *  finite, else RP_ERANGE/RP_ENOTFINITE with the frame still open and
  *  nothing learned). Sets *again to 1 and *rho to the next pass's density
@@ -274,6 +283,13 @@ typedef struct rp_cost_estimate {
   /* Q: the recent frames' agreed bias on frames whose time the fetches
    * hardly set (runtime/predict.c), in [1/4, 4]; mostly 1. \since 0.2 */
   double frame_factor;
+  /* How new this point is to the model, in [0, 1]: the share of the
+   * kernel's prior variance its learned points leave unexplained at
+   * these features (KRLS's predictive variance, noise aside; the larger
+   * of sigma's and kappa's): about 0 on a scene it has learned, 1 on
+   * one far from all (a new TF, a cut, a zoom never seen) and before it
+   * learned anything. \since 0.3 */
+  double novelty;
 } rp_cost_estimate;
 
 /** A cost model for one device. \returns 0, RP_EINVAL / RP_ENOTFINITE

@@ -174,6 +174,11 @@ typedef struct rp_frame_stats {
    * target * exp(-m) so that its share of late frames holds to
    * rp_runtime_desc.miss_rate; 0 for the other controllers. \since 0.3 */
   double margin;
+  /* How new the frame was to the cost model (rp_cost_estimate.novelty)
+   * when the controller decided: ~0 on a scene it learned, 1 far from
+   * all it saw. The predicted controller keeps the residuals of novel
+   * frames apart (rp_controller_set_novelty). \since 0.3 */
+  double novelty;
   double samples_predicted, fetches, sigma_predicted_ns;
   double raycast_ms, learn_ms;
   /* Per stage. Zero when the stage did not run for this frame. */

@@ -108,6 +108,20 @@
 #define MISS_MARGIN_MAX 1.5
 #define MISS_K_MAX 10.0
 #define MISS_RESIDUAL_MAX 3.0
+/* Novel frames (rp_controller_set_novelty over MISS_NOVEL_AT: the cost
+ * model's learned points leave over half the kernel's prior variance
+ * unexplained) keep statistics of their own, Mondrian-style: each group
+ * holds the miss rate on its own, so that the model's error on new
+ * scenes (a TF switch, a cut, a zoom never seen) widens the margin of
+ * the next new scene and not of every frame, and the familiar frames'
+ * calm does not narrow it for new ones. Their prior spread is twice the
+ * familiar's: a new scene is where the model errs most. */
+#define MISS_NOVEL_AT 0.5
+#define MISS_PRIOR_SD_NOVEL 0.4
+
+typedef struct miss_tracker {
+  double r_mean, r_spread, k;
+} miss_tracker;
 
 struct rp_controller {
   rp_context *ctx;
@@ -133,10 +147,13 @@ struct rp_controller {
    * last three frame times, newest first. */
   int v_top, v_level, v_since;
   double v_t[3];
-  /* predicted's contract: the residuals' weighted mean and spread
-   * (mean absolute deviation), the quantile in spreads, and the open
-   * (or last) frame's margin. */
-  double r_mean, r_spread, k, margin;
+  /* predicted's contract: per group (0 familiar, 1 novel frames) the
+   * residuals' weighted mean and spread (mean absolute deviation) and
+   * the quantile in spreads; the open (or last) frame's margin, its
+   * group and the novelty set for the coming frame. */
+  miss_tracker miss[2];
+  double margin, novelty;
+  int novel;
   int binding; /* the open (or last) frame's target bound its density */
 };
 
@@ -296,6 +313,7 @@ static double normal_quantile(double p);
 /* ---- create / reset ---------------------------------------------------- */
 
 void rp_controller_reset(rp_controller *c) {
+  int i;
   if (c == NULL)
     return;
   c->open = 0;
@@ -310,12 +328,17 @@ void rp_controller_reset(rp_controller *c) {
   c->ue_since = 0;
   valve_init(c);
   memset(c->v_t, 0, sizeof c->v_t);
-  c->r_mean = 0.0;
-  /* A normal law's mean absolute deviation is 0.8 of its deviation. */
-  c->r_spread = 0.8 * MISS_PRIOR_SD;
-  c->k = c->d.miss_rate > 0 ? normal_quantile(1.0 - c->d.miss_rate) / 0.8
-                            : 0.0;
+  for (i = 0; i < 2; i++) {
+    miss_tracker *t = &c->miss[i];
+    t->r_mean = 0.0;
+    /* A normal law's mean absolute deviation is 0.8 of its deviation. */
+    t->r_spread = 0.8 * (i ? MISS_PRIOR_SD_NOVEL : MISS_PRIOR_SD);
+    t->k = c->d.miss_rate > 0
+               ? normal_quantile(1.0 - c->d.miss_rate) / 0.8
+               : 0.0;
+  }
   c->margin = 0.0;
+  c->novel = 0;
 }
 
 int rp_controller_create(rp_context *ctx, const rp_controller_desc *desc,
@@ -470,9 +493,11 @@ static double normal_quantile(double p) {
   return p < 0.5 ? -z : z;
 }
 
-/* The margin the contract gives the next frame. */
+/* The margin the contract gives the next frame, from its group's
+ * statistics. */
 static double contract_margin(const rp_controller *c) {
-  return clampd(c->r_mean + c->k * fmax(c->r_spread, MISS_SPREAD_MIN),
+  const miss_tracker *t = &c->miss[c->novel];
+  return clampd(t->r_mean + t->k * fmax(t->r_spread, MISS_SPREAD_MIN),
                 MISS_MARGIN_MIN, MISS_MARGIN_MAX);
 }
 
@@ -485,6 +510,7 @@ static double contract_margin(const rp_controller *c) {
  * would pay for it. */
 static void contract_learn(rp_controller *c, double t, double target,
                            double pred) {
+  miss_tracker *m = &c->miss[c->novel];
   double r;
   if (!(pred > 0.0) || !(t > 0.0) || !isfinite(pred))
     return;
@@ -493,15 +519,20 @@ static void contract_learn(rp_controller *c, double t, double target,
    * it says the model is wrong, not how wrong. */
   r = clampd(log(t) - log(pred), -MISS_RESIDUAL_MAX, MISS_RESIDUAL_MAX);
   if (c->binding)
-    c->k = clampd(c->k + MISS_GAMMA * ((t > target ? 1.0 : 0.0) -
+    m->k = clampd(m->k + MISS_GAMMA * ((t > target ? 1.0 : 0.0) -
                                        c->d.miss_rate),
                   -MISS_K_MAX, MISS_K_MAX);
-  c->r_spread += MISS_BETA * (fabs(r - c->r_mean) - c->r_spread);
-  c->r_mean += MISS_BETA * (r - c->r_mean);
+  m->r_spread += MISS_BETA * (fabs(r - m->r_mean) - m->r_spread);
+  m->r_mean += MISS_BETA * (r - m->r_mean);
 }
 
 double rp_controller_margin(const rp_controller *c) {
   return c != NULL ? c->margin : 0.0;
+}
+
+void rp_controller_set_novelty(rp_controller *c, double novelty) {
+  if (c != NULL)
+    c->novelty = novelty >= 0.0 && novelty <= 1.0 ? novelty : 1.0;
 }
 
 /* ---- frame life cycle -------------------------------------------------- */
@@ -544,6 +575,7 @@ int rp_controller_begin_frame(rp_controller *c, double target_ms,
     int priced = c->frames > 0 && c->pred_ms > 0;
     int err;
     memset(&td, 0, sizeof td);
+    c->novel = c->novelty > MISS_NOVEL_AT;
     c->margin = c->d.miss_rate > 0 ? contract_margin(c) : 0.0;
     td.target_ms = target_ms * exp(-c->margin);
     td.rho_prev = c->rho_last; /* rho_start before the first frame */

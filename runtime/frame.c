@@ -109,6 +109,7 @@ struct rp__engine {
   const uint8_t *out_rgba;
   uint32_t out_w, out_h;
   training train;
+  double rho_last; /* the last frame's final density; 0 before one */
 };
 
 /* ---- Time and counters --------------------------------------------------- */
@@ -643,6 +644,20 @@ static void predict_pass(rp__engine *e, double rho) {
   st->predict_ms += rp__engine_now_ms(e) - t0;
 }
 
+/* How new the coming frame is to the cost model, at the last frame's
+ * density (rp_cost_estimate.novelty); 1 when the model cannot say. */
+static double frame_novelty(rp__engine *e) {
+  rp_cost_estimate est;
+  float step, scale;
+  rp_space_map(&e->space, e->rho_last > 0.0 ? e->rho_last : 1.0, &step,
+               &scale);
+  if (rp_device_group_predict(e->group, &e->s.probe, step, scale, &est) !=
+          0 ||
+      !isfinite(est.novelty))
+    return 1.0;
+  return est.novelty;
+}
+
 /* Controller, prediction and the render passes of one frame. The time the
  * frame already spent (recompute, probe) is known exactly when the
  * controller decides: it is taken off the target, and only the render
@@ -661,6 +676,8 @@ static int render_frame(rp__engine *e) {
   if (budget < MIN_RENDER_SHARE * s->target_ms)
     budget = MIN_RENDER_SHARE * s->target_ms;
   t0 = rp__engine_now_ms(e);
+  st->novelty = frame_novelty(e);
+  rp_controller_set_novelty(s->controller, st->novelty);
   if ((err = rp_controller_begin_frame(s->controller, budget, predict_at, e,
                                        &rho)) != 0)
     return err;
@@ -683,6 +700,7 @@ static int render_frame(rp__engine *e) {
       return err;
     }
   }
+  e->rho_last = rho;
   st->measured_ms = rp__engine_now_ms(e) - e->begin_ms;
   /* What was known: the time spent before the last pass, and its
    * predicted upload (the last pass's measured one is not known). */

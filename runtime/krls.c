@@ -637,6 +637,18 @@ double rp__krls_predict(const rp__krls *m, const double *x) {
   return dot(k, m->alpha, m->m);
 }
 
+double rp__krls_novelty(const rp__krls *m, const double *x) {
+  double k[RP__KRLS_MAX_DICT], a[RP__KRLS_MAX_DICT];
+  const double kxx = 1.0 + m->d.bias;
+  double u;
+  if (m->m == 0)
+    return 1.0;
+  kernel_row(m, x, k);
+  matvec(m->Ki, m->n, m->m, k, a);
+  u = (kxx - dot(k, a, m->m)) / kxx;
+  return u > 0.0 ? (u < 1.0 ? u : 1.0) : 0.0; /* NaN: 0 */
+}
+
 void rp__krls_get_stats(const rp__krls *m, rp__krls_stats *out) {
   *out = m->st;
   out->size = m->m;

@@ -197,6 +197,12 @@ int rp__krls_update(rp__krls *m, const double *x, double y);
 /* f(x); 0 before the first sample. x is not checked: NaN in, NaN out.
  * O(m * dim). */
 double rp__krls_predict(const rp__krls *m, const double *x);
+/* How far x is from what the model learned: delta(x) / k(x, x), the
+ * share of k(x, x) that the dictionary's span does not explain (a
+ * Gaussian process's posterior variance over its prior, noise aside),
+ * in [0, 1]: about 0 at a point it learned, 1 far from all of them and
+ * with no dictionary. */
+double rp__krls_novelty(const rp__krls *m, const double *x);
 
 void rp__krls_get_stats(const rp__krls *m, rp__krls_stats *out);
 

@@ -808,6 +808,10 @@ int rp_cost_predict(const rp_cost_model *m, const rp_frame_probe *p,
   out->launch_ms = m->launch.a * rays;
   out->frame_factor =
       exp(carried(&m->frame_bias, out->features, p->effects));
+  out->novelty = m->log_sigma.n > 0
+                     ? fmax(rp__krls_novelty(m->krls, out->features),
+                            rp__krls_novelty(m->kappa_krls, out->features))
+                     : 1.0;
   out->ms = (out->launch_ms +
              out->sigma_ns * 1e-6 * out->fetches * out->sample_ratio *
                  out->samples +

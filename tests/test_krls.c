@@ -1004,6 +1004,51 @@ static void drift_over_1e5_updates(void **state) {
   rp_context_destroy(ctx);
 }
 
+/* ---- novelty ------------------------------------------------------------- */
+
+/* rp__krls_novelty against delta(x) / k(x, x) worked out by brute force
+ * from the model's dictionary (a Cholesky solve of its kernel matrix):
+ * 1 before anything is learned, about 0 at a dictionary point, near 1
+ * far from all of them, and within [0, 1]. */
+static void novelty_is_the_unexplained_share(void **state) {
+  rp_context *ctx = rp_test_context();
+  const int dim = 3;
+  const double gamma = 4.0, bias = 0.0;
+  rp__krls *m = make(ctx, dim, gamma, 1e-3, 24);
+  double D[MAXN * RP__KRLS_MAX_DIM], x[RP__KRLS_MAX_DIM], a[MAXN];
+  double far[RP__KRLS_MAX_DIM] = {9.0, 9.0, 9.0};
+  int i, j, n;
+  (void)state;
+  rng_state = 99;
+  for (j = 0; j < dim; j++)
+    x[j] = 0.5;
+  assert_true(rp__krls_novelty(m, x) == 1.0);
+  for (i = 0; i < 60; i++) {
+    for (j = 0; j < dim; j++)
+      x[j] = urand();
+    assert_int_equal(rp__krls_update(m, x, target(x, dim)), 0);
+  }
+  n = get_dict(m, dim, D);
+  assert_true(n > 3);
+  kernel_chol(D, n, dim, gamma, bias);
+  for (i = 0; i < 200; i++) {
+    double want, got, kxx = 1.0 + bias, ka = 0.0;
+    for (j = 0; j < dim; j++)
+      x[j] = -0.25 + 1.5 * urand();
+    project(D, n, dim, gamma, bias, x, a);
+    for (j = 0; j < n; j++)
+      ka += kfun(D + j * dim, x, dim, gamma, bias) * a[j];
+    want = fmin(fmax((kxx - ka) / kxx, 0.0), 1.0);
+    got = rp__krls_novelty(m, x);
+    if (fabs(got - want) > 1e-9)
+      fail_msg("x %d: novelty %.12g, brute force %.12g", i, got, want);
+  }
+  assert_true(rp__krls_novelty(m, D) < 1e-9);
+  assert_true(rp__krls_novelty(m, far) > 1.0 - 1e-9);
+  rp__krls_destroy(m);
+  rp_context_destroy(ctx);
+}
+
 int main(void) {
   const struct CMUnitTest tests[] = {
       cmocka_unit_test(defaults_and_validation),
@@ -1019,6 +1064,7 @@ int main(void) {
       cmocka_unit_test(forgetting_follows_a_step),
       cmocka_unit_test(prior_averages_noise),
       cmocka_unit_test(drift_over_1e5_updates),
+      cmocka_unit_test(novelty_is_the_unexplained_share),
   };
   return cmocka_run_group_tests(tests, NULL, NULL);
 }

@@ -528,7 +528,7 @@ if "$rp" render gen:ml:8 --size 8x8 --backend opencl -o "$g" \
     --size 64x64 --controller predicted --quiet --csv "$dir/oc.csv"
   if head -1 "$dir/oc.csv" |
      grep -q "upload_ms,upload_predicted_ms,pass_predicted_ms,render_ms,\
-margin,split_first_ms,split_ms,split_sd_ms,events,classes$"
+margin,novelty,split_first_ms,split_ms,split_sd_ms,events,classes$"
   then pass=$((pass + 1)); else
     echo "FAIL: replay csv lacks upload columns"; head -1 "$dir/oc.csv"
     fails=$((fails + 1)); fi
@@ -545,7 +545,7 @@ cols="tf_switch,dev0_share,dev0_busy_ms,dev0_raycast_ms,dev0_samples"
 cols="$cols,dev1_share,dev1_busy_ms,dev1_raycast_ms,dev1_samples,imbalance"
 cols="$cols,ao_ms,ao,upload_ms,upload_predicted_ms"
 cols="$cols,dev0_tail_share,dev1_tail_share,pass_predicted_ms,render_ms"
-cols="$cols,margin,split_first_ms,split_ms,split_sd_ms,events,classes"
+cols="$cols,margin,novelty,split_first_ms,split_ms,split_sd_ms,events,classes"
 # The shares sum to 1. The default tail (the fewest bottom tile rows
 # holding 0.15 of the cost, never every row) is cut when the scaled
 # image, rp_scaled_size of the 32x32 output at the row's scale, has two
