@@ -88,10 +88,9 @@ static void usage(FILE *f) {
       "  --headrooms LIST      the reactive rules' headrooms, each\n"
       "                        'default' (each rule's own: VTK, Valve and\n"
       "                        last-frame none, UE5 0.1) or in (0, 0.9]\n"
-      "                        (default default,0.05,0.1,0.2,0.3,0.4,0.5)\n"
+      "                        (default %s)\n"
       "  --miss-rates LIST     predicted's miss rates, each 'none' or in\n"
-      "                        (0, 0.5] (default 0.01,0.02,0.05,0.1,0.2,"
-      "0.3)\n"
+      "                        (0, 0.5] (default %s)\n"
       "  --controllers LIST    of last-frame, vtk, ue5, valve and\n"
       "                        predicted (default all five)\n"
       "  --plot FILE.png       mean density against measured miss rate, a\n"
@@ -111,7 +110,8 @@ static void usage(FILE *f) {
       "still frame's best-predictor spread and slowest frame; met =\n"
       "the goals the medians meet: R (reachable ratio), O (max\n"
       "overshoot), D (d/2p), L (d/lf), '.' for one missed.\n",
-      MAX_RUNS, CLI_PARETO_COMPARE_AT, CLI_GOAL_RATIO,
+      MAX_RUNS, CLI_PARETO_COMPARE_AT, CLI_PARETO_HEADROOMS,
+      CLI_PARETO_MISS_RATES, CLI_GOAL_RATIO,
       100 * CLI_GOAL_OVERSHOOT, CLI_GOAL_TWO_PASS, CLI_GOAL_LAST_FRAME);
 }
 

@@ -35,13 +35,9 @@ const rp_controller_kind cli_pareto_rules[RULES] = {
     RP_CONTROL_LAST_FRAME, RP_CONTROL_VTK, RP_CONTROL_UE5,
     RP_CONTROL_VALVE};
 
-/* From the rules as they ship to 0.5: at 0 (VTK, Valve, last-frame) or
- * 0.1 (UE5) a reactive rule aims at or near the target and misses about
- * as often as it hits; at 0.5 its frames would have to come in twice as
- * slow as it aims before one is late, which a frame-to-frame scatter of
- * 0.6 to 1.4x (issue 29) leaves all but never. docs/pacing.md. */
-static const char DEFAULT_HEADROOMS[] = "default,0.05,0.1,0.2,0.3,0.4,0.5";
-static const char DEFAULT_MISS_RATES[] = "0.01,0.02,0.05,0.1,0.2,0.3";
+/* The default lists (bench_pacing.h; docs/pacing.md says why). */
+static const char DEFAULT_HEADROOMS[] = CLI_PARETO_HEADROOMS;
+static const char DEFAULT_MISS_RATES[] = CLI_PARETO_MISS_RATES;
 
 /* ---- the comparison ------------------------------------------------------ */
 
