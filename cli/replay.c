@@ -1017,7 +1017,7 @@ static int replay_main(int argc, char **argv, const replay_sink *sink) {
   res.still_seg = r.still_seg;
   if (sink->goals != NULL)
     replay_goals(&res, sums, nctl, sink->goals);
-  if (sink->points != NULL) {
+  if (sink->points != NULL && sink->npoints != NULL) {
     for (k = 0; k < nctl; k++)
       point_of(&sums[k], &sink->points[k]);
     *sink->npoints = nctl;
