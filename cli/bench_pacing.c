@@ -15,14 +15,13 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "bench_pacing.h"
 #include "cli_util.h"
-#include "commands.h"
 #include "raypace_sequence.h"
 
-#define MAX_RUNS 100
-#define MAX_SEQUENCES 32
-/* The options passed through to replay: each with its value. */
-#define MAX_PASSED 16
+#define MAX_RUNS CLI_PACING_MAX_RUNS
+#define MAX_SEQUENCES CLI_PACING_MAX_SEQUENCES
+#define MAX_PASSED CLI_PACING_MAX_PASSED
 
 /* The figures of one sequence's table row, in cli_pacing_goals order. */
 enum {
@@ -61,7 +60,12 @@ static void figures_of(const cli_pacing_goals *g, double *f) {
 static void usage(FILE *f) {
   fprintf(f,
       "usage: raypace bench pacing VOLUME [--sequences LIST] [--runs N]\n"
-      "                            [replay options] [--json] [--quiet]\n\n"
+      "                            [replay options] [--json] [--quiet]\n"
+      "       raypace bench pacing VOLUME --pareto [--headrooms LIST]\n"
+      "                            [--miss-rates LIST] [--controllers "
+      "LIST]\n"
+      "                            [--plot FILE.png] [--sequences LIST]\n"
+      "                            [--runs N] [replay options] [--json]\n\n"
       "Plays each sequence N times under every controller (raypace\n"
       "replay --controller all) and prints M4's goals, each a ratio\n"
       "within one run, as the median over the runs (NaN runs left out),\n"
@@ -72,10 +76,30 @@ static void usage(FILE *f) {
       "  --json                one JSON object per sequence: the medians\n"
       "                        and every run's figures\n"
       "  --quiet               no per-run progress on stderr\n\n"
+      "With --pareto, sweeps each reactive rule's headroom and\n"
+      "predicted's miss rate instead, and prints each setting's measured\n"
+      "miss rate, share over 1.2x the target and mean density (medians\n"
+      "over the runs), then predicted's density at its measured miss\n"
+      "rate (asked %g) against each rule's there (docs/pacing.md, \"A\n"
+      "fair comparison\"). Replay i of a run plays the i-th headroom and\n"
+      "the i-th miss rate, every controller once, without the still\n"
+      "frame.\n\n"
+      "  --pareto              the sweep\n"
+      "  --headrooms LIST      the reactive rules' headrooms, each\n"
+      "                        'default' (each rule's own: VTK, Valve and\n"
+      "                        last-frame none, UE5 0.1) or in (0, 0.9]\n"
+      "                        (default %s)\n"
+      "  --miss-rates LIST     predicted's miss rates, each 'none' or in\n"
+      "                        (0, 0.5] (default %s)\n"
+      "  --controllers LIST    of last-frame, vtk, ue5, valve and\n"
+      "                        predicted (default all five)\n"
+      "  --plot FILE.png       mean density against measured miss rate, a\n"
+      "                        panel per sequence, a curve per controller\n"
+      "                        (gnuplot)\n\n"
       "Passed to each replay (see raypace replay --help): --target-ms,\n"
       "--target-fraction, --space, --base-step, --min-step, --size,\n"
       "--backend, --device, --settle, --frames, --seed, --miss-rate,\n"
-      "--headroom.\n\n"
+      "--headroom (the last two not with --pareto).\n\n"
       "Columns: ratio = the predicted controller's target RMSE over the\n"
       "best of last-frame, vtk, ue5 and valve (goal <= %g), on all\n"
       "frames and on those whose target was reachable; noise = where\n"
@@ -86,13 +110,12 @@ static void usage(FILE *f) {
       "still frame's best-predictor spread and slowest frame; met =\n"
       "the goals the medians meet: R (reachable ratio), O (max\n"
       "overshoot), D (d/2p), L (d/lf), '.' for one missed.\n",
-      MAX_RUNS, CLI_GOAL_RATIO, 100 * CLI_GOAL_OVERSHOOT, CLI_GOAL_TWO_PASS,
-      CLI_GOAL_LAST_FRAME);
+      MAX_RUNS, CLI_PARETO_COMPARE_AT, CLI_PARETO_HEADROOMS,
+      CLI_PARETO_MISS_RATES, CLI_GOAL_RATIO,
+      100 * CLI_GOAL_OVERSHOOT, CLI_GOAL_TWO_PASS, CLI_GOAL_LAST_FRAME);
 }
 
-/* The median of the finite values among v[0..n) (reordered); NaN if
- * none. */
-static double finite_median(double *v, int n) {
+double cli_finite_median(double *v, int n) {
   int i, m = 0;
   for (i = 0; i < n; i++)
     if (isfinite(v[i]))
@@ -181,18 +204,6 @@ static int print_json(const char *sequence, int runs,
   return 0;
 }
 
-/* What the command line asks for. */
-typedef struct pacing_opts {
-  const char *seqs[MAX_SEQUENCES], *volume;
-  int nseq;
-  char *passed[2 * MAX_PASSED]; /* option, value pairs for replay */
-  char names[MAX_PASSED][24];   /* "--" and a name of the options */
-  int npassed;
-  char seq_list[4096];
-  uint32_t runs;
-  int json, quiet;
-} pacing_opts;
-
 /* The sequences to play: --sequences, or every built-in. 0 or 2. */
 static int sequences_of(pacing_opts *o) {
   char *tok, *save = NULL;
@@ -218,6 +229,31 @@ static int sequences_of(pacing_opts *o) {
   return 0;
 }
 
+/* --pareto's options without it, or the options it sets per replay
+ * with it; 0 or 2 (printed). */
+static int check_pareto(const pacing_opts *o) {
+  const char *alone = o->headrooms != NULL     ? "--headrooms"
+                      : o->miss_rates != NULL  ? "--miss-rates"
+                      : o->controllers != NULL ? "--controllers"
+                      : o->plot != NULL        ? "--plot"
+                                               : NULL;
+  int k;
+  if (!o->pareto && alone != NULL) {
+    fprintf(stderr, "raypace bench pacing: %s needs --pareto\n", alone);
+    return 2;
+  }
+  for (k = 0; o->pareto && k < o->npassed; k++)
+    if (strcmp(o->names[k], "--headroom") == 0 ||
+        strcmp(o->names[k], "--miss-rate") == 0) {
+      fprintf(stderr, "raypace bench pacing: --pareto sweeps %s itself "
+                      "(see --%s)\n", o->names[k],
+              strcmp(o->names[k], "--headroom") == 0 ? "headrooms"
+                                                      : "miss-rates");
+      return 2;
+    }
+  return 0;
+}
+
 /* 0, 1 after --help (printed), or 2 (printed). */
 static int parse_opts(int argc, char **argv, pacing_opts *o) {
   static const struct option opts[] = {
@@ -226,6 +262,11 @@ static int parse_opts(int argc, char **argv, pacing_opts *o) {
       {"json", no_argument, 0, 'j'},
       {"quiet", no_argument, 0, 'Q'},
       {"help", no_argument, 0, 'h'},
+      {"pareto", no_argument, 0, 'x'},
+      {"headrooms", required_argument, 0, 'H'},
+      {"miss-rates", required_argument, 0, 'M'},
+      {"controllers", required_argument, 0, 'c'},
+      {"plot", required_argument, 0, 'P'},
       /* passed through */
       {"target-ms", required_argument, 0, 'p'},
       {"target-fraction", required_argument, 0, 'p'},
@@ -264,6 +305,11 @@ static int parse_opts(int argc, char **argv, pacing_opts *o) {
     case 'j': o->json = 1; break;
     case 'Q': o->quiet = 1; break;
     case 'h': usage(stdout); return 1;
+    case 'x': o->pareto = 1; break;
+    case 'H': o->headrooms = optarg; break;
+    case 'M': o->miss_rates = optarg; break;
+    case 'c': o->controllers = optarg; break;
+    case 'P': o->plot = optarg; break;
     case 'p':
       if (o->npassed == MAX_PASSED) {
         fprintf(stderr, "raypace bench pacing: more than %d options to "
@@ -285,28 +331,39 @@ static int parse_opts(int argc, char **argv, pacing_opts *o) {
   }
   /* Each replay parses its own options: optind is not ours after. */
   o->volume = argv[optind];
+  if (check_pareto(o) != 0)
+    return 2;
   return sequences_of(o);
+}
+
+int cli_pacing_args(const pacing_opts *o, const char *seq,
+                    const char *controller, char *const *extra, int nextra,
+                    char **args) {
+  int n = 0, k;
+  args[n++] = "replay";
+  args[n++] = "--sequence";
+  args[n++] = (char *)seq;
+  args[n++] = "--controller";
+  args[n++] = (char *)controller;
+  args[n++] = "--quiet";
+  for (k = 0; k < 2 * o->npassed; k++)
+    args[n++] = o->passed[k];
+  for (k = 0; k < nextra && k < CLI_PACING_MAX_EXTRA; k++)
+    args[n++] = extra[k];
+  /* A volume named like an option is still the volume. */
+  args[n++] = "--";
+  args[n++] = (char *)o->volume;
+  args[n] = NULL;
+  return n;
 }
 
 /* Run i of sequence `seq`: one replay of every controller, its figures
  * into f. */
 static int play_run(const pacing_opts *o, const char *seq, int i,
                     double *f) {
-  char *args[9 + 2 * MAX_PASSED];
+  char *args[CLI_PACING_MAX_ARGS];
   cli_pacing_goals g;
-  int n = 0, k, rc;
-  args[n++] = "replay";
-  args[n++] = "--sequence";
-  args[n++] = (char *)seq;
-  args[n++] = "--controller";
-  args[n++] = "all";
-  args[n++] = "--quiet";
-  for (k = 0; k < 2 * o->npassed; k++)
-    args[n++] = o->passed[k];
-  /* A volume named like an option is still the volume. */
-  args[n++] = "--";
-  args[n++] = (char *)o->volume;
-  args[n] = NULL;
+  int n = cli_pacing_args(o, seq, "all", NULL, 0, args), rc;
   if ((rc = cli_replay_goals(n, args, &g)) != 0) {
     fprintf(stderr, "raypace bench pacing: %s, run %d failed\n", seq,
             i + 1);
@@ -339,7 +396,7 @@ static int play_sequence(const pacing_opts *o, int s,
   for (k = 0; k < FIGURES; k++) {
     for (i = 0; i < (int)o->runs; i++)
       column[i] = run[i][k];
-    median[k] = finite_median(column, (int)o->runs);
+    median[k] = cli_finite_median(column, (int)o->runs);
   }
   if (o->json)
     return print_json(o->seqs[s], (int)o->runs, run, median);
@@ -356,6 +413,8 @@ int cli_cmd_bench_pacing(int argc, char **argv) {
   int rc, s, i, k;
   if ((rc = parse_opts(argc, argv, &o)) != 0)
     return rc == 1 ? 0 : rc;
+  if (o.pareto)
+    return cli_bench_pareto(&o);
   each = malloc((size_t)o.nseq * o.runs * sizeof *each);
   if (each == NULL) {
     fprintf(stderr, "raypace bench pacing: out of memory\n");

@@ -1,5 +1,6 @@
 #include "cli_util.h"
 
+#include <cjson/cJSON.h>
 #include <math.h>
 #include <signal.h>
 #include <stdio.h>
@@ -368,6 +369,39 @@ double cli_quantile(double *v, int n, double p) {
   qsort(v, (size_t)n, sizeof *v, cmp_double);
   k = ceil(p * n - 1e-9);
   return v[k < 1 ? 0 : k > n ? n - 1 : (int)k - 1];
+}
+
+/* One colour per controller, the same in every panel and plot (replay's
+ * and bench pacing --pareto's): left to
+ * gnuplot, a line's colour follows its place in the plot command, which
+ * the target line, drawn first in the top panel only, shifted by one
+ * against the bottom panel. The target is black. The colours are Okabe
+ * and Ito's, told apart with the common colour-vision deficiencies, but
+ * for ue5's: a dark brown, as their orange was hard to tell from
+ * predicted's vermillion in thin lines. */
+static const char *const controller_colours[] = {
+    "#999999", /* none */
+    "#56b4e9", /* last-frame */
+    "#009e73", /* two-pass */
+    "#d55e00", /* predicted */
+    "#0072b2", /* vtk */
+    "#8c510a", /* ue5 */
+    "#cc79a7", /* valve */
+};
+_Static_assert(sizeof controller_colours / sizeof controller_colours[0] ==
+                   RP_CONTROL_COUNT,
+               "a colour for every controller");
+
+const char *cli_controller_colour(rp_controller_kind kind) {
+  return (unsigned)kind < RP_CONTROL_COUNT ? controller_colours[kind]
+                                           : "#000000";
+}
+
+void cli_json_figure(cJSON *o, const char *name, double v) {
+  if (isfinite(v))
+    cJSON_AddNumberToObject(o, name, v);
+  else
+    cJSON_AddNullToObject(o, name);
 }
 
 void cli_gnuplot_string(FILE *g, const char *s) {

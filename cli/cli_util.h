@@ -73,6 +73,13 @@ double cli_median(double *v, int n);
  * number, so that 0.95 x 20 is 19). No interpolation: every quantile is
  * a frame that happened. Sorts v in place; NaN for n = 0. */
 double cli_quantile(double *v, int n, double p);
+/* The controller's colour in every plot ("#rrggbb"), the same whatever
+ * else a plot draws; black for a kind out of range. */
+const char *cli_controller_colour(rp_controller_kind kind);
+/* Adds a figure to a JSON object (cJSON): null where it does not exist
+ * (NaN or infinite), as JSON has no such numbers. */
+struct cJSON;
+void cli_json_figure(struct cJSON *o, const char *name, double v);
 /* Writes s as a gnuplot single-quoted literal ('' is a quote), so that a
  * path cannot end the string or inject commands. */
 void cli_gnuplot_string(FILE *g, const char *s);

@@ -4,6 +4,10 @@
 #ifndef RP_CLI_COMMANDS_H
 #define RP_CLI_COMMANDS_H
 
+#include <stdint.h>
+
+#include "raypace.h"
+
 /* raypace replay VOLUME ...: cli/replay.c */
 int cli_cmd_replay(int argc, char **argv);
 /* The goals of M4 (DESIGN section 10) from one replay of every
@@ -33,6 +37,21 @@ typedef struct cli_pacing_goals {
  * instead of printing (all NaN if it stops before the summaries);
  * returns the command's exit status. */
 int cli_replay_goals(int argc, char **argv, cli_pacing_goals *goals);
+/* What one controller's frames came to in one replay, over all its
+ * recorded frames. */
+typedef struct cli_replay_point {
+  rp_controller_kind kind;
+  uint32_t frames;
+  double miss_rate;      /* share with measured_ms > target_ms */
+  double share_over_1_2; /* share with measured_ms > 1.2 target_ms */
+  double mean_density;
+} cli_replay_point;
+/* Plays `raypace replay` with argv (argv[0] = "replay") and fills
+ * points[0..*n) (room for RP_CONTROL_COUNT), one per controller played
+ * in --controller's order, instead of printing (*n = 0 if it stops
+ * before the summaries); returns the command's exit status. */
+int cli_replay_points(int argc, char **argv, cli_replay_point *points,
+                      int *n);
 /* raypace bench pacing VOLUME ...: cli/bench_pacing.c */
 int cli_cmd_bench_pacing(int argc, char **argv);
 /* raypace bench quality VOLUME ...: cli/bench.c */

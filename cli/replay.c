@@ -76,7 +76,8 @@ static void usage(FILE *f) {
       "tf-switch)\n"
       "  --controller C        none, last-frame, two-pass, predicted, "
       "vtk,\n"
-      "                        ue5, valve, or all (default all)\n"
+      "                        ue5, valve, several joined by commas, or\n"
+      "                        all (default all)\n"
       "  --target-ms T         frame-time target in ms; the sequence's "
       "own\n"
       "                        target changes scale with it\n"
@@ -864,9 +865,12 @@ static void close_scene(replay *r) {
   rp_context_destroy(r->ctx);
 }
 
-/* The controllers --controller names, into kinds; 0 or 2 (printed). */
+/* The controllers --controller names ("all", or names joined by
+ * commas, each at most once, played in that order), into kinds; 0 or 2
+ * (printed). */
 static int controllers_of(const char *name, rp_controller_kind *kinds,
                           int *n) {
+  const char *p = name;
   int k;
   *n = 0;
   if (strcmp(name, "all") == 0) {
@@ -874,18 +878,56 @@ static int controllers_of(const char *name, rp_controller_kind *kinds,
       kinds[(*n)++] = (rp_controller_kind)k;
     return 0;
   }
-  if (rp_controller_from_name(name, &kinds[0]) == 0) {
-    *n = 1;
-    return 0;
+  for (;;) {
+    size_t len = strcspn(p, ",");
+    char one[32];
+    int seen = 0;
+    if (len == 0 || len >= sizeof one) {
+      fprintf(stderr, "raypace replay: --controller '%s': %s\n", name,
+              len == 0 ? "an empty name" : "a name too long");
+      return 2;
+    }
+    memcpy(one, p, len);
+    one[len] = '\0';
+    if (rp_controller_from_name(one, &kinds[*n]) != 0) {
+      fprintf(stderr, "raypace replay: unknown controller '%s' (see "
+                      "--list)\n", one);
+      return 2;
+    }
+    for (k = 0; k < *n; k++)
+      seen |= kinds[k] == kinds[*n];
+    if (seen) {
+      fprintf(stderr, "raypace replay: --controller '%s' names '%s' "
+                      "twice\n", name, one);
+      return 2;
+    }
+    (*n)++;
+    if (p[len] == '\0')
+      return 0;
+    p += len + 1;
   }
-  fprintf(stderr, "raypace replay: unknown controller '%s' (see --list)\n",
-          name);
-  return 2;
 }
 
-/* The command; with `goals`, the goals of one run instead of any output
- * (cli_replay_goals). */
-static int replay_main(int argc, char **argv, cli_pacing_goals *goals) {
+/* One controller's figures for cli_replay_points. */
+static void point_of(const summary *s, cli_replay_point *pt) {
+  pt->kind = s->kind;
+  pt->frames = s->frames;
+  pt->miss_rate = s->miss_rate;
+  pt->share_over_1_2 = s->share_over_20;
+  pt->mean_density = s->mean_density;
+}
+
+/* Where replay_main's results go instead of the report: goals, points
+ * (RP_CONTROL_COUNT of them, *npoints set), or neither (the report). */
+typedef struct replay_sink {
+  cli_pacing_goals *goals;
+  cli_replay_point *points;
+  int *npoints;
+} replay_sink;
+
+/* The command; with a sink, the goals or the points of one run instead
+ * of any output (cli_replay_goals, cli_replay_points). */
+static int replay_main(int argc, char **argv, const replay_sink *sink) {
   replay r;
   replay_result res;
   rp_controller_kind kinds[RP_CONTROL_COUNT];
@@ -895,8 +937,10 @@ static int replay_main(int argc, char **argv, cli_pacing_goals *goals) {
   int nctl = 0, k, rc;
   memset(&r, 0, sizeof(r));
   memset(players, 0, sizeof(players));
-  if (goals != NULL)
-    replay_goals_clear(goals);
+  if (sink->goals != NULL)
+    replay_goals_clear(sink->goals);
+  if (sink->npoints != NULL)
+    *sink->npoints = 0;
   if ((rc = parse_opts(argc, argv, &r.o)) != 0)
     return rc == 1 ? 0 : rc;
   if (r.o.list)
@@ -963,9 +1007,15 @@ static int replay_main(int argc, char **argv, cli_pacing_goals *goals) {
   memcpy(res.device_names, r.device_names, sizeof res.device_names);
   res.still_ms = r.still_ms;
   res.still_seg = r.still_seg;
-  if (goals != NULL)
-    replay_goals(&res, sums, nctl, goals);
-  else if (replay_report(&res, sums, rows, nctl) != 0)
+  if (sink->goals != NULL)
+    replay_goals(&res, sums, nctl, sink->goals);
+  if (sink->points != NULL && sink->npoints != NULL) {
+    for (k = 0; k < nctl; k++)
+      point_of(&sums[k], &sink->points[k]);
+    *sink->npoints = nctl;
+  }
+  if (sink->goals == NULL && sink->points == NULL &&
+      replay_report(&res, sums, rows, nctl) != 0)
     goto out;
   rc = 0;
 out:
@@ -982,9 +1032,17 @@ out:
 }
 
 int cli_cmd_replay(int argc, char **argv) {
-  return replay_main(argc, argv, NULL);
+  const replay_sink none = {NULL, NULL, NULL};
+  return replay_main(argc, argv, &none);
 }
 
 int cli_replay_goals(int argc, char **argv, cli_pacing_goals *goals) {
-  return replay_main(argc, argv, goals);
+  const replay_sink sink = {goals, NULL, NULL};
+  return replay_main(argc, argv, &sink);
+}
+
+int cli_replay_points(int argc, char **argv, cli_replay_point *points,
+                      int *n) {
+  const replay_sink sink = {NULL, points, n};
+  return replay_main(argc, argv, &sink);
 }

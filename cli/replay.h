@@ -146,6 +146,7 @@ typedef struct summary {
   rp_controller_kind kind;
   uint32_t frames;
   double rmse_ms, rmse_rel, max_over, share_over_20, mean_density;
+  double miss_rate;    /* share with measured_ms > target_ms */
   double rmse_open_ms; /* over frames where the target was reachable */
   double switch_over;  /* max overshoot on a TF switch and SWITCH_AFTER
                           frames after it; 0 without switches */

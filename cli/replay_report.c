@@ -160,7 +160,7 @@ static void summarise_classes(const frame_row *rows, uint32_t n,
 
 int replay_summarise(rp_controller_kind kind, const frame_row *rows,
                      uint32_t n, double rho_max, summary *s) {
-  uint32_t i, over = 0, sig_n = 0, open_n = 0;
+  uint32_t i, over = 0, late = 0, sig_n = 0, open_n = 0;
   double se_open = 0;
   double se = 0, se_rel = 0, pe = 0, sig = 0, dens = 0, ov = 0, oh = 0;
   double mt = 0, mm = 0, imb = 0, *work;
@@ -185,6 +185,7 @@ int replay_summarise(rp_controller_kind kind, const frame_row *rows,
         rel > s->switch_over)
       s->switch_over = rel;
     over += w->measured_ms > 1.2 * w->target_ms;
+    late += w->measured_ms > w->target_ms;
     dens += w->rho;
     /* The frame's prediction (what it had spent when the controller
      * decided, and the model's time for its last pass) against its
@@ -207,6 +208,7 @@ int replay_summarise(rp_controller_kind kind, const frame_row *rows,
   s->rmse_open_ms = open_n > 0 ? sqrt(se_open / open_n) : 0.0;
   s->max_over = ov;
   s->share_over_20 = (double)over / n;
+  s->miss_rate = (double)late / n;
   s->mean_density = dens / n;
   s->pred_rmse_ms = sqrt(pe / n);
   s->sigma_err_30 = sig_n > 0 ? sig / sig_n : NAN;
@@ -289,26 +291,6 @@ static int write_csv(const char *path, const summary *sums,
   return fclose(f) == 0 ? 0 : 1;
 }
 
-/* One colour per controller, the same in every panel and plot: left to
- * gnuplot, a line's colour follows its place in the plot command, which
- * the target line, drawn first in the top panel only, shifted by one
- * against the bottom panel. The target is black. The colours are Okabe
- * and Ito's, told apart with the common colour-vision deficiencies, but
- * for ue5's: a dark brown, as their orange was hard to tell from
- * predicted's vermillion in thin lines. */
-static const char *const CONTROLLER_COLOURS[] = {
-    "#999999", /* none */
-    "#56b4e9", /* last-frame */
-    "#009e73", /* two-pass */
-    "#d55e00", /* predicted */
-    "#0072b2", /* vtk */
-    "#8c510a", /* ue5 */
-    "#cc79a7", /* valve */
-};
-_Static_assert(sizeof CONTROLLER_COLOURS / sizeof CONTROLLER_COLOURS[0] ==
-                   RP_CONTROL_COUNT,
-               "a colour for every controller");
-
 /* Frame times of every controller against the target (top) and their
  * densities (bottom), like seed 000 Fig. 5, drawn by gnuplot from the
  * CSV. */
@@ -336,7 +318,7 @@ static int write_plot(const char *png, const char *csv, const summary *sums,
     fprintf(g, ", '' skip 1 using 2:(strcol(1) eq '%s' ? $4 : 1/0) "
                "with lines lw 1.5 lc rgb '%s' title '%s'",
             rp_controller_name(sums[k].kind),
-            CONTROLLER_COLOURS[sums[k].kind],
+            cli_controller_colour(sums[k].kind),
             rp_controller_name(sums[k].kind));
   fprintf(g, "\nset xlabel 'frame'\n"
              "set ylabel 'density (1 = base step, full size)'\n"
@@ -347,7 +329,7 @@ static int write_plot(const char *png, const char *csv, const summary *sums,
     fprintf(g, " skip 1 using 2:(strcol(1) eq '%s' ? $8 : 1/0) "
                "with lines lw 1.5 lc rgb '%s' title '%s'",
             rp_controller_name(sums[k].kind),
-            CONTROLLER_COLOURS[sums[k].kind],
+            cli_controller_colour(sums[k].kind),
             rp_controller_name(sums[k].kind));
   }
   fprintf(g, "\nunset multiplot\n");
@@ -393,7 +375,7 @@ static int write_device_plot(const char *png, const char *csv,
     /* The lines are devices; the controller's colour is its titles'. */
     fprintf(g, "set title '%s: busy' textcolor rgb '%s'\nset ylabel 'ms'\n"
                "set yrange [*:*]\nplot ", name,
-            CONTROLLER_COLOURS[sums[k].kind]);
+            cli_controller_colour(sums[k].kind));
     /* A frame the device had no region in is a gap, not a 0. */
     for (i = 0; i < n; i++) {
       char label[96];
@@ -408,7 +390,7 @@ static int write_device_plot(const char *png, const char *csv,
     }
     fprintf(g, "\nset title '%s: shares' textcolor rgb '%s'\n"
                "set ylabel 'share'\nset yrange [0:1]\nplot ", name,
-            CONTROLLER_COLOURS[sums[k].kind]);
+            cli_controller_colour(sums[k].kind));
     for (i = 0; i < n; i++) {
       uint32_t j;
       fprintf(g, "%s", i ? ", " : "");
@@ -428,14 +410,6 @@ static int write_device_plot(const char *png, const char *csv,
   return cli_plot_close(&plot, "raypace replay");
 }
 
-/* A figure, or null where it does not exist (NaN). */
-static void add_figure(cJSON *o, const char *name, double v) {
-  if (isfinite(v))
-    cJSON_AddNumberToObject(o, name, v);
-  else
-    cJSON_AddNullToObject(o, name);
-}
-
 /* "classes": {"smooth": {...}, "tf_switch": {...}, ...}, every class,
  * with null figures where it has no frames. */
 static void add_classes(cJSON *o, const summary *s) {
@@ -445,11 +419,11 @@ static void add_classes(cJSON *o, const summary *s) {
     const class_stats *cs = &s->classes[c];
     cJSON *e = cJSON_AddObjectToObject(cl, CLASS_NAMES[c]);
     cJSON_AddNumberToObject(e, "frames", cs->frames);
-    add_figure(e, "miss_rate", cs->miss_rate);
-    add_figure(e, "share_over_1_2", cs->share_over_1_2);
-    add_figure(e, "p95", cs->p95);
-    add_figure(e, "p99", cs->p99);
-    add_figure(e, "mean_density", cs->mean_density);
+    cli_json_figure(e, "miss_rate", cs->miss_rate);
+    cli_json_figure(e, "share_over_1_2", cs->share_over_1_2);
+    cli_json_figure(e, "p95", cs->p95);
+    cli_json_figure(e, "p99", cs->p99);
+    cli_json_figure(e, "mean_density", cs->mean_density);
   }
 }
 
@@ -486,10 +460,11 @@ static void print_json(const replay_result *r, const summary *s) {
   cJSON_AddNumberToObject(o, "target_rmse_open_ms", s->rmse_open_ms);
   cJSON_AddNumberToObject(o, "max_overshoot", s->max_over);
   cJSON_AddNumberToObject(o, "switch_overshoot", s->switch_over);
+  cJSON_AddNumberToObject(o, "miss_rate", s->miss_rate);
   cJSON_AddNumberToObject(o, "share_over_1_2", s->share_over_20);
   cJSON_AddNumberToObject(o, "mean_density", s->mean_density);
   cJSON_AddNumberToObject(o, "prediction_rmse_ms", s->pred_rmse_ms);
-  add_figure(o, "sigma_error_after_30", s->sigma_err_30);
+  cli_json_figure(o, "sigma_error_after_30", s->sigma_err_30);
   cJSON_AddNumberToObject(o, "overhead_ms", s->overhead_ms);
   add_classes(o, s);
   if (s->split.frames > 0)

@@ -5,7 +5,8 @@
  * - a frame's classes are those of the events on it and on the two
  *   frames before it, found here by marking forward from each event;
  * - each class's frames, miss rate, share over 1.2x, p95, p99 and mean
- *   density, and the TF-switch overshoot, from those marks. */
+ *   density, and the TF-switch overshoot, from those marks;
+ * - the whole run's miss rate, by counting the late frames. */
 #include <math.h>
 #include <stdint.h>
 #include <stdlib.h>
@@ -128,6 +129,11 @@ static void classes_add_up(void **state) {
   assert_int_equal(replay_summarise(RP_CONTROL_PREDICTED, rows, N, 1.0, &s),
                    0);
   assert_true(fabs(s.switch_over - switch_over) < 1e-12);
+  /* The whole run's miss rate: every frame over its target, counted. */
+  for (i = 0, j = 0; i < N; i++)
+    j += rows[i].measured_ms > rows[i].target_ms;
+  assert_true(j > 0 && j < N);
+  assert_true(fabs(s.miss_rate - (double)j / N) < 1e-12);
   for (c = 0; c < REPLAY_CLASSES; c++) {
     const class_stats *cs = &s.classes[c];
     uint32_t frames = 0, miss = 0, over = 0;

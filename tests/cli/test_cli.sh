@@ -331,6 +331,77 @@ refuse "bench pacing volume" "no such file" "$rp" bench pacing \
   -- --help
 refuse "replay controller" "unknown controller 'pid'" "$rp" replay \
   gen:ml:8 --controller pid
+# bench pacing --pareto on the deterministic test device: every point is
+# the replay of its setting, so the point of a controller that plays
+# first in its replays (predicted; vtk when it plays alone) holds the
+# very figures a plain replay of that controller and setting gives
+# (here each of the two compared has a miss rate, share over 1.2x and
+# density that differ, so that no figure can stand in for another).
+pareto="gen:ml:24 --backend test --size 48x48 --frames 30 --settle 2"
+check "pareto json" "$rp" bench pacing $pareto --sequences orbit --runs 1 \
+  --pareto --headrooms default,0.3 --miss-rates 0.05,0.2 --json --quiet
+cp "$dir/out" "$dir/pareto.json"
+# The first number after "NAME": in stdin (the line's first such field).
+json_num() { awk -v f="\"$1\":" '{ i = index($0, f)
+  if (i > 0) { print substr($0, i + length(f)) + 0; exit } }'; }
+# The figures of one point: controller $1 at setting $2, in file $3.
+point_of() { sed -n "s/.*\"controller\":\"$1\",\"setting\":\"$2\",\
+\([^[]*\)\"each\".*/\1/p" "$3"; }
+if [ "$(grep -o '"controller":"[a-z0-9-]*","setting"' \
+        "$dir/pareto.json" | sort | uniq -c | awk '$1 == 2' | wc -l)" = 5 ] \
+   && [ "$(grep -o '"frames":30,' "$dir/pareto.json" | wc -l)" = 20 ] \
+   && grep -q '"replays_per_run":2,' "$dir/pareto.json" \
+   && grep -q '"compared_at":0.05,' "$dir/pareto.json"; then
+  pass=$((pass + 1)); else
+  echo "FAIL: pareto json: not 5 controllers x 2 settings of 30 frames"
+  cat "$dir/pareto.json"; fails=$((fails + 1)); fi
+same_point() { # same_point NAME CONTROLLER SETTING PARETO_JSON REPLAY_JSON
+  for f in miss_rate share_over_1_2 mean_density; do
+    a=$(point_of "$2" "$3" "$4" | json_num $f)
+    b=$(json_num $f <"$5")
+    if [ -n "$a" ] && [ "$a" = "$b" ]; then pass=$((pass + 1)); else
+      echo "FAIL: $1: $f $a in the sweep, $b in the replay"
+      fails=$((fails + 1)); fi
+  done
+}
+check "pareto replay predicted" "$rp" replay $pareto --sequence orbit \
+  --controller predicted --miss-rate 0.2 --json --quiet
+same_point "pareto predicted 0.2" predicted 0.2 "$dir/pareto.json" \
+  "$dir/out"
+check "pareto vtk" "$rp" bench pacing $pareto --sequences orbit --runs 1 \
+  --pareto --controllers vtk --headrooms 0.3,default --json --quiet
+cp "$dir/out" "$dir/pareto-vtk.json"
+has "pareto vtk alone" '"replays_per_run":2,"points":\[{"controller":"vtk"'
+check "pareto replay vtk" "$rp" replay $pareto --sequence orbit \
+  --controller vtk --json --quiet
+same_point "pareto vtk default" vtk default "$dir/pareto-vtk.json" \
+  "$dir/out"
+check "pareto table" "$rp" bench pacing $pareto --sequences orbit \
+  --runs 2 --pareto --headrooms default,0.3 --miss-rates 0.05 --quiet
+has "pareto table point" "^  vtk         0.3 *30 "
+has "pareto table compared" "^  compared (medians): predicted"
+has "pareto table run" "^  run 2: predicted"
+has "pareto table goals" "^  goals: d/best >= 1.3 "
+if command -v gnuplot >/dev/null 2>&1; then
+  check "pareto plot" "$rp" bench pacing $pareto --runs 1 \
+    --sequences orbit,cut-switch --pareto --headrooms default,0.3 \
+    --miss-rates 0.05,0.2 --quiet --plot "$dir/pareto.png"
+  if [ "$(head -c 8 "$dir/pareto.png" | od -An -tx1 | tr -d ' \n')" = \
+       "89504e470d0a1a0a" ]; then pass=$((pass + 1)); else
+    echo "FAIL: pareto.png is not a PNG"; fails=$((fails + 1)); fi
+fi
+refuse "pareto headroom range" "bad value '0.95' in --headrooms" "$rp" \
+  bench pacing gen:ml:8 --pareto --headrooms 0.1,0.95
+refuse "pareto miss range" "bad value 'some' in --miss-rates" "$rp" \
+  bench pacing gen:ml:8 --pareto --miss-rates 0.05,some
+refuse "pareto swept" "--pareto sweeps --headroom itself" "$rp" \
+  bench pacing gen:ml:8 --pareto --headroom 0.1
+refuse "pareto alone" "--headrooms needs --pareto" "$rp" bench pacing \
+  gen:ml:8 --headrooms 0.1
+refuse "pareto controllers" "'two-pass' is not one of" "$rp" bench pacing \
+  gen:ml:8 --pareto --controllers vtk,two-pass
+refuse "replay controller twice" "names 'vtk' twice" "$rp" replay \
+  gen:ml:8 --controller vtk,predicted,vtk
 refuse "replay sequence" "no-such-seq" "$rp" replay gen:ml:8 \
   --backend reference --sequence no-such-seq
 refuse "replay targets" "exclude each other" "$rp" replay gen:ml:8 \
