@@ -432,17 +432,17 @@ static void add_split(cJSON *o, const error_split *e) {
   cJSON *x = cJSON_AddObjectToObject(o, "error_split");
   cJSON_AddNumberToObject(x, "frames", e->frames);
   cJSON_AddNumberToObject(x, "repeats", e->repeats);
-  add_figure(x, "pass_rms", e->pass_rms);
-  add_figure(x, "context_rms", e->context_rms);
-  add_figure(x, "switch_rms", e->switch_rms);
-  add_figure(x, "model_rms", e->model_rms);
-  add_figure(x, "noise_rms", e->noise_rms);
-  add_figure(x, "pass_mean", e->pass_mean);
-  add_figure(x, "context_mean", e->context_mean);
-  add_figure(x, "switch_mean", e->switch_mean);
-  add_figure(x, "model_mean", e->model_mean);
-  add_figure(x, "frame_rms", e->frame_rms);
-  add_figure(x, "outside_rms", e->outside_rms);
+  cli_json_figure(x, "pass_rms", e->pass_rms);
+  cli_json_figure(x, "context_rms", e->context_rms);
+  cli_json_figure(x, "switch_rms", e->switch_rms);
+  cli_json_figure(x, "model_rms", e->model_rms);
+  cli_json_figure(x, "noise_rms", e->noise_rms);
+  cli_json_figure(x, "pass_mean", e->pass_mean);
+  cli_json_figure(x, "context_mean", e->context_mean);
+  cli_json_figure(x, "switch_mean", e->switch_mean);
+  cli_json_figure(x, "model_mean", e->model_mean);
+  cli_json_figure(x, "frame_rms", e->frame_rms);
+  cli_json_figure(x, "outside_rms", e->outside_rms);
 }
 
 static void print_json(const replay_result *r, const summary *s) {
