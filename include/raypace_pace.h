@@ -148,8 +148,7 @@ typedef struct rp_controller_desc {
   /* The reactive rules: the share of the target kept free, in [0, 0.9]:
    * LAST_FRAME, TWO_PASS and VTK aim at (1 - headroom) of it (VTK
    * with its factor on top), UE5 takes it for its targeted headroom,
-   * VALVE
-   * scales its thresholds (70, 85, 90 %) by (1 - headroom). 0: each
+   * VALVE scales its thresholds (70, 85, 90 %) by (1 - headroom). 0: each
    * rule's own (UE5's 10 %, none for the others). What buys a reactive
    * rule fewer late frames, for comparing rules at equal miss rates
    * (raypace bench pacing --pareto). \since 0.3 */
