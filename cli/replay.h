@@ -140,6 +140,11 @@ typedef struct error_split {
   double pass_rms, context_rms, switch_rms, model_rms, noise_rms;
   double pass_mean, context_mean, switch_mean, model_mean;
   double frame_rms, outside_rms;
+  /* Each term beyond what the noise alone would give it: sqrt(max(0,
+   * rms^2 - v)), v the noise's share of its mean square (noise_rms^2
+   * times 2 for context, two single renders; 1 + pi / 2R for switching,
+   * a render less a median of R; pi / 2R for the model, a median of R). */
+  double context_excess, switch_excess, model_excess;
 } error_split;
 
 typedef struct summary {

@@ -443,6 +443,9 @@ static void add_split(cJSON *o, const error_split *e) {
   cli_json_figure(x, "model_mean", e->model_mean);
   cli_json_figure(x, "frame_rms", e->frame_rms);
   cli_json_figure(x, "outside_rms", e->outside_rms);
+  cli_json_figure(x, "context_excess", e->context_excess);
+  cli_json_figure(x, "switch_excess", e->switch_excess);
+  cli_json_figure(x, "model_excess", e->model_excess);
 }
 
 static void print_json(const replay_result *r, const summary *s) {
@@ -548,18 +551,20 @@ static void print_split(const summary *sums, int nctl) {
     return;
   printf("\nwhere predicted's error comes from (--split: %u frames, %u "
          "repeats each; share of the target):\n"
-         "%-10s %8s %8s %8s\n", e->frames, e->repeats, "term", "rms",
-         "mean", "ms/ms");
+         "%-10s %8s %8s %8s %8s\n", e->frames, e->repeats, "term", "rms",
+         "mean", "ms_share", ">noise");
   {
     const char *names[] = {"pass", "context", "switching", "model"};
     const double rms[] = {e->pass_rms, e->context_rms, e->switch_rms,
                           e->model_rms};
     const double mean[] = {e->pass_mean, e->context_mean, e->switch_mean,
                            e->model_mean};
+    const double beyond[] = {NAN, e->context_excess, e->switch_excess,
+                             e->model_excess};
     int i;
     for (i = 0; i < 4; i++)
-      printf("%-10s %8.4f %+8.4f %8.3f\n", names[i], rms[i], mean[i],
-             rms[i] * rms[i] / (e->pass_rms * e->pass_rms));
+      printf("%-10s %8.4f %+8.4f %8.3f %8.4f\n", names[i], rms[i], mean[i],
+             rms[i] * rms[i] / (e->pass_rms * e->pass_rms), beyond[i]);
   }
   printf("%-10s %8.4f\n%-10s %8.4f\n%-10s %8.4f\n", "noise",
          e->noise_rms, "frame", e->frame_rms, "outside", e->outside_rms);

@@ -123,6 +123,13 @@ static void rms_mean(const double *x, uint32_t n, double *rms, double *mean) {
     *mean = n > 0 ? s / n : NAN;
 }
 
+/* What of a term's rms the noise does not explain: the noise's variance
+ * v taken off its mean square. NaN stays NaN. */
+static double excess(double rms, double v) {
+  double q = rms * rms - v;
+  return q > 0.0 ? sqrt(q) : isnan(q) ? NAN : 0.0;
+}
+
 enum { T_PASS, T_CONTEXT, T_SWITCH, T_MODEL, T_NOISE, T_FRAME, T_OUTSIDE,
        T_COUNT };
 
@@ -158,4 +165,11 @@ void replay_split_summarise(const frame_row *rows, uint32_t n,
   rms_mean(x + T_FRAME * n, m, &out->frame_rms, NULL);
   rms_mean(x + T_OUTSIDE * n, m, &out->outside_rms, NULL);
   free(x);
+  {
+    const double v = out->noise_rms * out->noise_rms;
+    const double med = repeats > 0 ? 3.14159265358979 / (2.0 * repeats) : 0.0;
+    out->context_excess = excess(out->context_rms, 2.0 * v);
+    out->switch_excess = excess(out->switch_rms, (1.0 + med) * v);
+    out->model_excess = excess(out->model_rms, med * v);
+  }
 }

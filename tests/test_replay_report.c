@@ -223,6 +223,18 @@ static void split_terms_add_up(void **state) {
   assert_true(fabs(e.pass_mean - mean[0] / m) < 1e-12);
   assert_true(fabs(e.pass_mean - (e.context_mean + e.switch_mean +
                                    e.model_mean)) < 1e-12);
+  /* Beyond the noise: the noise's variance off each mean square, by
+   * how many renders each term differences (2 singles; a single less a
+   * median of 4, whose variance is pi / 8 of one; a median of 4). */
+  {
+    const double v = q[4] / m, med = 3.14159265358979 / 8.0;
+    assert_true(fabs(e.context_excess -
+                     sqrt(fmax(0.0, q[1] / m - 2.0 * v))) < 1e-12);
+    assert_true(fabs(e.switch_excess -
+                     sqrt(fmax(0.0, q[2] / m - (1.0 + med) * v))) < 1e-12);
+    assert_true(fabs(e.model_excess -
+                     sqrt(fmax(0.0, q[3] / m - med * v))) < 1e-12);
+  }
   /* No frame with a split: no figures. */
   for (i = 0; i < N; i++)
     rows[i].split_ms = NAN;
