@@ -206,7 +206,9 @@ RP_API int rp_controller_end_pass(rp_controller *c, double pass_ms,
  *  one probe per camera / transfer function / effect set serves every
  *  density the tuner tries. Probe rays are the ERT pre-pass grid of the
  *  output image (one ray per 4x4 output pixels), subsampled to at most
- *  1024 rays (a 128x128 output traces them all). */
+ *  1024 rays (a 128x128 output traces them all). The runtime's own
+ *  probes trace fewer, down to 128, where 2 % of the frame's target pays
+ *  for no more (docs/pacing.md, "Prediction's own cost"). */
 /** The most rays a probe traces. */
 #define RP_PROBE_MAX_RAYS 1024
 

@@ -86,30 +86,27 @@ void rp__ert_corrected(const float *bin_alpha, float ref_step,
   }
 }
 
-float rp__ert_prepass_ray(const rp__raygen *rg, uint32_t cx, uint32_t cy,
-                          const uint8_t *grid, const uint8_t *alpha_hist,
-                          const double corr[RP_OPACITY_BINS],
-                          const uint32_t blocks[3], float threshold,
-                          uint32_t seed, uint32_t frame) {
-  uint32_t gw, gh;
+float rp__ert_march(const rp__ray *ray, uint32_t ray_id, uint64_t j0,
+                    uint64_t j1, const uint8_t *grid,
+                    const uint8_t *alpha_hist,
+                    const double corr[RP_OPACITY_BINS],
+                    const uint32_t blocks[3], float threshold,
+                    uint32_t seed, uint32_t frame) {
   uint64_t j, n;
   double A = 0.0;
-  rp__ray ray;
   rp__taus rng;
-  rp__ert_grid(rg->width, rg->height, &gw, &gh);
-  /* Through the centre of the ray's 4x4 pixel group. */
-  rp__raygen_ray_at(rg, (double)(RP_ERT_RAY_STRIDE * cx) + 2.0,
-                    (double)(RP_ERT_RAY_STRIDE * cy) + 2.0, &ray);
-  if (!ray.hit)
+  if (!ray->hit)
     return INFINITY;
-  rp__taus_seed(&rng, seed, frame, cy * gw + cx);
-  n = rp__lattice_count(ray.s, ray.t1, RP_ERT_COARSE_STEP);
-  for (j = 0; j < n; j++) {
-    double t = ray.s + (double)j * RP_ERT_COARSE_STEP, p[3];
+  rp__taus_seed(&rng, seed, frame, ray_id);
+  n = rp__lattice_count(ray->s, ray->t1, RP_ERT_COARSE_STEP);
+  if (j1 > n)
+    j1 = n;
+  for (j = j0; j < j1; j++) {
+    double t = ray->s + (double)j * RP_ERT_COARSE_STEP, p[3];
     uint32_t b;
     int axis;
     for (axis = 0; axis < 3; axis++)
-      p[axis] = ray.p0[axis] + t * ray.dp[axis];
+      p[axis] = ray->p0[axis] + t * ray->dp[axis];
     b = rp__block_of(p, blocks);
     if (!grid[b])
       continue;
@@ -120,6 +117,21 @@ float rp__ert_prepass_ray(const rp__raygen *rg, uint32_t cx, uint32_t cy,
       return (float)t;
   }
   return INFINITY;
+}
+
+float rp__ert_prepass_ray(const rp__raygen *rg, uint32_t cx, uint32_t cy,
+                          const uint8_t *grid, const uint8_t *alpha_hist,
+                          const double corr[RP_OPACITY_BINS],
+                          const uint32_t blocks[3], float threshold,
+                          uint32_t seed, uint32_t frame) {
+  uint32_t gw, gh;
+  rp__ray ray;
+  rp__ert_grid(rg->width, rg->height, &gw, &gh);
+  /* Through the centre of the ray's 4x4 pixel group. */
+  rp__raygen_ray_at(rg, (double)(RP_ERT_RAY_STRIDE * cx) + 2.0,
+                    (double)(RP_ERT_RAY_STRIDE * cy) + 2.0, &ray);
+  return rp__ert_march(&ray, cy * gw + cx, 0, UINT64_MAX, grid, alpha_hist,
+                       corr, blocks, threshold, seed, frame);
 }
 
 void rp__ert_prepass(const rp__raygen *rg, const uint8_t *grid,

@@ -37,6 +37,13 @@ enum {
  * (a sanitizer build runs it many times slower). */
 #define VIRTUAL_TUNE_TIME_US 1e9
 
+/* The share of the target the probe may take, and how many of its last
+ * costs per ray the budget takes the median of (one probe stalled by the
+ * machine does not shrink the next ones): docs/pacing.md, "Prediction's
+ * own cost". */
+#define PROBE_SHARE 0.02
+#define PROBE_COSTS 9
+
 typedef struct scene {
   uint32_t stale;
   rp_volume *vol;
@@ -50,6 +57,10 @@ typedef struct scene {
   rp_controller_kind controller_kind;
   rp_controller *controller;
   rp_frame_probe probe;
+  /* The last probes' costs per ray (ms, on the engine's clock): a ring
+   * of probe_costs values (at most PROBE_COSTS), the next at probe_next. */
+  double probe_cost[PROBE_COSTS];
+  uint32_t probe_costs, probe_next;
   /* Effect sets rendered since the volume was uploaded, bit (1 << set):
    * a set's first frame builds its kernel variant and allocates, a cost
    * the model must not learn as if every frame paid it. */
@@ -412,6 +423,57 @@ static int make_controller(rp__engine *e) {
   return 0;
 }
 
+/* The median of the last probes' costs per ray (ms), 0 while none has
+ * been measured. */
+static double probe_cost_per_ray(const scene *s) {
+  double v[PROBE_COSTS], x;
+  uint32_t n = s->probe_costs, i, j;
+  if (n == 0)
+    return 0.0;
+  for (i = 0; i < n; i++) { /* insertion sort: at most PROBE_COSTS */
+    x = s->probe_cost[i];
+    for (j = i; j > 0 && v[j - 1] > x; j--)
+      v[j] = v[j - 1];
+    v[j] = x;
+  }
+  return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
+}
+
+/* The probe of this frame's camera, TF and effects, with as many rays as
+ * PROBE_SHARE of the target pays for at the probe's own recent cost per
+ * ray (rp__probe_ray_budget; all of them until one was measured, and on
+ * a simulated clock, where the probe takes no time). */
+static int run_probe(rp__engine *e) {
+  scene *s = &e->s;
+  rp_render_desc d = {0};
+  uint32_t rays = rp__probe_ray_budget(PROBE_SHARE * s->target_ms,
+                                       probe_cost_per_ray(s));
+  double t0, ms;
+  int err;
+  d.width = s->width;
+  d.height = s->height;
+  d.effects = s->render_effects;
+  t0 = rp__engine_now_ms(e);
+  if ((err = rp__frame_probe_compute(e->ctx, s->vol, s->tf, s->occ, &s->cam,
+                                     &d, e->desc.ert_seed,
+                                     (uint32_t)e->frame_no, rays,
+                                     &s->probe)) != 0)
+    return err;
+  /* On the engine's clock, as every other stage. */
+  ms = rp__engine_now_ms(e) - t0;
+  s->probe.probe_ms = ms;
+  e->stats.probe_ms = ms;
+  if (ms > 0.0 && s->probe.rays > 0) {
+    s->probe_cost[s->probe_next] = ms / s->probe.rays;
+    s->probe_next = (s->probe_next + 1) % PROBE_COSTS;
+    if (s->probe_costs < PROBE_COSTS)
+      s->probe_costs++;
+  }
+  s->stale &= ~(uint32_t)STALE_PROBE;
+  count(e, &e->counters.probes);
+  return 0;
+}
+
 /* Every stale stage, then the AO step, the effects to render, the probe
  * and the controller. */
 static int recompute(rp__engine *e) {
@@ -433,23 +495,8 @@ static int recompute(rp__engine *e) {
     st->ao_ms = rp__engine_now_ms(e) - t0;
   }
   choose_effects(e);
-  if (s->stale & STALE_PROBE) {
-    rp_render_desc d = {0};
-    d.width = s->width;
-    d.height = s->height;
-    d.effects = s->render_effects;
-    t0 = rp__engine_now_ms(e);
-    if ((err = rp_frame_probe_compute(e->ctx, s->vol, s->tf, s->occ,
-                                      &s->cam, &d, e->desc.ert_seed,
-                                      (uint32_t)e->frame_no,
-                                      &s->probe)) != 0)
-      return err;
-    /* On the engine's clock, as every other stage. */
-    s->probe.probe_ms = rp__engine_now_ms(e) - t0;
-    st->probe_ms = s->probe.probe_ms;
-    s->stale &= ~(uint32_t)STALE_PROBE;
-    count(e, &e->counters.probes);
-  }
+  if (s->stale & STALE_PROBE && (err = run_probe(e)) != 0)
+    return err;
   if (s->stale & STALE_CONTROLLER || s->controller == NULL)
     return make_controller(e);
   return 0;

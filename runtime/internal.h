@@ -243,6 +243,28 @@ int rp__backend_open(rp_context *ctx, const char *name, uint32_t index,
  * device's owner thread only. */
 int rp__device_clock_ns(const rp_device *dev, uint64_t *ns);
 
+/* ---- predict.c: the probe's own cost ------------------------------------ */
+
+/* The fewest rays a probe traces when the runtime scales it to the frame:
+ * docs/pacing.md, "Prediction's own cost". */
+#define RP__PROBE_MIN_RAYS 128
+/* rp_frame_probe_compute tracing at most max_rays rays (a regular
+ * subgrid of the pre-pass grid, every n-th ray per axis; 0 or above
+ * RP_PROBE_MAX_RAYS: RP_PROBE_MAX_RAYS), so that its cost follows the
+ * frame's. */
+struct rp_frame_probe;
+int rp__frame_probe_compute(rp_context *ctx, const rp_volume *vol,
+                            const rp_tf *tf, const rp_occupancy *occ,
+                            const rp_camera *cam,
+                            const rp_render_desc *desc, uint32_t seed,
+                            uint32_t frame, uint32_t max_rays,
+                            struct rp_frame_probe *out);
+/* The most rays a probe may trace to stay within budget_ms at ms_per_ray
+ * (its own measured cost per ray): budget / cost, within
+ * [RP__PROBE_MIN_RAYS, RP_PROBE_MAX_RAYS]; RP_PROBE_MAX_RAYS while no
+ * cost is known (ms_per_ray <= 0 or NaN). */
+uint32_t rp__probe_ray_budget(double budget_ms, double ms_per_ray);
+
 /* ---- png.c ------------------------------------------------------------- */
 
 int rp__png_write_rgb(rp_context *ctx, const char *path, const uint8_t *rgb,

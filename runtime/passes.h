@@ -56,6 +56,18 @@ float rp__ert_prepass_ray(const rp__raygen *rg, uint32_t cx, uint32_t cy,
                           const double corr[RP_OPACITY_BINS],
                           const uint32_t blocks[3], float threshold,
                           uint32_t seed, uint32_t frame);
+/* The same along a ray already generated, `ray_id` its index in the
+ * pre-pass grid (cy * gw + cx), over its lattice points j0 <= j < j1
+ * only (clipped to the ray's). The random draws are taken at occupied
+ * blocks alone, so a caller that knows where the occupied blocks along
+ * the ray begin and end (the depth pass) gets the whole ray's result
+ * from the points that span them. */
+float rp__ert_march(const rp__ray *ray, uint32_t ray_id, uint64_t j0,
+                    uint64_t j1, const uint8_t *grid,
+                    const uint8_t *alpha_hist,
+                    const double corr[RP_OPACITY_BINS],
+                    const uint32_t blocks[3], float threshold,
+                    uint32_t seed, uint32_t frame);
 void rp__ert_prepass(const rp__raygen *rg, const uint8_t *grid,
                      const uint8_t *alpha_hist, const uint32_t blocks[3],
                      float ref_step, float threshold, uint32_t seed,

@@ -282,9 +282,17 @@ static void probe_rows(uint32_t begin, uint32_t end, void *user) {
       stop = back;
       ended = 0;
       if (j->ert) {
-        double d = rp__ert_prepass_ray(j->rg, cx, cy, j->grid, j->alpha_hist,
-                                       j->corr, j->blocks, j->threshold,
-                                       j->seed, j->frame);
+        /* Lattice points before D_front and past D_back lie in empty
+         * blocks, where the pre-pass draws nothing: it marches from one
+         * point before the first occupied block to one past the last
+         * (a coarse step of margin for the depths' rounding), and ends
+         * where the whole ray would. */
+        double first = floor((front - ray.s) / RP_ERT_COARSE_STEP) - 1.0,
+               last = ceil((back - ray.s) / RP_ERT_COARSE_STEP) + 2.0;
+        double d = rp__ert_march(
+            &ray, cy * j->gw + cx, first > 0.0 ? (uint64_t)first : 0,
+            last > 0.0 ? (uint64_t)last : 0, j->grid, j->alpha_hist, j->corr,
+            j->blocks, j->threshold, j->seed, j->frame);
         if (d <= stop) {
           stop = d > front ? d : front;
           r.ended++;
@@ -326,11 +334,30 @@ static double pixels_per_voxel(const rp__raygen *rg) {
   return (double)rg->height * rg->min_spacing / world_h;
 }
 
+uint32_t rp__probe_ray_budget(double budget_ms, double ms_per_ray) {
+  double n;
+  if (!(ms_per_ray > 0.0) || !(budget_ms >= 0.0))
+    return PROBE_MAX_RAYS; /* nothing measured yet: the full probe */
+  n = budget_ms / ms_per_ray;
+  if (!(n >= (double)RP__PROBE_MIN_RAYS))
+    return RP__PROBE_MIN_RAYS;
+  return n >= (double)PROBE_MAX_RAYS ? PROBE_MAX_RAYS : (uint32_t)n;
+}
+
 int rp_frame_probe_compute(rp_context *ctx, const rp_volume *vol,
                            const rp_tf *tf, const rp_occupancy *occ,
                            const rp_camera *cam, const rp_render_desc *desc,
                            uint32_t seed, uint32_t frame,
                            rp_frame_probe *out) {
+  return rp__frame_probe_compute(ctx, vol, tf, occ, cam, desc, seed, frame,
+                                 PROBE_MAX_RAYS, out);
+}
+
+int rp__frame_probe_compute(rp_context *ctx, const rp_volume *vol,
+                            const rp_tf *tf, const rp_occupancy *occ,
+                            const rp_camera *cam, const rp_render_desc *desc,
+                            uint32_t seed, uint32_t frame, uint32_t max_rays,
+                            rp_frame_probe *out) {
   static const char fn[] = "rp_frame_probe_compute";
   const char *missing = vol == NULL   ? "vol"
                         : tf == NULL  ? "tf"
@@ -380,9 +407,13 @@ int rp_frame_probe_compute(rp_context *ctx, const rp_volume *vol,
   job.gw = gw;
   /* S' is a mean over rays scaled to the image: a regular subgrid of
    * PROBE_MAX_RAYS estimates it as well as the whole grid, and keeps the
-   * probe's cost flat while the raycast's grows with the pixels. */
+   * probe's cost flat while the raycast's grows with the pixels. The
+   * runtime asks for fewer where the frame is short (rp__probe_ray_
+   * budget): the probe's cost is its rays'. */
+  if (max_rays < 1 || max_rays > PROBE_MAX_RAYS)
+    max_rays = PROBE_MAX_RAYS;
   job.sub = 1;
-  while (probe_rays(gw, gh, job.sub) > PROBE_MAX_RAYS)
+  while (probe_rays(gw, gh, job.sub) > max_rays)
     job.sub++;
   job.map_w = (gw + job.sub - 1) / job.sub;
   job.span = out->span;
