@@ -668,6 +668,10 @@ static int play_frame(replay *r, player *p, uint32_t i) {
   p->devices_alive = p->st.devices_alive;
   if (i >= r->o.settle)
     fill_row(r, p, f, replay_frame_events(&st), &p->rows[f]);
+  if (r->split.rt != NULL && p->kind == RP_CONTROL_PREDICTED &&
+      replay_split_frame(r, p, f, i >= r->o.settle ? &p->rows[f] : NULL) !=
+          0)
+    return 1;
   return 0;
 }
 
@@ -807,12 +811,14 @@ static int play_one_by_one(replay *r, player *ps, int n) {
 static int play(replay *r, player *ps, int n) {
   int in_turn = n > 1 && r->o.ndevices == 0 && r->o.mem.budget_bytes == 0;
   int rc = 1, k;
-  if (replay_player_open(r, &ps[0], 0) != 0 || calibrate(r, &ps[0]) != 0)
+  if (replay_player_open(r, &ps[0], 0) != 0 || calibrate(r, &ps[0]) != 0 ||
+      (r->o.split > 0 && replay_split_open(r) != 0))
     goto out;
   if (in_turn && (rc = play_in_turn(r, ps, n)) >= 0)
     goto out;
   rc = play_one_by_one(r, ps, n);
 out:
+  replay_split_close(r);
   for (k = 0; k < n; k++) {
     if (ps[k].st.device_count > 0) {
       uint32_t i;
@@ -984,9 +990,6 @@ static int replay_main(int argc, char **argv, const replay_sink *sink) {
   }
   if (play(&r, players, nctl) != 0)
     goto out;
-  for (k = 0; r.o.split > 0 && k < nctl; k++)
-    if (kinds[k] == RP_CONTROL_PREDICTED && replay_split(&r, rows[k]) != 0)
-      goto out;
   for (k = 0; k < nctl; k++) {
     if (replay_summarise(kinds[k], rows[k], r.frames,
                          rp_space_max_density(&r.space), &sums[k]) != 0) {

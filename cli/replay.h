@@ -145,6 +145,11 @@ typedef struct error_split {
    * times 2 for context, two single renders; 1 + pi / 2R for switching,
    * a render less a median of R; pi / 2R for the model, a median of R). */
   double context_excess, switch_excess, model_excess;
+  /* The typical frame's: the median of each term's absolute value (the
+   * noise's: the median of the repeats' spreads). The machine's bursts
+   * (a frame twice as long, now and then) are heavy tails that the rms
+   * weighs by their square. */
+  double pass_med, context_med, switch_med, model_med, noise_med;
 } error_split;
 
 typedef struct summary {
@@ -218,6 +223,10 @@ struct replay {
   noise_floor noise;
   char device_names[RP_GROUP_MAX_DEVICES][168];
   FILE *trace; /* --trace */
+  /* --split: the runtime that renders the predicted controller's frames
+   * again (replay_split.c), and room for its repeats' times. */
+  player split;
+  double *split_t;
 };
 
 /* Steps p's runtime one frame; 1 (printed) when it failed. */
@@ -238,11 +247,17 @@ void replay_player_close(player *p);
 
 /* ---- replay_split.c ---------------------------------------------------- */
 
-/* --split: replays the predicted controller's recorded frames `rows` on
- * a runtime of its own (controller none, each frame at the density the
- * controller chose) and fills their split_* figures; 0 or 1
+/* --split: opens r->split, the runtime that renders each frame of the
+ * predicted controller again (controller none, at the density the
+ * controller chose), right after it; 0 or 1 (printed). */
+int replay_split_open(replay *r);
+void replay_split_close(replay *r);
+/* Frame f of the sequence (a settle frame when row is NULL) on r->split,
+ * at the density p's runtime just rendered it at: once, and for a
+ * recorded row R times more, into its split_* figures; 0 or 1
  * (printed). */
-int replay_split(replay *r, frame_row *rows);
+int replay_split_frame(replay *r, const player *p, uint32_t f,
+                       frame_row *row);
 /* The split's figures over n rows into *out. */
 void replay_split_summarise(const frame_row *rows, uint32_t n,
                             uint32_t repeats, error_split *out);

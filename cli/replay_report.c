@@ -446,6 +446,11 @@ static void add_split(cJSON *o, const error_split *e) {
   cli_json_figure(x, "context_excess", e->context_excess);
   cli_json_figure(x, "switch_excess", e->switch_excess);
   cli_json_figure(x, "model_excess", e->model_excess);
+  cli_json_figure(x, "pass_median", e->pass_med);
+  cli_json_figure(x, "context_median", e->context_med);
+  cli_json_figure(x, "switch_median", e->switch_med);
+  cli_json_figure(x, "model_median", e->model_med);
+  cli_json_figure(x, "noise_median", e->noise_med);
 }
 
 static void print_json(const replay_result *r, const summary *s) {
@@ -551,8 +556,8 @@ static void print_split(const summary *sums, int nctl) {
     return;
   printf("\nwhere predicted's error comes from (--split: %u frames, %u "
          "repeats each; share of the target):\n"
-         "%-10s %8s %8s %8s %8s\n", e->frames, e->repeats, "term", "rms",
-         "mean", "ms_share", ">noise");
+         "%-10s %8s %8s %8s %8s %8s\n", e->frames, e->repeats, "term",
+         "rms", "mean", "ms_share", ">noise", "median");
   {
     const char *names[] = {"pass", "context", "switching", "model"};
     const double rms[] = {e->pass_rms, e->context_rms, e->switch_rms,
@@ -561,13 +566,17 @@ static void print_split(const summary *sums, int nctl) {
                            e->model_mean};
     const double beyond[] = {NAN, e->context_excess, e->switch_excess,
                              e->model_excess};
+    const double med[] = {e->pass_med, e->context_med, e->switch_med,
+                          e->model_med};
     int i;
     for (i = 0; i < 4; i++)
-      printf("%-10s %8.4f %+8.4f %8.3f %8.4f\n", names[i], rms[i], mean[i],
-             rms[i] * rms[i] / (e->pass_rms * e->pass_rms), beyond[i]);
+      printf("%-10s %8.4f %+8.4f %8.3f %8.4f %8.4f\n", names[i], rms[i],
+             mean[i], rms[i] * rms[i] / (e->pass_rms * e->pass_rms),
+             beyond[i], med[i]);
   }
-  printf("%-10s %8.4f\n%-10s %8.4f\n%-10s %8.4f\n", "noise",
-         e->noise_rms, "frame", e->frame_rms, "outside", e->outside_rms);
+  printf("%-10s %8.4f %35.4f\n%-10s %8.4f\n%-10s %8.4f\n", "noise",
+         e->noise_rms, e->noise_med, "frame", e->frame_rms, "outside",
+         e->outside_rms);
 }
 
 /* The per-class section after the table: a row per class with frames

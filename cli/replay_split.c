@@ -1,23 +1,25 @@
 /* raypace replay --split R: where the predicted controller's error comes
  * from (M10; docs/pacing.md, "Where the error comes from").
  *
- * After the replay, one more runtime (controller none) plays the
- * sequence again, and renders each recorded frame of the predicted
- * controller at the density that controller chose for it: once right
- * after the frame before (the first render at the frame's settings, as
- * the controller's own frame was), then R times more with nothing
- * changed but the camera posted again (see split_frame). Nothing else runs on the machine meanwhile: the repeats
- * measure the machine's own timing noise at fixed settings, not
- * interleaved with other work, and their median is what the frame costs
- * once settled. The controller's frame, its first render here and the
- * settled cost then split the pass's error (replay.h, error_split). */
+ * One more runtime (controller none) follows the predicted controller's
+ * runtime frame by frame: right after that runtime renders a frame, this
+ * one renders the same frame (the same events, at the density the
+ * controller chose): once, as the controller's own frame was, right
+ * after the frame before; then, for a recorded frame, R times more with
+ * nothing changed but the camera posted again (see split_frame). All of
+ * it within milliseconds of the controller's frame, so that the
+ * machine's slower drifts (seconds) fall on every term alike. The
+ * repeats measure the machine's own timing noise at fixed settings, and
+ * their median is what the frame costs once settled. The controller's
+ * frame, its first render here and the settled cost then split the
+ * pass's error (replay.h, error_split). */
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
 
 #include "replay.h"
 
-/* Mean and sample standard deviation of n > 1 values. */
+/* Sample standard deviation of n > 1 values. */
 static double sd_of(const double *v, uint32_t n) {
   double m = 0.0, q = 0.0;
   uint32_t i;
@@ -29,30 +31,55 @@ static double sd_of(const double *v, uint32_t n) {
   return sqrt(q / (n - 1));
 }
 
-/* Frame f on the split runtime: its state and the predicted
- * controller's density, a first render and `repeats` more. */
-static int split_frame(replay *r, player *p, frame_row *row, double *t) {
+int replay_split_open(replay *r) {
+  memset(&r->split, 0, sizeof r->split);
+  r->split.kind = RP_CONTROL_NONE;
+  if ((r->split_t = malloc(r->o.split * sizeof *r->split_t)) == NULL)
+    return cli_error(r->ctx, "--split", RP_ENOMEM);
+  if (!r->o.quiet)
+    fprintf(stderr, "replay: --split: each of predicted's frames again "
+                    "on a runtime of its own, then %u times more\n",
+            r->o.split);
+  return replay_player_open(r, &r->split, 0);
+}
+
+void replay_split_close(replay *r) {
+  replay_player_close(&r->split);
+  free(r->split_t);
+  r->split_t = NULL;
+}
+
+int replay_split_frame(replay *r, const player *p, uint32_t f,
+                       frame_row *row) {
+  player *s = &r->split;
+  double *t = r->split_t;
   rp_sequence_state st;
   rp_camera cam;
   uint32_t j;
   int err, moved;
-  if (replay_sequence_frame(r, row->frame, &st, &cam) != 0 ||
-      replay_post_state(r, p, &st, &cam, replay_frame_target(r, &st)) != 0)
+  if (row != NULL)
+    row->split_first_ms = row->split_ms = row->split_sd_ms = NAN;
+  if (!(p->st.rho > 0)) /* no density to render at */
+    return 0;
+  if (replay_sequence_frame(r, f, &st, &cam) != 0 ||
+      replay_post_state(r, s, &st, &cam, replay_frame_target(r, &st)) != 0)
     return 1;
-  if ((err = rp_runtime_set_density(p->rt, row->rho)) != 0) {
+  if ((err = rp_runtime_set_density(s->rt, p->st.rho)) != 0) {
     fprintf(stderr, "raypace: replay: --split: density %g of frame %u: "
-                    "%s\n", row->rho, row->frame, rp_strerror(err));
+                    "%s\n", p->st.rho, f, rp_strerror(err));
     return 1;
   }
-  if (replay_step(p, "--split") != 0)
+  if (replay_step(s, "--split") != 0)
     return 1;
-  /* The same effects, or the frames are not the same work (an AO
-   * computation that ended on another frame here). */
-  if (p->st.effects != row->effects || p->st.passes != 1)
+  /* A settle frame only keeps the runtimes in step. A frame that
+   * rendered other effects (an AO computation that ended on another
+   * frame here) or in several passes is not the same work. */
+  if (row == NULL || s->st.effects != row->effects || s->st.passes != 1 ||
+      row->passes != 1)
     return 0;
-  row->split_first_ms = p->st.render_ms;
-  /* Frame 0 follows the settle frames, which held its camera. */
-  moved = row->frame > 0 && st.camera_changed;
+  row->split_first_ms = s->st.render_ms;
+  /* The frame after the settle frames held its camera. */
+  moved = f > 0 && st.camera_changed;
   for (j = 0; j < r->o.split; j++) {
     /* On a frame whose camera moved, the camera posted anew, one ulp
      * apart every other repeat (the same image), so that the work a new
@@ -62,52 +89,23 @@ static int split_frame(replay *r, player *p, frame_row *row, double *t) {
     rp_camera again = cam;
     if (moved && j % 2 == 0)
       again.eye[0] = nextafterf(cam.eye[0], INFINITY);
-    if (replay_post_state(r, p, &st, &again, 0.0) != 0 ||
-        replay_step(p, "--split") != 0)
+    if (replay_post_state(r, s, &st, &again, 0.0) != 0 ||
+        replay_step(s, "--split") != 0)
       return 1;
-    t[j] = p->st.render_ms;
+    t[j] = s->st.render_ms;
   }
   row->split_sd_ms = sd_of(t, r->o.split);
   row->split_ms = cli_median(t, (int)r->o.split);
   return 0;
 }
-
-int replay_split(replay *r, frame_row *rows) {
-  player p;
-  double *t;
-  uint32_t f;
-  int rc = 1;
-  for (f = 0; f < r->frames; f++)
-    rows[f].split_first_ms = rows[f].split_ms = rows[f].split_sd_ms = NAN;
-  if ((t = malloc(r->o.split * sizeof *t)) == NULL)
-    return cli_error(r->ctx, "--split", RP_ENOMEM);
-  memset(&p, 0, sizeof p);
-  p.kind = RP_CONTROL_NONE;
-  if (!r->o.quiet)
-    fprintf(stderr, "replay: --split: predicted's %u frames again, %u "
-                    "repeats each, on a runtime of their own\n",
-            r->frames, r->o.split);
-  if (replay_player_open(r, &p, 0) != 0)
-    goto out;
-  /* The warm-up left the runtime in the first frame's state; the settle
-   * frames then play it at frame 0's density, as they did before the
-   * controller's frame 0. */
-  for (f = 0; f < r->o.settle && rows[0].rho > 0; f++)
-    if (rp_runtime_set_density(p.rt, rows[0].rho) != 0 ||
-        replay_step(&p, "--split") != 0)
-      goto out;
-  for (f = 0; f < r->frames; f++) {
-    frame_row *row = &rows[f];
-    if (!(row->rho > 0)) /* a failed frame has no density to render */
-      continue;
-    if (split_frame(r, &p, row, t) != 0)
-      goto out;
-  }
-  rc = 0;
-out:
-  replay_player_close(&p);
-  free(t);
-  return rc;
+/* The median of |x| over n values; sorts a copy in `work`. */
+static double median_abs(const double *x, uint32_t n, double *work) {
+  uint32_t i;
+  if (n == 0)
+    return NAN;
+  for (i = 0; i < n; i++)
+    work[i] = fabs(x[i]);
+  return cli_median(work, (int)n);
 }
 
 /* Root mean square and mean of n values x. */
@@ -135,12 +133,15 @@ enum { T_PASS, T_CONTEXT, T_SWITCH, T_MODEL, T_NOISE, T_FRAME, T_OUTSIDE,
 
 void replay_split_summarise(const frame_row *rows, uint32_t n,
                             uint32_t repeats, error_split *out) {
-  double *x = malloc((size_t)T_COUNT * (n > 0 ? n : 1) * sizeof *x);
+  /* The terms, T_COUNT rows of n, and a row to sort in. */
+  double *x = malloc((size_t)(T_COUNT + 1) * (n > 0 ? n : 1) * sizeof *x);
+  double *work;
   uint32_t i, m = 0;
   memset(out, 0, sizeof *out);
   out->repeats = repeats;
   if (x == NULL)
     return; /* frames 0: no split to report */
+  work = x + (size_t)T_COUNT * n;
   for (i = 0; i < n; i++) {
     const frame_row *w = &rows[i];
     double tgt = w->target_ms;
@@ -164,6 +165,11 @@ void replay_split_summarise(const frame_row *rows, uint32_t n,
   rms_mean(x + T_NOISE * n, m, &out->noise_rms, NULL);
   rms_mean(x + T_FRAME * n, m, &out->frame_rms, NULL);
   rms_mean(x + T_OUTSIDE * n, m, &out->outside_rms, NULL);
+  out->pass_med = median_abs(x + T_PASS * n, m, work);
+  out->context_med = median_abs(x + T_CONTEXT * n, m, work);
+  out->switch_med = median_abs(x + T_SWITCH * n, m, work);
+  out->model_med = median_abs(x + T_MODEL * n, m, work);
+  out->noise_med = median_abs(x + T_NOISE * n, m, work);
   free(x);
   {
     const double v = out->noise_rms * out->noise_rms;

@@ -166,12 +166,26 @@ static void classes_add_up(void **state) {
               isnan(s.classes[4].mean_density));
 }
 
+/* The median of n values by insertion sort (in place): the middle one,
+ * or the mean of the two middle ones. */
+static double insertion_median(double *v, uint32_t n) {
+  uint32_t i, j;
+  for (i = 1; i < n; i++)
+    for (j = i; j > 0 && v[j - 1] > v[j]; j--) {
+      double t = v[j];
+      v[j] = v[j - 1];
+      v[j - 1] = t;
+    }
+  return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
+}
+
 /* --split's summary: each term's rms and mean worked out again here over
  * the frames that have a split; the means add up to the pass error's,
  * as the terms do frame by frame. */
 static void split_terms_add_up(void **state) {
   static frame_row rows[N];
   uint32_t seed = 5, i, m = 0;
+  static double av[5][N];
   double q[6] = {0}, mean[4] = {0};
   error_split e;
   (void)state;
@@ -209,6 +223,8 @@ static void split_terms_add_up(void **state) {
       q[k] += v[k] * v[k];
     for (k = 0; k < 4; k++)
       mean[k] += v[k];
+    for (k = 0; k < 5; k++)
+      av[k][m] = fabs(v[k]);
     m++;
   }
   replay_split_summarise(rows, N, 4, &e);
@@ -221,6 +237,11 @@ static void split_terms_add_up(void **state) {
   assert_true(fabs(e.noise_rms - sqrt(q[4] / m)) < 1e-12);
   assert_true(fabs(e.outside_rms - sqrt(q[5] / m)) < 1e-12);
   assert_true(fabs(e.pass_mean - mean[0] / m) < 1e-12);
+  assert_true(e.pass_med == insertion_median(av[0], m));
+  assert_true(e.context_med == insertion_median(av[1], m));
+  assert_true(e.switch_med == insertion_median(av[2], m));
+  assert_true(e.model_med == insertion_median(av[3], m));
+  assert_true(e.noise_med == insertion_median(av[4], m));
   assert_true(fabs(e.pass_mean - (e.context_mean + e.switch_mean +
                                    e.model_mean)) < 1e-12);
   /* Beyond the noise: the noise's variance off each mean square, by
@@ -240,7 +261,8 @@ static void split_terms_add_up(void **state) {
     rows[i].split_ms = NAN;
   replay_split_summarise(rows, N, 4, &e);
   assert_int_equal(e.frames, 0);
-  assert_true(isnan(e.pass_rms) && isnan(e.model_mean));
+  assert_true(isnan(e.pass_rms) && isnan(e.model_mean) &&
+              isnan(e.model_med));
 }
 
 int main(void) {
