@@ -642,6 +642,12 @@ static int render_pass(rp__engine *e, double rho, double *pass_ms) {
   st->raycast_ms = pass_raycast_ms(&rep, st->samples);
   e->train.valid = (s->warm_sets >> s->render_effects) & 1u;
   s->warm_sets |= 1u << s->render_effects;
+  /* A set the frame built for itself (the first on a volume) holds only
+   * the variants this frame used: the others (the opacity correction at
+   * another step) are built ahead now, on the build lanes, or a later
+   * frame at another step pays for a build (a TF switch with AO on
+   * lavapipe: +15 ms). Asking again for a set asked for is free. */
+  (void)rp_device_group_prepare(e->group, s->render_effects);
   s->shown_effects = s->render_effects;
   e->train.probe = s->probe;
   e->train.step = st->step;
