@@ -35,6 +35,9 @@ enum {
   F_NOISE_SD,
   F_NOISE_MAX,
   F_FULL_MS,
+  F_LATE,
+  F_OVER_1_2,
+  F_EVENT,
   FIGURES
 };
 
@@ -42,7 +45,7 @@ static const char *const figure_names[FIGURES] = {
     "ratio",         "ratio_reachable",    "ratio_from_noise",
     "max_overshoot", "switch_overshoot",   "density_vs_two_pass",
     "density_vs_last_frame", "still_sd_best", "still_slowest",
-    "no_adaptation_ms"};
+    "no_adaptation_ms", "late", "over_1_2", "event_frame_max"};
 
 static void figures_of(const cli_pacing_goals *g, double *f) {
   f[F_RATIO] = g->ratio;
@@ -55,6 +58,9 @@ static void figures_of(const cli_pacing_goals *g, double *f) {
   f[F_NOISE_SD] = g->noise_sd_best;
   f[F_NOISE_MAX] = g->noise_max_over;
   f[F_FULL_MS] = g->full_ms;
+  f[F_LATE] = g->late;
+  f[F_OVER_1_2] = g->over_1_2;
+  f[F_EVENT] = g->event_frame_max;
 }
 
 static void usage(FILE *f) {
@@ -107,12 +113,17 @@ static void usage(FILE *f) {
       "sw_ovr = its largest overshoot, anywhere and on TF switches (goal\n"
       "<= %g %%); d/2p and d/lf = its mean density over two-pass's (goal\n"
       ">= %g) and last-frame's (>= %g); still_sd and still_max = the\n"
-      "still frame's best-predictor spread and slowest frame; met =\n"
-      "the goals the medians meet: R (reachable ratio), O (max\n"
-      "overshoot), D (d/2p), L (d/lf), '.' for one missed.\n",
+      "still frame's best-predictor spread and slowest frame; late\n"
+      "and >1.2T = its share of frames over the target (goal <= %g %%)\n"
+      "and over 1.2x it (<= %g %%); event = its slowest TF-switch or\n"
+      "camera-cut frame over that frame's target (<= %g); met = the\n"
+      "goals the medians meet: R (reachable ratio), O (max overshoot),\n"
+      "D (d/2p), L (d/lf), M (late), T (>1.2T), E (event), '.' for\n"
+      "one missed.\n",
       MAX_RUNS, CLI_PARETO_COMPARE_AT, CLI_PARETO_HEADROOMS,
       CLI_PARETO_MISS_RATES, CLI_GOAL_RATIO,
-      100 * CLI_GOAL_OVERSHOOT, CLI_GOAL_TWO_PASS, CLI_GOAL_LAST_FRAME);
+      100 * CLI_GOAL_OVERSHOOT, CLI_GOAL_TWO_PASS, CLI_GOAL_LAST_FRAME,
+      100 * CLI_GOAL_LATE, 100 * CLI_GOAL_OVER_1_2, CLI_GOAL_EVENT_FRAME);
 }
 
 double cli_finite_median(double *v, int n) {
@@ -150,21 +161,29 @@ static void print_row(const char *name, const double *f) {
   print_cell(f[F_DENS_LF], " %5.2f", 6);
   print_cell(100 * f[F_NOISE_SD], " %7.1f%%", 9);
   print_cell(100 * f[F_NOISE_MAX], " %8.1f%%", 10);
+  print_cell(100 * f[F_LATE], " %5.1f%%", 7);
+  print_cell(100 * f[F_OVER_1_2], " %5.1f%%", 7);
+  print_cell(f[F_EVENT], " %5.2f", 6);
 }
 
 static void print_header(void) {
-  printf("%-16s %6s %9s %6s %7s %7s %5s %5s %8s %9s\n", "sequence",
-         "ratio", "reachable", "noise", "max_ovr", "sw_ovr", "d/2p",
-         "d/lf", "still_sd", "still_max");
+  printf("%-16s %6s %9s %6s %7s %7s %5s %5s %8s %9s %6s %6s %5s\n",
+         "sequence", "ratio", "reachable", "noise", "max_ovr", "sw_ovr",
+         "d/2p", "d/lf", "still_sd", "still_max", "late", ">1.2T",
+         "event");
 }
 
-/* M4's goals met by the medians f, as letters (usage). */
-static void goals_met(const double *f, char met[5]) {
+/* M4's and M10's goals met by the medians f, as letters (usage). A
+ * sequence without a TF switch or cut meets the event goal. */
+static void goals_met(const double *f, char met[8]) {
   met[0] = f[F_OPEN] <= CLI_GOAL_RATIO ? 'R' : '.';
   met[1] = f[F_MAX_OVER] <= CLI_GOAL_OVERSHOOT ? 'O' : '.';
   met[2] = f[F_DENS_2P] >= CLI_GOAL_TWO_PASS ? 'D' : '.';
   met[3] = f[F_DENS_LF] >= CLI_GOAL_LAST_FRAME ? 'L' : '.';
-  met[4] = '\0';
+  met[4] = f[F_LATE] <= CLI_GOAL_LATE ? 'M' : '.';
+  met[5] = f[F_OVER_1_2] <= CLI_GOAL_OVER_1_2 ? 'T' : '.';
+  met[6] = !(f[F_EVENT] > CLI_GOAL_EVENT_FRAME) ? 'E' : '.';
+  met[7] = '\0';
 }
 
 static void json_figures(cJSON *o, const double *f) {
@@ -385,7 +404,7 @@ static int play_run(const pacing_opts *o, const char *seq, int i,
 static int play_sequence(const pacing_opts *o, int s,
                          double (*run)[FIGURES]) {
   double median[FIGURES], column[MAX_RUNS];
-  char met[5];
+  char met[8];
   int i, k, rc;
   for (i = 0; i < (int)o->runs; i++) {
     for (k = 0; k < FIGURES; k++)

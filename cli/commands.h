@@ -20,6 +20,10 @@ int cli_cmd_replay(int argc, char **argv);
 #define CLI_GOAL_OVERSHOOT 0.25  /* max_over <= */
 #define CLI_GOAL_TWO_PASS 1.5    /* density_two_pass >= */
 #define CLI_GOAL_LAST_FRAME 0.9  /* density_last_frame >= */
+/* M10's, at miss_rate 0.05: */
+#define CLI_GOAL_LATE 0.07       /* late <= */
+#define CLI_GOAL_OVER_1_2 0.02   /* over_1_2 <= */
+#define CLI_GOAL_EVENT_FRAME 1.25 /* event_frame_max <= */
 typedef struct cli_pacing_goals {
   double ratio;       /* predicted's target RMSE / the best of last-frame,
                          vtk, ue5 and valve */
@@ -31,6 +35,10 @@ typedef struct cli_pacing_goals {
   double density_last_frame;            /* predicted's / last-frame's */
   double noise_sd_best, noise_max_over; /* the still frame's */
   double full_ms; /* the no-adaptation frame, measured at the start */
+  /* M10's, predicted's: its share of frames over the target and over
+   * 1.2x it, and its slowest frame of a TF switch or camera cut against
+   * that frame's target (NaN without one). */
+  double late, over_1_2, event_frame_max;
 } cli_pacing_goals;
 
 /* Plays `raypace replay` with argv (argv[0] = "replay") and fills goals

@@ -164,6 +164,9 @@ typedef struct summary {
   double mean_imbalance; /* --devices */
   uint32_t devices_alive; /* --devices: at the end of the run */
   class_stats classes[REPLAY_CLASSES];
+  /* The slowest frame of a TF switch or camera cut itself, t / target;
+   * NaN without one. */
+  double event_frame_max;
   error_split split; /* --split: the predicted controller's */
 } summary;
 

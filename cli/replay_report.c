@@ -167,9 +167,13 @@ int replay_summarise(rp_controller_kind kind, const frame_row *rows,
   memset(s, 0, sizeof(*s));
   s->kind = kind;
   s->frames = n;
+  s->event_frame_max = NAN;
   for (i = 0; i < n; i++) {
     const frame_row *w = &rows[i];
     double d = w->measured_ms - w->target_ms, rel = d / w->target_ms;
+    if ((w->events & (REPLAY_EV_TF | REPLAY_EV_CUT)) &&
+        !(w->measured_ms / w->target_ms <= s->event_frame_max))
+      s->event_frame_max = w->measured_ms / w->target_ms;
     se += d * d;
     se_rel += rel * rel;
     /* A frame at the top density that is still under the target had no
@@ -468,6 +472,7 @@ static void print_json(const replay_result *r, const summary *s) {
   cJSON_AddNumberToObject(o, "target_rmse_open_ms", s->rmse_open_ms);
   cJSON_AddNumberToObject(o, "max_overshoot", s->max_over);
   cJSON_AddNumberToObject(o, "switch_overshoot", s->switch_over);
+  cli_json_figure(o, "event_frame_max", s->event_frame_max);
   cJSON_AddNumberToObject(o, "miss_rate", s->miss_rate);
   cJSON_AddNumberToObject(o, "share_over_1_2", s->share_over_20);
   cJSON_AddNumberToObject(o, "mean_density", s->mean_density);
@@ -614,6 +619,7 @@ void replay_goals_clear(cli_pacing_goals *g) {
   g->density_two_pass = g->density_last_frame = NAN;
   g->noise_sd_best = g->noise_max_over = NAN;
   g->full_ms = NAN;
+  g->late = g->over_1_2 = g->event_frame_max = NAN;
 }
 
 /* The issue's goals as ratios within this run (cli_pacing_goals): NaN
@@ -655,6 +661,9 @@ void replay_goals(const replay_result *r, const summary *sums, int nctl,
   }
   g->max_over = p->max_over;
   g->switch_over = p->switch_over;
+  g->late = p->miss_rate;
+  g->over_1_2 = p->share_over_20;
+  g->event_frame_max = p->event_frame_max;
   if (by[RP_CONTROL_TWO_PASS] != NULL)
     g->density_two_pass =
         p->mean_density / by[RP_CONTROL_TWO_PASS]->mean_density;

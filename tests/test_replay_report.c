@@ -129,6 +129,14 @@ static void classes_add_up(void **state) {
   assert_int_equal(replay_summarise(RP_CONTROL_PREDICTED, rows, N, 1.0, &s),
                    0);
   assert_true(fabs(s.switch_over - switch_over) < 1e-12);
+  /* The slowest frame of a TF switch or cut itself. */
+  {
+    double ev = -1.0;
+    for (i = 0; i < N; i++)
+      if (rows[i].events & (REPLAY_EV_TF | REPLAY_EV_CUT))
+        ev = fmax(ev, rows[i].measured_ms / rows[i].target_ms);
+    assert_true(ev > 0.0 && s.event_frame_max == ev);
+  }
   /* The whole run's miss rate: every frame over its target, counted. */
   for (i = 0, j = 0; i < N; i++)
     j += rows[i].measured_ms > rows[i].target_ms;

@@ -301,7 +301,7 @@ check "bench pacing json" "$rp" bench pacing gen:ml:16 --backend reference \
 if [ "$(grep -c '"runs":3,' "$dir/out")" = 2 ]; then pass=$((pass + 1))
 else echo "FAIL: bench pacing: not two sequences of 3 runs"; cat "$dir/out"
   fails=$((fails + 1)); fi
-for field in ratio_reachable density_vs_two_pass; do
+for field in ratio_reachable density_vs_two_pass late; do
   bad=$(awk -v f="\"$field\":" '{
     n = 0; s = $0
     while ((i = index(s, f)) > 0) {
@@ -318,7 +318,7 @@ for field in ratio_reachable density_vs_two_pass; do
 done
 check "bench pacing table" "$rp" bench pacing gen:ml:16 --backend reference \
   --sequences orbit --runs 2 --frames 4 --settle 1 --size 16x16 --quiet
-has "bench pacing met" "  met [R.][O.][D.][L.]$"
+has "bench pacing met" "  met [R.][O.][D.][L.][M.][T.][E.]$"
 has "bench pacing each run" "^orbit #2 "
 refuse "bench pacing runs" "bad value '0' for --runs" "$rp" bench pacing \
   gen:ml:8 --runs 0
