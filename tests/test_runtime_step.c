@@ -35,12 +35,14 @@ typedef struct seen {
   int has_image;
   int step_in_callback; /* tries rp_runtime_step from the callback */
   int step_err;
+  uint32_t probe_rays; /* the last frame's probe's, 0 without one */
 } seen;
 
 static void on_frame(rp_runtime *rt, const rp_frame *f, void *user) {
   seen *s = user;
   s->last = *f->stats;
   s->has_image = f->rgba != NULL;
+  s->probe_rays = f->probe != NULL ? f->probe->rays : 0;
   if (f->rgba != NULL && s->frames <= FRAMES)
     memcpy(s->image[s->frames], f->rgba, W * H * 4);
   if (f->rgba != NULL)
@@ -479,6 +481,69 @@ static void test_pacing_miss_rates(void **state) {
   rp_context_destroy(ctx);
 }
 
+/* The probe's rays on the reference backend (the wall clock) at a
+ * target, after five frames of an orbit: the first probe is untimed
+ * and traces them all; the later ones what 2 % of the target pays for at
+ * the probe's own cost per ray (docs/pacing.md, "Prediction's own
+ * cost"). Returns the last probe's rays and the first's in *first. */
+static uint32_t probe_rays_at(rp_context *ctx, double target,
+                              uint32_t *first) {
+  rp_runtime_desc d;
+  rp_runtime *rt = NULL;
+  rp_volume *vol = make_volume(ctx, 24);
+  seen *s = calloc(1, sizeof *s);
+  rp_tf *tf = NULL;
+  int i;
+  assert_non_null(s);
+  assert_int_equal(rp_tf_create_preset(ctx, "ct-soft", &tf), 0);
+  base_desc(&d, s, RP_PACE_MANUAL);
+  d.controller = RP_CONTROL_NONE;
+  d.target_ms = target;
+  /* Large enough for the whole pre-pass grid (a 40x32 frame has 80 of
+   * its rays); on_frame copies only its first W x H pixels. */
+  d.width = d.height = 256;
+  assert_int_equal(rp_runtime_create(ctx, &d, &rt), 0);
+  assert_int_equal(rp_runtime_set_volume(rt, make_volume(ctx, 24)), 0);
+  assert_int_equal(rp_runtime_set_tf(rt, tf), 0);
+  for (i = 0; i < 5; i++) {
+    rp_camera cam = orbit(vol, 5.0f * (float)i);
+    assert_int_equal(rp_runtime_set_camera(rt, &cam), 0);
+    int err = rp_runtime_step(rt);
+    if (err != 0)
+      fail_msg("target %g, frame %d: %s: %s", target, i, rp_strerror(err),
+               s->last.error);
+    if (i == 0)
+      *first = s->probe_rays;
+  }
+  i = (int)s->probe_rays;
+  assert_int_equal(rp_runtime_destroy(rt), 0);
+  rp_tf_destroy(tf);
+  rp_volume_destroy(vol);
+  free(s);
+  return (uint32_t)i;
+}
+
+/* 2 % of a 0.1 ms target pays for 2 us of probe: under the floor of
+ * 128 rays on any machine this runs on (a ray costs 0.3 to 1 us here,
+ * and no CPU does one in under 0.015 us); 2 % of a 60 s target (the
+ * largest) pays for 1.2 s: every ray on any (a ray would have to cost
+ * over 1 ms). The
+ * bounds are a hundred times wider than this machine's figures, so no
+ * load makes the test flaky. */
+static void test_probe_follows_target(void **state) {
+  rp_context *ctx = rp_test_context();
+  uint32_t first_small, first_large;
+  uint32_t small = probe_rays_at(ctx, 0.1, &first_small);
+  uint32_t large = probe_rays_at(ctx, 60000.0, &first_large);
+  (void)state;
+  print_message("probe rays: %u (first %u) at 0.1 ms, %u (first %u) at "
+                "60 s\n", small, first_small, large, first_large);
+  assert_true(first_small == first_large && first_large > 128);
+  assert_true(small <= 128 && small > 0);
+  assert_int_equal(large, first_large);
+  rp_context_destroy(ctx);
+}
+
 int main(void) {
   const struct CMUnitTest tests[] = {
       cmocka_unit_test(test_step),
@@ -489,6 +554,7 @@ int main(void) {
       cmocka_unit_test(test_pacing_deterministic),
       cmocka_unit_test(test_pacing_holds_target),
       cmocka_unit_test(test_pacing_miss_rates),
+      cmocka_unit_test(test_probe_follows_target),
   };
   return cmocka_run_group_tests(tests, NULL, NULL);
 }
