@@ -122,8 +122,26 @@ RP_API const char *rp_last_error(const rp_context *ctx);
 typedef enum rp_voxel_type {
   RP_U8 = 1,
   RP_U16 = 2,
-  RP_F32 = 3
+  RP_F32 = 3,
+  RP_S8 = 4,  /* signed types and 32-bit integers: \since 0.11 */
+  RP_S16 = 5, /* CT in Hounsfield units is usually stored so */
+  RP_U32 = 6,
+  RP_S32 = 7
 } rp_voxel_type;
+
+/** Where a volume lies in the patient (or world) frame, when its file
+ *  says so. Patient space is DICOM's LPS: +x towards the patient's left,
+ *  +y posterior, +z superior, in millimetres. Column j of `direction`
+ *  (direction[3 * j + 0..2]) is the unit vector along which voxel index j
+ *  grows; the columns are orthonormal (a mirrored grid has determinant
+ *  -1). `origin` is the patient position of voxel (0, 0, 0)'s centre.
+ *  \since 0.11 */
+typedef struct rp_orientation {
+  int known;           /* 0: the file said nothing; direction is then the
+                          identity and origin zero */
+  double direction[9];
+  double origin[3];
+} rp_orientation;
 
 typedef struct rp_volume rp_volume;
 
@@ -132,6 +150,7 @@ typedef struct rp_volume_desc {
   rp_voxel_type type;    /* required */
   float spacing[3];      /* voxel size; 0: 1.0 */
   const void *data;      /* x fastest, native endianness; copied */
+  rp_orientation orientation; /* all zero: not known. \since 0.11 */
 } rp_volume_desc;
 
 /** Creates a volume from memory (the voxels are copied; the caller keeps
@@ -173,6 +192,7 @@ typedef struct rp_volume_info {
   float spacing[3];
   double min, max;       /* data range over all voxels */
   uint32_t blocks[3];    /* 16^3 blocks per axis (edge blocks partial) */
+  rp_orientation orientation; /* \since 0.11 */
 } rp_volume_info;
 
 RP_API void rp_volume_get_info(const rp_volume *vol, rp_volume_info *info);

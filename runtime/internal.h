@@ -21,7 +21,16 @@ struct rp_volume {
   rp_context *ctx;
   uint64_t id; /* unique per volume object (rp__next_id) */
   uint32_t dims[3];
+  /* `type` is how the voxels are stored, and always one a device reads
+   * (RP_U8, RP_U16 or RP_F32); `data_type` is what the user gave. A data
+   * value is the stored value plus `data_offset` (int8 and int16 are
+   * stored offset by 128 and 32768; 32-bit integers as float32, offset
+   * 0). min and max are in stored units, so that everything downstream
+   * that maps values to TF positions works unchanged. */
   rp_voxel_type type;
+  rp_voxel_type data_type;
+  double data_offset;
+  rp_orientation orientation;
   float spacing[3];
   double min, max;
   size_t voxel_count;
@@ -185,6 +194,11 @@ int rp__volume_decode(rp_context *ctx, const char *name,
                       size_t len, rp_volume **out);
 
 /* ---- transfer.c -------------------------------------------------------- */
+
+/* A value in the volume's data units (HU for CT) in stored units. */
+static inline double rp__volume_stored(const rp_volume *v, double data) {
+  return data - v->data_offset;
+}
 
 /* Position of a data value in TF space: (v - min) / (max - min), 0 when the
  * range is a single value. Not clamped. */

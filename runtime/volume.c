@@ -134,6 +134,7 @@ int rp__volume_adopt(rp_context *ctx, const uint32_t dims[3],
   v->id = rp__next_id();
   memcpy(v->dims, dims, sizeof v->dims);
   v->type = type;
+  v->data_type = type;
   v->voxel_count = voxels;
   v->data = data;
   err = check_spacing(ctx, spacing, v->spacing);
@@ -195,9 +196,10 @@ void rp_volume_get_info(const rp_volume *vol, rp_volume_info *info) {
     info->spacing[a] = vol->spacing[a];
     info->blocks[a] = rp__blocks_along(vol->dims[a]);
   }
-  info->type = vol->type;
-  info->min = vol->min;
-  info->max = vol->max;
+  info->type = vol->data_type;
+  info->min = vol->min + vol->data_offset;
+  info->max = vol->max + vol->data_offset;
+  info->orientation = vol->orientation;
 }
 
 const void *rp_volume_data(const rp_volume *vol) {

@@ -490,7 +490,7 @@ static void test_bad_desc(void **state) {
  * full bricks all sit on one side of an even split. */
 static rp_volume *lopsided(rp_context *ctx) {
   uint32_t dims[3] = {44, 24, 21}, x, y, z;
-  rp_volume_desc d = {{44, 24, 21}, RP_U8, {0, 0, 0}, NULL};
+  rp_volume_desc d = {{44, 24, 21}, RP_U8, {0, 0, 0}, NULL, {0}};
   uint8_t *v = malloc((size_t)dims[0] * dims[1] * dims[2]);
   rp_volume *vol = NULL;
   assert_non_null(v);
@@ -765,7 +765,7 @@ static void test_static_finds_balance(void **state) {
   uint8_t *v = malloc(96 * 32 * 32);
   assert_non_null(v);
   for (trial = 0; trial < 24; trial++) {
-    rp_volume_desc vd = {{96, 32, 32}, RP_U8, {0, 0, 0}, NULL};
+    rp_volume_desc vd = {{96, 32, 32}, RP_U8, {0, 0, 0}, NULL, {0}};
     rp_volume *vol = NULL;
     rp_histograms *h = NULL;
     rp_occupancy *occ = NULL;

@@ -130,7 +130,7 @@ typedef struct scene {
 static void box_scene(scene *s, const char *tf) {
   enum { X = 32, Y = 24, Z = 40 };
   uint8_t *v = malloc((size_t)X * Y * Z);
-  rp_volume_desc vd = {{X, Y, Z}, RP_U8, {0, 0, 0}, NULL};
+  rp_volume_desc vd = {{X, Y, Z}, RP_U8, {0, 0, 0}, NULL, {0}};
   assert_non_null(v);
   memset(v, 200, (size_t)X * Y * Z);
   v[0] = 0;

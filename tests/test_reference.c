@@ -26,7 +26,7 @@
 
 static rp_volume *const_volume(rp_context *ctx, uint32_t nx, uint32_t ny,
                                uint32_t nz, const float spacing[3]) {
-  rp_volume_desc d = {{nx, ny, nz}, RP_U8, {0, 0, 0}, NULL};
+  rp_volume_desc d = {{nx, ny, nz}, RP_U8, {0, 0, 0}, NULL, {0}};
   size_t n = (size_t)nx * ny * nz;
   uint8_t *data = malloc(n);
   rp_volume *vol = NULL;
@@ -44,7 +44,7 @@ static rp_volume *const_volume(rp_context *ctx, uint32_t nx, uint32_t ny,
 static rp_volume *func_volume(rp_context *ctx, const uint32_t dims[3],
                               const float spacing[3],
                               double (*fn)(double, double, double)) {
-  rp_volume_desc d = {{dims[0], dims[1], dims[2]}, RP_F32, {1, 1, 1}, NULL};
+  rp_volume_desc d = {{dims[0], dims[1], dims[2]}, RP_F32, {1, 1, 1}, NULL, {0}};
   size_t n = (size_t)dims[0] * dims[1] * dims[2], i, j, k;
   float *data = malloc(n * sizeof *data);
   rp_volume *vol = NULL;

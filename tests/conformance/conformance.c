@@ -36,7 +36,7 @@ void drop_scene(scene *s) {
 static rp_volume *volume_from(const uint32_t dims[3], rp_voxel_type type,
                               const float spacing[3], const void *data) {
   rp_volume_desc d = {{dims[0], dims[1], dims[2]}, type,
-                      {spacing[0], spacing[1], spacing[2]}, data};
+                      {spacing[0], spacing[1], spacing[2]}, data, {0}};
   rp_volume *vol = NULL;
   assert_int_equal(rp_volume_create(ctx, &d, &vol), 0);
   return vol;

@@ -29,7 +29,7 @@
  * grid, rays that miss the box included. */
 static scene blob_scene(void) {
   enum { X = 96, Y = 80, Z = 80 };
-  rp_volume_desc vd = {{X, Y, Z}, RP_U8, {1.0f, 1.0f, 1.0f}, NULL};
+  rp_volume_desc vd = {{X, Y, Z}, RP_U8, {1.0f, 1.0f, 1.0f}, NULL, {0}};
   uint8_t *v = calloc((size_t)X * Y * Z, 1);
   rp_volume *vol = NULL;
   uint32_t x, y, z;

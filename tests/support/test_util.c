@@ -213,7 +213,7 @@ static rp_volume *float_volume(rp_context *ctx, const uint32_t dims[3],
                                const float spacing[3],
                                double (*f)(double, double, double)) {
   rp_volume_desc d = {{dims[0], dims[1], dims[2]}, RP_F32,
-                      {spacing[0], spacing[1], spacing[2]}, NULL};
+                      {spacing[0], spacing[1], spacing[2]}, NULL, {0}};
   float *data = malloc(sizeof(float) * dims[0] * dims[1] * dims[2]);
   rp_volume *vol = NULL;
   uint32_t x, y, z;
