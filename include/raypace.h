@@ -193,12 +193,20 @@ typedef struct rp_volume_info {
   double min, max;       /* data range over all voxels */
   uint32_t blocks[3];    /* 16^3 blocks per axis (edge blocks partial) */
   rp_orientation orientation; /* \since 0.11 */
+  /* How rp_volume_data's voxels are stored: a data value is the stored
+   * value plus stored_offset. int8 and int16 are stored as uint8 and
+   * uint16 offset by 128 and 32768; 32-bit integers as float32 (exact up
+   * to 2^24 in magnitude). \since 0.11 */
+  rp_voxel_type stored_type;
+  double stored_offset;
 } rp_volume_info;
 
 RP_API void rp_volume_get_info(const rp_volume *vol, rp_volume_info *info);
-/** Voxels in their native type, x fastest; owned by the volume. */
+/** The voxels as stored (rp_volume_info.stored_type: the type given for
+ *  uint8, uint16 and float32), x fastest; owned by the volume. */
 RP_API const void *rp_volume_data(const rp_volume *vol);
-/** Name of a voxel type ("uint8", "uint16", "float32"). */
+/** Name of a voxel type ("uint8", "int8", "uint16", "int16", "uint32",
+ *  "int32", "float32"; "unknown" for any other value). */
 RP_API const char *rp_voxel_type_name(rp_voxel_type type);
 
 /* ---- Transfer functions ------------------------------------------------ */

@@ -142,8 +142,15 @@ static inline uint32_t rp__blocks_along(uint32_t d) {
 }
 
 size_t rp__voxel_size(rp_voxel_type type);
-/* Takes ownership of `data` (allocated with rp__malloc on ctx) and computes
- * the range; rejects NaN/inf in float data. On failure frees `data`. */
+/* Validates an orientation (finite, orthonormal columns within 1e-3) and
+ * writes it normalised to out; NULL or not known gives the identity.
+ * `what` prefixes the message. */
+int rp__orientation_check(rp_context *ctx, const char *what,
+                          const rp_orientation *in, rp_orientation *out);
+/* Takes ownership of `data` (allocated with rp__malloc on ctx), converts
+ * signed and 32-bit integer voxels in place to the stored type, and
+ * computes the range; rejects NaN/inf in float data. On failure frees
+ * `data`. The orientation is left unknown. */
 int rp__volume_adopt(rp_context *ctx, const uint32_t dims[3],
                      rp_voxel_type type, const float spacing[3], void *data,
                      rp_volume **out);

@@ -9,6 +9,10 @@ size_t rp__voxel_size(rp_voxel_type type) {
   case RP_U8: return 1;
   case RP_U16: return 2;
   case RP_F32: return 4;
+  case RP_S8: return 1;
+  case RP_S16: return 2;
+  case RP_U32: return 4;
+  case RP_S32: return 4;
   default: return 0;
   }
 }
@@ -18,6 +22,10 @@ const char *rp_voxel_type_name(rp_voxel_type type) {
   case RP_U8: return "uint8";
   case RP_U16: return "uint16";
   case RP_F32: return "float32";
+  case RP_S8: return "int8";
+  case RP_S16: return "int16";
+  case RP_U32: return "uint32";
+  case RP_S32: return "int32";
   default: return "unknown";
   }
 }
@@ -113,6 +121,54 @@ static int compute_range(rp_context *ctx, rp_volume *v) {
   return 0;
 }
 
+/* Devices read three voxel types. The others are converted in place, each
+ * to a type of the same size, so that a loader's buffer is adopted without
+ * a second copy: int8 and int16 flip their sign bit (stored = value + 128
+ * or + 32768, exact, order kept), 32-bit integers become float32 (exact up
+ * to 2^24 in magnitude, within half a float ulp above). */
+static void store_for_devices(rp_volume *v) {
+  size_t i, n = v->voxel_count;
+  switch (v->data_type) {
+  case RP_S8: {
+    uint8_t *p = v->data;
+    for (i = 0; i < n; i++)
+      p[i] ^= 0x80u;
+    v->type = RP_U8, v->data_offset = -128.0;
+    break;
+  }
+  case RP_S16: {
+    uint16_t *p = v->data;
+    for (i = 0; i < n; i++)
+      p[i] ^= 0x8000u;
+    v->type = RP_U16, v->data_offset = -32768.0;
+    break;
+  }
+  case RP_U32: {
+    uint32_t *p = v->data;
+    float *f = v->data;
+    for (i = 0; i < n; i++) {
+      uint32_t u = p[i];
+      f[i] = (float)u;
+    }
+    v->type = RP_F32;
+    break;
+  }
+  case RP_S32: {
+    int32_t *p = v->data;
+    float *f = v->data;
+    for (i = 0; i < n; i++) {
+      int32_t u = p[i];
+      f[i] = (float)u;
+    }
+    v->type = RP_F32;
+    break;
+  }
+  default:
+    v->type = v->data_type;
+    break;
+  }
+}
+
 int rp__volume_adopt(rp_context *ctx, const uint32_t dims[3],
                      rp_voxel_type type, const float spacing[3], void *data,
                      rp_volume **out) {
@@ -133,10 +189,13 @@ int rp__volume_adopt(rp_context *ctx, const uint32_t dims[3],
   v->ctx = ctx;
   v->id = rp__next_id();
   memcpy(v->dims, dims, sizeof v->dims);
-  v->type = type;
   v->data_type = type;
+  v->orientation.direction[0] = 1.0; /* not known: the identity */
+  v->orientation.direction[4] = 1.0;
+  v->orientation.direction[8] = 1.0;
   v->voxel_count = voxels;
   v->data = data;
+  store_for_devices(v);
   err = check_spacing(ctx, spacing, v->spacing);
   if (err == 0)
     err = compute_range(ctx, v);
@@ -152,6 +211,7 @@ int rp_volume_create(rp_context *ctx, const rp_volume_desc *desc,
                      rp_volume **out) {
   uint64_t d64[3];
   size_t voxels = 0, bytes = 0;
+  rp_orientation orient;
   void *copy;
   int err;
   if (ctx == NULL)
@@ -162,6 +222,10 @@ int rp_volume_create(rp_context *ctx, const rp_volume_desc *desc,
   if (desc->data == NULL)
     return rp__fail(ctx, RP_EINVAL, "rp_volume_create: field 'data' is "
                     "NULL");
+  err = rp__orientation_check(ctx, "rp_volume_create", &desc->orientation,
+                              &orient);
+  if (err != 0)
+    return err;
   d64[0] = desc->dims[0], d64[1] = desc->dims[1], d64[2] = desc->dims[2];
   err = rp__volume_size(ctx, "rp_volume_create", "field 'dims'", d64,
                         desc->type, &voxels,
@@ -173,8 +237,58 @@ int rp_volume_create(rp_context *ctx, const rp_volume_desc *desc,
     return rp__fail(ctx, RP_ENOMEM, "rp_volume_create: cannot allocate %zu "
                     "bytes", bytes);
   memcpy(copy, desc->data, bytes);
-  return rp__volume_adopt(ctx, desc->dims, desc->type, desc->spacing, copy,
-                          out);
+  err = rp__volume_adopt(ctx, desc->dims, desc->type, desc->spacing, copy,
+                         out);
+  if (err == 0)
+    (*out)->orientation = orient;
+  return err;
+}
+
+int rp__orientation_check(rp_context *ctx, const char *what,
+                          const rp_orientation *in, rp_orientation *out) {
+  int i, j;
+  rp_orientation o;
+  memset(&o, 0, sizeof o);
+  o.direction[0] = o.direction[4] = o.direction[8] = 1.0;
+  if (in == NULL || !in->known) {
+    *out = o;
+    return 0;
+  }
+  for (i = 0; i < 9; i++)
+    if (!isfinite(in->direction[i]))
+      return rp__fail(ctx, RP_ENOTFINITE, "%s: field 'orientation."
+                      "direction[%d]': value %g is not finite", what, i,
+                      in->direction[i]);
+  for (i = 0; i < 3; i++)
+    if (!isfinite(in->origin[i]))
+      return rp__fail(ctx, RP_ENOTFINITE, "%s: field 'orientation."
+                      "origin[%d]': value %g is not finite", what, i,
+                      in->origin[i]);
+  /* Files round directions to a few digits; 1e-3 accepts that and still
+   * refuses a sheared or scaled grid, which this renderer cannot show. */
+  for (j = 0; j < 3; j++) {
+    const double *a = &in->direction[3 * j];
+    double len = sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2]);
+    if (!(fabs(len - 1.0) < 1e-3))
+      return rp__fail(ctx, RP_ERANGE, "%s: field 'orientation.direction': "
+                      "column %d has length %g (each column is a unit "
+                      "vector)", what, j, len);
+    for (i = 0; i < j; i++) {
+      const double *b = &in->direction[3 * i];
+      double dot = a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+      if (!(fabs(dot) < 1e-3))
+        return rp__fail(ctx, RP_ERANGE, "%s: field 'orientation."
+                        "direction': columns %d and %d are not orthogonal "
+                        "(dot product %g): a sheared grid is not supported",
+                        what, i, j, dot);
+    }
+    for (i = 0; i < 3; i++)
+      o.direction[3 * j + i] = a[i] / len;
+  }
+  memcpy(o.origin, in->origin, sizeof o.origin);
+  o.known = 1;
+  *out = o;
+  return 0;
 }
 
 void rp_volume_destroy(rp_volume *vol) {
@@ -200,6 +314,8 @@ void rp_volume_get_info(const rp_volume *vol, rp_volume_info *info) {
   info->min = vol->min + vol->data_offset;
   info->max = vol->max + vol->data_offset;
   info->orientation = vol->orientation;
+  info->stored_type = vol->type;
+  info->stored_offset = vol->data_offset;
 }
 
 const void *rp_volume_data(const rp_volume *vol) {

@@ -170,12 +170,7 @@ static int parse_double(const char *s, double *v) {
 }
 
 static const char *type_label(rp_voxel_type type) {
-  switch (type) {
-  case RP_U8: return "uint8";
-  case RP_U16: return "uint16";
-  case RP_F32: return "float32";
-  default: return "?";
-  }
+  return rp__voxel_size(type) != 0 ? rp_voxel_type_name(type) : "?";
 }
 
 const char *rp__volume_dims_text(char buf[96],
@@ -449,6 +444,15 @@ static const type_name nrrd_types[] = {
     {"ushort", RP_U16},         {"unsigned short", RP_U16},
     {"unsigned short int", RP_U16}, {"uint16", RP_U16},
     {"uint16_t", RP_U16},       {"float", RP_F32},
+    {"signed char", RP_S8},     {"int8", RP_S8},
+    {"int8_t", RP_S8},          {"short", RP_S16},
+    {"short int", RP_S16},      {"signed short", RP_S16},
+    {"signed short int", RP_S16}, {"int16", RP_S16},
+    {"int16_t", RP_S16},        {"int", RP_S32},
+    {"signed int", RP_S32},     {"int32", RP_S32},
+    {"int32_t", RP_S32},        {"uint", RP_U32},
+    {"unsigned int", RP_U32},   {"uint32", RP_U32},
+    {"uint32_t", RP_U32},
     {NULL, RP_U8}};
 
 static const field_name nrrd_fields[] = {
@@ -476,7 +480,8 @@ static int nrrd_field(rp_context *ctx, const char *name, unsigned bit,
   switch (bit) {
   case F_TYPE:
     return parse_type(ctx, name, "type", value, nrrd_types,
-                      "uchar, ushort, float and their aliases", &hdr->type);
+                      "uchar, ushort, float, signed char, short, int, uint and "
+                      "their aliases", &hdr->type);
   case F_DIMENSION:
     if (!parse_i64(value, &n) || n < 1)
       return rp__fail(ctx, RP_EFORMAT,
@@ -660,7 +665,12 @@ int rp__nrrd_parse(rp_context *ctx, const char *name, const uint8_t *buf,
 /* ---- Sidecar ------------------------------------------------------------- */
 
 static const type_name plain_types[] = {
-    {"uint8", RP_U8}, {"uint16", RP_U16}, {"float32", RP_F32}, {NULL, RP_U8}};
+    {"uint8", RP_U8},   {"uint16", RP_U16}, {"float32", RP_F32},
+    {"int8", RP_S8},    {"int16", RP_S16},  {"int32", RP_S32},
+    {"uint32", RP_U32}, {NULL, RP_U8}};
+
+#define RP__PLAIN_TYPE_LIST \
+  "uint8, int8, uint16, int16, uint32, int32, float32"
 
 static const field_name sidecar_keys[] = {
     {"file", F_DATA_FILE}, {"dims", F_SIZES},     {"type", F_TYPE},
@@ -721,7 +731,7 @@ int rp__sidecar_parse(rp_context *ctx, const char *name, const uint8_t *buf,
       break;
     case F_TYPE:
       rc = parse_type(ctx, name, "type", value, plain_types,
-                      "uint8, uint16, float32", &h.type);
+                      RP__PLAIN_TYPE_LIST, &h.type);
       break;
     case F_ENDIAN:
       rc = parse_endian(ctx, name, "endian", value, &h.big_endian);
@@ -833,7 +843,7 @@ int rp__raw_name_parse(rp_context *ctx, const char *path,
   memcpy(type, type_sep + 1, n);
   type[n] = '\0';
   if ((rc = parse_type(ctx, path, "type in the file name", type, plain_types,
-                       "uint8, uint16, float32", &h.type)) != 0)
+                       RP__PLAIN_TYPE_LIST, &h.type)) != 0)
     return rc;
   if (h.dims[0] == 0 || h.dims[1] == 0 || h.dims[2] == 0)
     return rp__fail(ctx, RP_ERANGE,

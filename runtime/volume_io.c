@@ -239,7 +239,7 @@ int rp_volume_load(rp_context *ctx, const char *path, rp_volume **out) {
     rc = rp__fail(ctx, RP_EFORMAT,
                   "%s: not a volume file; accepted: NRRD (starts with "
                   "NRRD000N), a sidecar (lines 'file:', 'dims:', 'type:') "
-                  "or NAME_XxYxZ_TYPE.raw (TYPE uint8, uint16, float32)",
+                  "or NAME_XxYxZ_TYPE.raw (TYPE uint8, int8, uint16, int16, uint32, int32, float32)",
                   path);
   }
 done:
