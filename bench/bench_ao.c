@@ -335,7 +335,7 @@ out:
 
 int main(int argc, char **argv) {
   static const char *defaults[] = {"bonsai", "engine", "headsq_ct"};
-  const char *set = "cl2", *tf = "ct-bone", *names[16];
+  const char *set = "cl2", *tf = "minmax-bone", *names[16];
   const char *data = getenv("RP_SHARED_DATA");
   int runs = 3, n = 0, i, rc = 0, sweep = 0;
   rp_context *ctx = NULL;

@@ -332,7 +332,7 @@ static int load_scene(rp_context *ctx, const char *data, const char *name,
   snprintf(path, sizeof path, "%s/%s/%s.txt", data, name, name);
   if (rp_volume_load(ctx, path, &s->vol) != 0)
     return 0;
-  if ((err = rp_tf_create_preset(ctx, "ct-bone", &s->tf)) != 0 ||
+  if ((err = rp_tf_create_preset(ctx, "minmax-bone", &s->tf)) != 0 ||
       (err = rp_histograms_build(ctx, s->vol, &s->h)) != 0 ||
       (err = rp_occupancy_build(ctx, s->h, s->tf, &s->occ)) != 0)
     die(ctx, name, err);
@@ -416,7 +416,7 @@ int main(int argc, char **argv) {
     rp_generate_desc g = {RP_GEN_PHANTOM, {40, 40, 40}, RP_U8, 0};
     rp_device *dev;
     if ((err = rp_volume_generate(ctx, &g, &s.vol)) != 0 ||
-        (err = rp_tf_create_preset(ctx, "ct-bone", &s.tf)) != 0 ||
+        (err = rp_tf_create_preset(ctx, "minmax-bone", &s.tf)) != 0 ||
         (err = rp_histograms_build(ctx, s.vol, &s.h)) != 0 ||
         (err = rp_occupancy_build(ctx, s.h, s.tf, &s.occ)) != 0)
       die(ctx, "phantom", err);

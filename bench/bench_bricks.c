@@ -100,7 +100,7 @@ static int bench_volume(rp_context *ctx, const char *backend,
   rp_volume_get_info(vol, &info);
   bytes = (double)info.dims[0] * info.dims[1] * info.dims[2] *
           (info.type == RP_U8 ? 1 : info.type == RP_U16 ? 2 : 4);
-  if ((err = rp_tf_create_preset(ctx, "ct-bone", &tf)) != 0 ||
+  if ((err = rp_tf_create_preset(ctx, "minmax-bone", &tf)) != 0 ||
       (err = rp_histograms_build(ctx, vol, &h)) != 0 ||
       (err = rp_occupancy_build(ctx, h, tf, &occ)) != 0)
     goto out;

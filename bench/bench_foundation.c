@@ -46,7 +46,7 @@ static double time_h(const rp_volume *vol, int threads, int runs) {
 
 static void bench_volume(rp_context *ctx, const char *name, rp_volume *vol,
                          int runs, uint32_t image) {
-  static const char *const tfs[] = {"ct-bone", "ct-soft", "mri", "opaque",
+  static const char *const tfs[] = {"minmax-bone", "minmax-soft", "mri", "opaque",
                                     "nearly-transparent", "transparent"};
   rp_volume_info in;
   rp_histograms *h = NULL;
@@ -104,7 +104,7 @@ static void bench_volume(rp_context *ctx, const char *name, rp_volume *vol,
     }
     for (k = 0; k < tx * ty; k++)
       samples += tiles[k].samples;
-    printf("%-22s reference raycast %ux%u ct-bone ERT+skip: %.0f ms, "
+    printf("%-22s reference raycast %ux%u minmax-bone ERT+skip: %.0f ms, "
            "%.2f M samples/s (1 thread)\n",
            name, image, image, bench_median(t, 3) * 1e3,
            samples / bench_median(t, 3) / 1e6);

@@ -82,7 +82,7 @@ static void usage_quality(FILE *f) {
           "in ray space (step), image space (image scale) and hybrid (both)"
           "\nand reports time against MSE, PSNR and SSIM, and the quality\n"
           "each space reaches at equal time budgets.\n\n"
-          "  --tf PRESET           transfer function (default ct-bone)\n"
+          "  --tf PRESET           transfer function (default minmax-bone)\n"
           "  --camera AZ,EL,DIST   orbit (default 30,20,2.5)\n"
           "  --size WxH            output size (default 512x512)\n"
           "  --backend NAME        opencl, vulkan or reference; default: the"
@@ -124,7 +124,7 @@ static int parse_quality(int argc, char **argv, quality_opts *o) {
       {0, 0, 0, 0}};
   int c, li = 0, have_size = 0, have_runs = 0;
   memset(o, 0, sizeof *o);
-  o->tf = "ct-bone";
+  o->tf = "minmax-bone";
   o->orbit[0] = 30, o->orbit[1] = 20, o->orbit[2] = 2.5f;
   o->width = o->height = 512;
   o->runs = 5;

@@ -53,7 +53,7 @@ typedef struct overhead_opts {
 } overhead_opts;
 
 /* The two transfer functions frames switch between. */
-static const char *const tf_names[2] = {"ct-bone", "ct-soft"};
+static const char *const tf_names[2] = {"minmax-bone", "minmax-soft"};
 
 /* The stages of seed 000 Table 3, as rp_frame_stats fields. */
 typedef struct stage {

@@ -46,7 +46,7 @@ static void usage_info(FILE *f) {
           "usage: raypace info VOLUME [--tf PRESET] [--histograms] [--json]"
           "\n\n"
           "  --tf PRESET    count empty blocks under this transfer function\n"
-          "                 (default ct-bone)\n"
+          "                 (default minmax-bone)\n"
           "  --histograms   also print per-block density histograms H (64\n"
           "                 bins) and opacity histograms H-alpha (16 bytes)\n"
           "  --json         one JSON object on stdout\n");
@@ -56,7 +56,7 @@ static void usage_render(FILE *f) {
   const char *const *p;
   fprintf(f,
           "usage: raypace render VOLUME -o OUT.png [options]\n\n"
-          "  --tf PRESET           transfer function (default ct-bone)\n"
+          "  --tf PRESET           transfer function (default minmax-bone)\n"
           "  --camera AZ,EL,DIST   orbit: azimuth and elevation in degrees,\n"
           "                        distance in bounding radii (default "
           "30,20,2.5)\n"
@@ -204,7 +204,7 @@ static int parse_info(int argc, char **argv, info_opts *o) {
                                        {0, 0, 0, 0}};
   int c;
   memset(o, 0, sizeof *o);
-  o->tf = "ct-bone";
+  o->tf = "minmax-bone";
   while ((c = getopt_long(argc, argv, "h", opts, NULL)) != -1) {
     switch (c) {
     case 't': o->tf = optarg; break;
@@ -353,7 +353,7 @@ static int parse_render(int argc, char **argv, render_opts *o) {
       {0, 0, 0, 0}};
   int c, li = 0;
   memset(o, 0, sizeof *o);
-  o->tf = "ct-bone";
+  o->tf = "minmax-bone";
   o->backend = NULL;
   o->orbit[0] = 30, o->orbit[1] = 20, o->orbit[2] = 2.5f;
   o->width = o->height = 512;

@@ -213,31 +213,80 @@ RP_API const char *rp_voxel_type_name(rp_voxel_type type);
 
 typedef struct rp_tf rp_tf;
 
-/** One control point. `x` is the position in [0, 1] over the volume's data
- *  range [min, max]; colour and alpha in [0, 1]. Alpha is the opacity of
- *  one reference step (rp_tf_desc.reference_step). */
+/** One control point. `x` is the position: in [0, 1] over the TF's range
+ *  (rp_tf_desc.range; by default the volume's data range [min, max]), or
+ *  a data value (HU for CT) when rp_tf_desc.units is RP_TF_DATA. Colour
+ *  and alpha in [0, 1]. Alpha is the opacity of one reference step
+ *  (rp_tf_desc.reference_step). */
 typedef struct rp_tf_point {
   float x, r, g, b, a;
 } rp_tf_point;
+
+/** What a control point's x is. \since 0.11 */
+typedef enum rp_tf_units {
+  RP_TF_NORMALISED = 0, /* x in [0, 1] over the range (rp_tf_range) */
+  RP_TF_DATA = 1        /* x in the volume's own values (HU for CT) */
+} rp_tf_units;
+
+/** Where a normalised TF's [0, 1] lies on a volume's values. Values
+ *  below the range take the first point's colour, above it the last's.
+ *  \since 0.11 */
+typedef enum rp_tf_range {
+  /* [min, max] of the volume: one outlier voxel moves every position */
+  RP_TF_RANGE_MINMAX = 0,
+  /* [range_lo, range_hi] percentiles of the volume's voxels, in [0, 100]:
+   * robust to outliers (a metal filling, a hot pixel) */
+  RP_TF_RANGE_PERCENTILES = 1,
+  /* [range_lo, range_hi] in data units: a window (width hi - lo, level
+   * their mean), the same on every volume */
+  RP_TF_RANGE_DATA = 2
+} rp_tf_range;
 
 typedef struct rp_tf_desc {
   const rp_tf_point *points; /* strictly increasing x; at least one */
   int count;
   float reference_step;      /* Delta_0 in voxels; 0: 1.0 */
   int lut_size;              /* entries; 0: 1024 (min 2, max 65536) */
+  /* \since 0.11. With RP_TF_DATA the range is the points' own span in
+   * data units and `range` must be RP_TF_RANGE_MINMAX (0). */
+  rp_tf_units units;
+  rp_tf_range range;
+  double range_lo, range_hi; /* for PERCENTILES and DATA: lo < hi */
 } rp_tf_desc;
 
 /** Builds a transfer function. Piecewise linear between points, constant
- *  outside them. NaN, infinities, values outside [0, 1] and unordered or
- *  repeated x are rejected with RP_ENOTFINITE / RP_ERANGE / RP_EINVAL and
- *  a message naming the point and field. \since 0.1 */
+ *  outside them. NaN, infinities, normalised values outside [0, 1] and
+ *  unordered or repeated x are rejected with RP_ENOTFINITE / RP_ERANGE /
+ *  RP_EINVAL and a message naming the point and field. \since 0.1 */
 RP_API int rp_tf_create(rp_context *ctx, const rp_tf_desc *desc,
                         rp_tf **out);
-/** Builds a named preset: "transparent" (all alpha 0), "opaque" (alpha 1
- *  everywhere), "ct-bone", "ct-soft", "mri", "ramp", "nearly-transparent".
+/** Builds a named preset. CT presets are placed in Hounsfield units on
+ *  their usual clinical windows (width/level): "ct-bone" (2000/500),
+ *  "ct-soft" (400/40), "ct-lung" (1500/-600), "ct-angio" (700/250). "mri"
+ *  spans the 1st to the 99.5th percentile of the volume's voxels. The
+ *  others span the volume's [min, max]: "transparent" (all alpha 0),
+ *  "opaque" (alpha 1 everywhere), "minmax-bone" and "minmax-soft" (the
+ *  ct-bone and ct-soft of 0.10 and before, for CT data not in HU), "ramp",
+ *  "nearly-transparent".
  *  \returns RP_EINVAL with the list of names for an unknown name. */
 RP_API int rp_tf_create_preset(rp_context *ctx, const char *name,
                                rp_tf **out);
+/** A copy of `src` whose [0, 1] spans the window [level - width / 2,
+ *  level + width / 2] in data units (HU for CT): how a radiologist's
+ *  window/level is applied to any TF. width must be > 0 and both finite
+ *  (RP_ERANGE / RP_ENOTFINITE naming the value otherwise). \since 0.11 */
+RP_API int rp_tf_window(rp_context *ctx, const rp_tf *src, double width,
+                        double level, rp_tf **out);
+/** The data values [*lo, *hi] over which tf's LUT lies on `vol`: values
+ *  below *lo take the LUT's first entry, above *hi its last. \since 0.11 */
+RP_API void rp_tf_data_range(const rp_tf *tf, const rp_volume *vol,
+                             double *lo, double *hi);
+/** Loads a transfer function from a text file: one control point per line
+ *  as "x r g b a", and optional lines "units: data" (x in data units) or
+ *  "units: normalised", "range: minmax", "range: percentiles LO HI",
+ *  "range: window WIDTH LEVEL", "reference_step: S"; '#' starts a
+ *  comment. Errors name the file, the line and the field. \since 0.11 */
+RP_API int rp_tf_load(rp_context *ctx, const char *path, rp_tf **out);
 /** The preset names, NULL-terminated. */
 RP_API const char *const *rp_tf_preset_names(void);
 RP_API void rp_tf_destroy(rp_tf *tf);

@@ -220,6 +220,7 @@ static int brick_mask(rp_context *ctx, const rp_volume *vol,
                       const rp_tf *tf, const rp__ao_ranges *r,
                       uint8_t **mask, uint64_t *full) {
   size_t n = (size_t)r->grid[0] * r->grid[1] * r->grid[2], b;
+  double span[2];
   uint8_t *m = rp__malloc(ctx, n);
   uint32_t *prefix = rp__malloc(ctx, ((size_t)tf->lut_size + 1) *
                                          sizeof *prefix);
@@ -233,11 +234,12 @@ static int brick_mask(rp_context *ctx, const rp_volume *vol,
    * constant time, where scanning its range of the table made a plan
    * of a 256^3 volume take about 60 ms here. */
   rp__tf_alpha_prefix(tf, prefix);
+  rp__tf_volume_range(tf, vol, span);
   *full = 0;
   for (b = 0; b < n; b++) {
     m[b] = (uint8_t)rp__tf_alpha_any(
-        tf, prefix, rp__value_to_x(r->range[2 * b], vol->min, vol->max),
-        rp__value_to_x(r->range[2 * b + 1], vol->min, vol->max));
+        tf, prefix, rp__value_to_x(r->range[2 * b], span[0], span[1]),
+        rp__value_to_x(r->range[2 * b + 1], span[0], span[1]));
     *full += m[b];
   }
   rp__free(ctx, prefix);
@@ -268,7 +270,8 @@ uint8_t rp__ao_voxel(const rp_volume *vol, const rp_tf *tf,
       if (inside) {
         float rgba[4];
         double v = rp__sample_trilinear(vol, p);
-        rp__tf_sample(tf, rp__value_to_x(v, vol->min, vol->max), rgba);
+        rp__tf_sample(tf, rp__value_to_x(v, s->value_min, s->value_max),
+                      rgba);
         alpha = rp_opacity_correct(rgba[3], s->step, ref_step);
       }
       T *= 1.0 - alpha;
@@ -314,7 +317,9 @@ void rp__ao_reference_box(const rp_volume *vol, const rp_tf *tf,
                           const uint32_t end[3], uint32_t z0, uint32_t z1,
                           uint8_t *out) {
   rp_ao_job job;
-  rp__ao_job(s, lo, end, rp_tf_reference_step(tf), vol->min, vol->max,
+  double span[2];
+  rp__tf_volume_range(tf, vol, span);
+  rp__ao_job(s, lo, end, rp_tf_reference_step(tf), span[0], span[1],
              (uint32_t)tf->lut_size, &job);
   rp__ao_reference_job(vol, tf, &job, z0, z1, out);
 }

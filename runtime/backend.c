@@ -72,6 +72,7 @@ struct rp_device {
   uint64_t vol_id, tf_id;
   float ref_step;
   uint32_t lut_size;
+  double tf_span[2]; /* rp__tf_volume_range of the uploaded TF */
   /* The AO volume set for RP_EFFECT_AO renders: what it was computed
    * for, and its size on the device (0: none, and no AO memory). */
   uint64_t ao_vol_id, ao_tf_id, ao_bytes;
@@ -431,6 +432,7 @@ int rp_device_set_tf(rp_device *dev, const rp_tf *tf,
   dev->tf_id = tf->id;
   dev->ref_step = tf->reference_step;
   dev->lut_size = (uint32_t)tf->lut_size;
+  rp__tf_volume_range(tf, &dev->shape, dev->tf_span);
   record_time(dev);
   return 0;
 }
@@ -463,7 +465,7 @@ static int prepare_frame(rp_device *dev, const char *fn,
                     "render effects 0x%x", fn, dev->caps.device,
                     dev->caps.backend, (unsigned)unsupported);
   if ((err = rp__frame_params(ctx, &dev->shape, NULL, cam, d, dev->ref_step,
-                              dev->lut_size, rg, p)) != 0)
+                              dev->lut_size, dev->tf_span, rg, p)) != 0)
     return err;
   memcpy(p->occupied_lo, dev->box_lo, sizeof dev->box_lo);
   memcpy(p->occupied_end, dev->box_end, sizeof dev->box_end);
@@ -694,7 +696,7 @@ int rp_device_compute_ao(rp_device *dev, const rp_ao_plan *plan,
     return rp__fail(ctx, RP_EUNSUPPORTED, "%s: device '%s' (%s) cannot "
                     "compute ambient occlusion", fn, dev->caps.device,
                     dev->caps.backend);
-  rp__ao_job(plan, lo, end, dev->ref_step, dev->shape.min, dev->shape.max,
+  rp__ao_job(plan, lo, end, dev->ref_step, dev->tf_span[0], dev->tf_span[1],
              dev->lut_size, &job);
   if ((err = dev->ops->compute_ao(dev->impl, &job, out)) != 0)
     return err;

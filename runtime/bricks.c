@@ -18,7 +18,7 @@ struct rp__bricks {
   size_t stored_voxels, stored_bytes;
   uint8_t *store;       /* count bricks of stored_bytes, x fastest */
   double *vmin, *vmax;  /* per brick, its border included */
-  double range_min, range_max; /* the volume's, for TF positions */
+  rp__value_range values; /* the volume's, for the TF's range */
   uint8_t *visible;     /* per brick, under the current TF */
   uint32_t visible_count;
   double fill_value;    /* slot 0's transparent value */
@@ -175,8 +175,7 @@ int rp__bricks_create(rp_context *ctx, const rp_volume *vol,
   count = (uint64_t)b->grid[0] * b->grid[1] * b->grid[2];
   b->count = (uint32_t)count;
   b->slots = slots;
-  b->range_min = vol->min;
-  b->range_max = vol->max;
+  rp__volume_values(vol, &b->values);
   b->store = count * b->stored_bytes <= SIZE_MAX
                  ? rp__malloc(ctx, (size_t)count * b->stored_bytes)
                  : NULL;
@@ -231,14 +230,12 @@ int rp__bricks_create(rp_context *ctx, const rp_volume *vol,
 /* The same TF-space clamp rp__tf_alpha_max applies, widened by one LUT
  * entry each way: the kernels place a value in the LUT in float, and a
  * brick they see must never be called invisible here. */
-static int range_visible(const rp__bricks *b, const rp_tf *tf, double lo,
+static int range_visible(const rp_tf *tf, const double span[2], double lo,
                          double hi) {
   double pad = tf->lut_size > 1 ? 1.0 / (tf->lut_size - 1) : 1.0;
-  return rp__tf_alpha_max(tf,
-                          rp__value_to_x(lo, b->range_min, b->range_max) -
-                              pad,
-                          rp__value_to_x(hi, b->range_min, b->range_max) +
-                              pad) > 0.0f;
+  return rp__tf_alpha_max(tf, rp__value_to_x(lo, span[0], span[1]) - pad,
+                          rp__value_to_x(hi, span[0], span[1]) + pad) >
+         0.0f;
 }
 
 static void write_fill(rp__bricks *b, double v) {
@@ -256,10 +253,11 @@ static void write_fill(rp__bricks *b, double v) {
 void rp__bricks_set_tf(rp__bricks *b, const rp_tf *tf) {
   uint32_t i;
   int have_fill = 0;
-  double fill = b->fill_value;
+  double fill = b->fill_value, span[2];
+  rp__tf_stored_range(tf, &b->values, span);
   b->visible_count = 0;
   for (i = 0; i < b->count; i++) {
-    b->visible[i] = (uint8_t)range_visible(b, tf, b->vmin[i], b->vmax[i]);
+    b->visible[i] = (uint8_t)range_visible(tf, span, b->vmin[i], b->vmax[i]);
     b->visible_count += b->visible[i];
     /* Slot 0 holds a value an invisible brick holds: transparent, with
      * the margin above, wherever the kernels place it. */

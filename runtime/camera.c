@@ -284,7 +284,8 @@ uint64_t rp__lattice_count(double s, double t1, double step) {
 int rp__frame_params(rp_context *ctx, const rp_volume *shape,
                      const rp_occupancy *occ, const rp_camera *cam,
                      const rp_render_desc *d, float ref_step,
-                     uint32_t lut_size, rp__raygen *rg, rp_frame_params *p) {
+                     uint32_t lut_size, const double tf_span[2],
+                     rp__raygen *rg, rp_frame_params *p) {
   int err, a;
   if ((err = rp__raygen_init(ctx, cam, shape, d->width, d->height, rg)) != 0)
     return err;
@@ -312,8 +313,8 @@ int rp__frame_params(rp_context *ctx, const rp_volume *shape,
   p->ref_step = ref_step;
   p->ert_threshold = d->ert_threshold;
   p->effects = d->effects;
-  p->value_min = (float)shape->min;
-  p->value_max = (float)shape->max;
+  p->value_min = (float)tf_span[0];
+  p->value_max = (float)tf_span[1];
   p->lut_size = lut_size;
   return 0;
 }

@@ -116,9 +116,7 @@ int rp_histograms_build(rp_context *ctx, const rp_volume *vol,
   }
   h->block_count = (uint32_t)nblocks;
   h->vol_id = vol->id;
-  h->range.type = vol->type;
-  h->range.min = vol->min;
-  h->range.max = vol->max;
+  rp__volume_values(vol, &h->range);
   h->counts = rp__calloc(ctx, (size_t)h->block_count * RP_DENSITY_BINS,
                          sizeof *h->counts);
   if (vol->type != RP_F32)

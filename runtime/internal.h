@@ -17,6 +17,9 @@ struct rp_context {
   char last_error[RP__ERRMSG_MAX];
 };
 
+/* Per-mille quantiles kept of a volume's values (rp__value_range). */
+#define RP__QUANTILES 1001
+
 struct rp_volume {
   rp_context *ctx;
   uint64_t id; /* unique per volume object (rp__next_id) */
@@ -33,6 +36,7 @@ struct rp_volume {
   rp_orientation orientation;
   float spacing[3];
   double min, max;
+  float quantile[RP__QUANTILES]; /* as rp__value_range.quantile */
   size_t voxel_count;
   void *data; /* owned; voxel_count values of `type` */
 };
@@ -44,13 +48,21 @@ struct rp_tf {
   int lut_size;
   float reference_step;
   float *lut; /* lut_size * 4 floats, RGBA, straight colour */
+  /* Where the LUT's [0, 1] lies on a volume's values: resolved for each
+   * volume by rp__tf_stored_range and nowhere else. */
+  rp_tf_range range;
+  double range_lo, range_hi;
 };
 
 /* What the histograms need to know of their volume, copied so that H does
  * not keep a pointer into an object the caller may destroy first. */
 typedef struct rp__value_range {
-  rp_voxel_type type;
-  double min, max;
+  rp_voxel_type type; /* stored */
+  double min, max;    /* stored units */
+  double offset;      /* a data value is stored + offset */
+  /* quantile[i]: the stored value below which i/1000 of the voxels lie
+   * (0: min, 1000: max): what percentile ranges of a TF read. */
+  float quantile[RP__QUANTILES];
 } rp__value_range;
 
 struct rp_histograms {
@@ -206,6 +218,19 @@ int rp__volume_decode(rp_context *ctx, const char *name,
 static inline double rp__volume_stored(const rp_volume *v, double data) {
   return data - v->data_offset;
 }
+
+/* The facts about a volume's values that a TF's range reads. */
+void rp__volume_values(const rp_volume *v, rp__value_range *out);
+/* The stored-value interval [out[0], out[1]] that the TF's LUT spans on
+ * a volume whose values are `r` (rp_tf_range: [min, max], percentiles or
+ * a window in data units). The one place TF positions are tied to a
+ * volume: every renderer and every derived structure (occupancy, bricks,
+ * AO) maps a stored value v to rp__value_to_x(v, out[0], out[1]). */
+void rp__tf_stored_range(const rp_tf *tf, const rp__value_range *r,
+                         double out[2]);
+/* rp__tf_stored_range for a volume. */
+void rp__tf_volume_range(const rp_tf *tf, const rp_volume *v,
+                         double out[2]);
 
 /* Position of a data value in TF space: (v - min) / (max - min), 0 when the
  * range is a single value. Not clamped. */

@@ -152,6 +152,7 @@ int rp_occupancy_update(rp_occupancy *occ, const rp_tf *tf) {
   static const int N = RP_DENSITY_BINS;
   float reach[RP_DENSITY_BINS][RP_DENSITY_BINS];
   uint32_t b, empty = 0;
+  double span[2];
   int i, j;
   if (occ == NULL)
     return RP_EINVAL;
@@ -160,29 +161,30 @@ int rp_occupancy_update(rp_occupancy *occ, const rp_tf *tf) {
                     "required");
   h = occ->h;
   r = &h->range;
+  rp__tf_stored_range(tf, r, span);
   for (i = 0; i < N; i++) {
     double lo, hi, x0, x1;
     rp__bin_value_range(r, i, &lo, &hi);
     start[i] = lo;
     end[i] = hi;
-    x0 = rp__value_to_x(lo, r->min, r->max);
-    x1 = rp__value_to_x(hi >= lo ? hi : lo, r->min, r->max);
+    x0 = rp__value_to_x(lo, span[0], span[1]);
+    x1 = rp__value_to_x(hi >= lo ? hi : lo, span[0], span[1]);
     bin_mean[i] = rp__tf_alpha_mean(tf, x0, x1);
     bin_opacity[i] = opacity_bin(bin_mean[i]);
   }
   /* end() never decreases with the bin, so extending an interval by one
    * bin only adds [end(u-1), end(u)]. */
   for (i = 0; i < N; i++) {
-    double x0 = rp__value_to_x(start[i], r->min, r->max);
+    double x0 = rp__value_to_x(start[i], span[0], span[1]);
     double x1 = rp__value_to_x(end[i] >= start[i] ? end[i] : start[i],
-                               r->min, r->max);
+                               span[0], span[1]);
     reach[i][i] = rp__tf_alpha_max(tf, x0, x1);
     for (j = i + 1; j < N; j++) {
       double xa = rp__value_to_x(end[j - 1] > start[i] ? end[j - 1]
                                                        : start[i],
-                                 r->min, r->max);
+                                 span[0], span[1]);
       double xb = rp__value_to_x(end[j] > start[i] ? end[j] : start[i],
-                                 r->min, r->max);
+                                 span[0], span[1]);
       float m = rp__tf_alpha_max(tf, xa, xb);
       reach[i][j] = m > reach[i][j - 1] ? m : reach[i][j - 1];
     }

@@ -98,14 +98,16 @@ void rp__reference_render(const rp_volume *vol, const rp_tf *tf,
 
 /* A frame's camera resolved for the scaled image (rg) and its float form
  * for kernels (p), as the front end hands it to a backend; `d` resolved
- * and checked. `shape` supplies dims, spacing and data range; `occ` the
+ * and checked. `shape` supplies dims and spacing, tf_span the stored
+ * values the TF's LUT spans (rp__tf_volume_range); `occ` the
  * box of the occupied blocks (NULL: the whole grid). Backend tests build
  * their frames with it, so they drive a backend exactly as the front end
  * does. */
 int rp__frame_params(rp_context *ctx, const rp_volume *shape,
                      const rp_occupancy *occ, const rp_camera *cam,
                      const rp_render_desc *d, float ref_step,
-                     uint32_t lut_size, rp__raygen *rg, rp_frame_params *p);
+                     uint32_t lut_size, const double tf_span[2],
+                     rp__raygen *rg, rp_frame_params *p);
 
 /* rp_device_render that can also return per-tile fetch counts (backends
  * with a counting variant; tests check the cost model's k with it). */

@@ -149,6 +149,10 @@ static int ref_raycast(void *p, const rp_frame_params *fp,
   d.ert_threshold = fp->ert_threshold;
   d.effects = fp->effects;
   r->tf.reference_step = fp->ref_step;
+  /* The LUT came without its range: the frame's span is it. */
+  r->tf.range = RP_TF_RANGE_DATA;
+  r->tf.range_lo = (double)fp->value_min + r->vol->data_offset;
+  r->tf.range_hi = (double)fp->value_max + r->vol->data_offset;
   if (r->ao != NULL) {
     memset(&ao_view, 0, sizeof ao_view);
     ao_view.ctx = r->ctx;

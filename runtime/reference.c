@@ -20,7 +20,8 @@
  * every skipped sample has opacity exactly 0 and adds exactly 0: skipping
  * never changes a pixel, only the sample count.
  *
- * Per sample: v = trilinear value; x = rp__value_to_x(v); TF at x gives
+ * Per sample: v = trilinear value; x = rp__value_to_x(v) over the TF's
+ * range on the volume (rp__tf_volume_range); TF at x gives
  * straight colour c and alpha a for the TF's reference step;
  * a' = rp_opacity_correct(a, step, reference step). With shading, c is
  * lit by a headlight (below). Front to back, premultiplied:
@@ -73,6 +74,7 @@ double rp__sample_trilinear(const rp_volume *vol, const double p[3]) {
 typedef struct render_ctx {
   const rp_volume *vol;
   const rp_tf *tf;
+  double span[2];      /* rp__tf_volume_range: the TF's stored values */
   const uint8_t *grid; /* NULL: no skipping */
   uint32_t blocks[3];
   double step;
@@ -114,7 +116,7 @@ static int occupied(const render_ctx *rc, const rp__ray *ray, uint64_t i) {
 static void shade(const render_ctx *rc, const rp__ray *ray, const double p[3],
                   double rgb[3]) {
   const rp_volume *vol = rc->vol;
-  double g[3], len, ndotl, range = vol->max - vol->min, gain, spec;
+  double g[3], len, ndotl, range = rc->span[1] - rc->span[0], gain, spec;
   int a;
   for (a = 0; a < 3; a++) {
     double q[3] = {p[0], p[1], p[2]}, fp, fm;
@@ -168,7 +170,7 @@ static void cast(const render_ctx *rc, const rp__ray *ray, ray_result *out) {
     float tf[4];
     point_at(ray, t, p);
     v = rp__sample_trilinear(vol, p);
-    rp__tf_sample(rc->tf, rp__value_to_x(v, vol->min, vol->max), tf);
+    rp__tf_sample(rc->tf, rp__value_to_x(v, rc->span[0], rc->span[1]), tf);
     alpha = rp_opacity_correct(tf[3], rc->step_f, rc->ref_step);
     for (c = 0; c < 3; c++)
       rgb[c] = tf[c];
@@ -350,6 +352,7 @@ void rp__reference_render(const rp_volume *vol, const rp_tf *tf,
   uint32_t tiles_x, tx, ty;
   rc.vol = vol;
   rc.tf = tf;
+  rp__tf_volume_range(tf, vol, rc.span);
   rc.grid = (d->effects & RP_EFFECT_SKIP) ? grid : NULL;
   if (rc.grid != NULL) {
     rc.blocks[0] = blocks[0];

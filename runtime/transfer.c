@@ -43,6 +43,35 @@ static int check_unit(rp_context *ctx, int i, const char *field, float v) {
   return 0;
 }
 
+static int check_range(rp_context *ctx, const rp_tf_desc *d) {
+  if (d->units != RP_TF_NORMALISED && d->units != RP_TF_DATA)
+    return rp__fail(ctx, RP_EINVAL, "transfer function: field 'units': "
+                    "value %d is not an rp_tf_units", (int)d->units);
+  if (d->range == RP_TF_RANGE_MINMAX)
+    return 0;
+  if (d->range != RP_TF_RANGE_PERCENTILES && d->range != RP_TF_RANGE_DATA)
+    return rp__fail(ctx, RP_EINVAL, "transfer function: field 'range': "
+                    "value %d is not an rp_tf_range", (int)d->range);
+  if (d->units == RP_TF_DATA)
+    return rp__fail(ctx, RP_EINVAL, "transfer function: field 'range': "
+                    "points in data units carry their own range (leave "
+                    "'range' at RP_TF_RANGE_MINMAX)");
+  if (!isfinite(d->range_lo) || !isfinite(d->range_hi))
+    return rp__fail(ctx, RP_ENOTFINITE, "transfer function: fields "
+                    "'range_lo', 'range_hi': values %g, %g must be finite",
+                    d->range_lo, d->range_hi);
+  if (!(d->range_lo < d->range_hi))
+    return rp__fail(ctx, RP_ERANGE, "transfer function: fields "
+                    "'range_lo', 'range_hi': %g is not below %g",
+                    d->range_lo, d->range_hi);
+  if (d->range == RP_TF_RANGE_PERCENTILES &&
+      (d->range_lo < 0.0 || d->range_hi > 100.0))
+    return rp__fail(ctx, RP_ERANGE, "transfer function: fields "
+                    "'range_lo', 'range_hi': percentiles %g, %g are "
+                    "outside [0, 100]", d->range_lo, d->range_hi);
+  return 0;
+}
+
 static int validate(rp_context *ctx, const rp_tf_desc *d) {
   int i, err;
   if (d->points == NULL || d->count < 1)
@@ -59,9 +88,15 @@ static int validate(rp_context *ctx, const rp_tf_desc *d) {
   if (d->lut_size != 0 && (d->lut_size < 2 || d->lut_size > RP__LUT_MAX))
     return rp__fail(ctx, RP_ERANGE, "transfer function: field 'lut_size': "
                     "value %d is outside [2, %d]", d->lut_size, RP__LUT_MAX);
+  if ((err = check_range(ctx, d)) != 0)
+    return err;
   for (i = 0; i < d->count; i++) {
     const rp_tf_point *p = &d->points[i];
-    if ((err = check_unit(ctx, i, "x", p->x)) != 0 ||
+    if (d->units == RP_TF_DATA && !isfinite(p->x))
+      return rp__fail(ctx, RP_ENOTFINITE, "transfer function: point %d "
+                      "field 'x': value %g is not finite", i, (double)p->x);
+    if ((d->units != RP_TF_DATA && (err = check_unit(ctx, i, "x", p->x)) !=
+                                       0) ||
         (err = check_unit(ctx, i, "r", p->r)) != 0 ||
         (err = check_unit(ctx, i, "g", p->g)) != 0 ||
         (err = check_unit(ctx, i, "b", p->b)) != 0 ||
@@ -122,9 +157,20 @@ int rp_tf_create(rp_context *ctx, const rp_tf_desc *desc, rp_tf **out) {
   tf->lut_size = n;
   tf->reference_step =
       desc->reference_step != 0.0f ? desc->reference_step : 1.0f;
+  tf->range = desc->range;
+  tf->range_lo = desc->range_lo, tf->range_hi = desc->range_hi;
+  if (desc->units == RP_TF_DATA) {
+    /* The table spans the points; outside them the TF is constant, as the
+     * clamped table read is. */
+    tf->range = RP_TF_RANGE_DATA;
+    tf->range_lo = desc->points[0].x;
+    tf->range_hi = desc->points[desc->count - 1].x;
+  }
   for (i = 0; i < n; i++) {
-    double v[4];
-    eval_points(desc, (double)i / (n - 1), v);
+    double v[4], x = (double)i / (n - 1);
+    if (desc->units == RP_TF_DATA)
+      x = tf->range_lo + x * (tf->range_hi - tf->range_lo);
+    eval_points(desc, x, v);
     for (c = 0; c < 4; c++)
       tf->lut[4 * i + c] = (float)v[c];
   }
@@ -137,7 +183,32 @@ int rp_tf_create(rp_context *ctx, const rp_tf_desc *desc, rp_tf **out) {
 static const rp_tf_point preset_transparent[] = {P(0, 1, 1, 1, 0)};
 static const rp_tf_point preset_opaque[] = {P(0, .85f, .85f, .85f, 1),
                                             P(1, 1, 1, 1, 1)};
+/* The CT presets lie on their clinical windows in HU (a point's x is its
+ * place in the window): bone 2000/500 ([-500, 1500]: bone from about
+ * 150 HU, dense cortex by 700), soft tissue 400/40 ([-160, 240]: fat
+ * faint, muscle and organs red, contrast and bone white), lung 1500/-600
+ * ([-1350, 150]: air clear, parenchyma a faint haze, vessels and walls
+ * solid) and angio 700/250 ([-100, 600]: soft tissue clear, contrast
+ * 200-500 HU red, bone white). */
 static const rp_tf_point preset_ct_bone[] = {
+    P(0, 0, 0, 0, 0), P(.32f, .80f, .60f, .45f, 0),
+    P(.40f, .95f, .85f, .70f, .20f), P(.60f, 1, .97f, .90f, .70f),
+    P(1, 1, 1, 1, .95f)};
+static const rp_tf_point preset_ct_soft_hu[] = {
+    P(0, 0, 0, 0, 0), P(.10f, .90f, .80f, .40f, 0),
+    P(.15f, .90f, .80f, .45f, .015f), P(.40f, .75f, .25f, .20f, .03f),
+    P(.55f, .85f, .35f, .30f, .20f), P(.80f, .95f, .80f, .75f, .60f),
+    P(1, 1, 1, 1, .90f)};
+static const rp_tf_point preset_ct_lung[] = {
+    P(0, 0, 0, 0, 0), P(.26f, .60f, .70f, .90f, 0),
+    P(.35f, .70f, .75f, .90f, .015f), P(.60f, .85f, .60f, .60f, .04f),
+    P(.75f, .85f, .35f, .30f, .50f), P(1, 1, .90f, .85f, .85f)};
+static const rp_tf_point preset_ct_angio[] = {
+    P(0, 0, 0, 0, 0), P(.35f, .70f, .10f, .10f, 0),
+    P(.50f, .90f, .20f, .15f, .50f), P(.80f, 1, .60f, .50f, .80f),
+    P(1, 1, 1, 1, .95f)};
+/* The ct-bone and ct-soft of 0.10, over [min, max]: for CT not in HU. */
+static const rp_tf_point preset_minmax_bone[] = {
     P(0, 0, 0, 0, 0), P(.30f, .80f, .60f, .45f, 0),
     P(.45f, .95f, .85f, .70f, .25f), P(.70f, 1, .97f, .90f, .70f),
     P(1, 1, 1, 1, .90f)};
@@ -163,45 +234,140 @@ typedef struct preset {
   const char *name;
   const rp_tf_point *points;
   int count;
+  rp_tf_range range;
+  double lo, hi; /* PERCENTILES: percentiles; DATA: the window in HU */
 } preset;
 
-#define PRESET(name, arr) {name, arr, (int)(sizeof arr / sizeof arr[0])}
+#define PRESET(name, arr, range, lo, hi)                                     \
+  {name, arr, (int)(sizeof arr / sizeof arr[0]), range, lo, hi}
+#define WINDOWED(name, arr, w, l)                                            \
+  PRESET(name, arr, RP_TF_RANGE_DATA, (l) - (w) / 2.0, (l) + (w) / 2.0)
 static const preset presets[] = {
-    PRESET("transparent", preset_transparent),
-    PRESET("opaque", preset_opaque),
-    PRESET("ct-bone", preset_ct_bone),
-    PRESET("ct-soft", preset_ct_soft),
-    PRESET("mri", preset_mri),
-    PRESET("ramp", preset_ramp),
-    PRESET("nearly-transparent", preset_nearly_transparent),
+    PRESET("transparent", preset_transparent, RP_TF_RANGE_MINMAX, 0, 0),
+    PRESET("opaque", preset_opaque, RP_TF_RANGE_MINMAX, 0, 0),
+    WINDOWED("ct-bone", preset_ct_bone, 2000.0, 500.0),
+    WINDOWED("ct-soft", preset_ct_soft_hu, 400.0, 40.0),
+    WINDOWED("ct-lung", preset_ct_lung, 1500.0, -600.0),
+    WINDOWED("ct-angio", preset_ct_angio, 700.0, 250.0),
+    /* MRI has no units: the 1st to 99.5th percentile is the tissue range
+     * whatever the scanner's scale, and a few hot voxels cannot move it */
+    PRESET("mri", preset_mri, RP_TF_RANGE_PERCENTILES, 1.0, 99.5),
+    PRESET("minmax-bone", preset_minmax_bone, RP_TF_RANGE_MINMAX, 0, 0),
+    PRESET("minmax-soft", preset_ct_soft, RP_TF_RANGE_MINMAX, 0, 0),
+    PRESET("ramp", preset_ramp, RP_TF_RANGE_MINMAX, 0, 0),
+    PRESET("nearly-transparent", preset_nearly_transparent,
+           RP_TF_RANGE_MINMAX, 0, 0),
 };
+#undef WINDOWED
 #undef PRESET
+#define N_PRESETS (sizeof presets / sizeof presets[0])
 
 const char *const *rp_tf_preset_names(void) {
-  static const char *const names[] = {
-      "transparent", "opaque", "ct-bone", "ct-soft", "mri", "ramp",
-      "nearly-transparent", NULL};
+  static const char *names[N_PRESETS + 1];
+  size_t i;
+  if (names[0] == NULL) /* the same values on every call: a benign race */
+    for (i = 0; i < N_PRESETS; i++)
+      names[i] = presets[i].name;
   return names;
 }
 
 int rp_tf_create_preset(rp_context *ctx, const char *name, rp_tf **out) {
+  char known[256] = "";
   size_t i;
   if (ctx == NULL)
     return RP_EINVAL;
   if (name == NULL || out == NULL)
     return rp__fail(ctx, RP_EINVAL, "rp_tf_create_preset: name and out are "
                     "required");
-  for (i = 0; i < sizeof presets / sizeof presets[0]; i++) {
+  for (i = 0; i < N_PRESETS; i++) {
     if (strcmp(presets[i].name, name) == 0) {
       rp_tf_desc d = {0};
       d.points = presets[i].points;
       d.count = presets[i].count;
+      d.range = presets[i].range;
+      d.range_lo = presets[i].lo;
+      d.range_hi = presets[i].hi;
       return rp_tf_create(ctx, &d, out);
     }
+    strcat(known, i > 0 ? ", " : "");
+    strcat(known, presets[i].name);
   }
   return rp__fail(ctx, RP_EINVAL, "transfer function preset '%s' is "
-                  "unknown; known: transparent, opaque, ct-bone, ct-soft, "
-                  "mri, ramp, nearly-transparent", name);
+                  "unknown; known: %s", name, known);
+}
+
+int rp_tf_window(rp_context *ctx, const rp_tf *src, double width,
+                 double level, rp_tf **out) {
+  int err;
+  if (ctx == NULL)
+    return RP_EINVAL;
+  if (src == NULL || out == NULL)
+    return rp__fail(ctx, RP_EINVAL, "rp_tf_window: src and out are "
+                    "required");
+  if (!isfinite(width) || !isfinite(level))
+    return rp__fail(ctx, RP_ENOTFINITE, "window/level: width %g, level %g: "
+                    "both must be finite", width, level);
+  if (!(width > 0.0))
+    return rp__fail(ctx, RP_ERANGE, "window/level: width %g must be > 0",
+                    width);
+  if ((err = rp__tf_clone(ctx, src, out)) != 0)
+    return err;
+  (*out)->range = RP_TF_RANGE_DATA;
+  (*out)->range_lo = level - width / 2.0;
+  (*out)->range_hi = level + width / 2.0;
+  return 0;
+}
+
+/* Quantile at percentile pc of the table (linear between per-mille
+ * entries). */
+static double quantile_at(const rp__value_range *r, double pc) {
+  double f = pc * 10.0;
+  int i = (int)floor(f);
+  if (i < 0)
+    return r->quantile[0];
+  if (i >= RP__QUANTILES - 1)
+    return r->quantile[RP__QUANTILES - 1];
+  return r->quantile[i] + (f - i) * ((double)r->quantile[i + 1] -
+                                     r->quantile[i]);
+}
+
+void rp__tf_stored_range(const rp_tf *tf, const rp__value_range *r,
+                         double out[2]) {
+  out[0] = r->min, out[1] = r->max;
+  if (tf->range == RP_TF_RANGE_DATA) {
+    out[0] = tf->range_lo - r->offset;
+    out[1] = tf->range_hi - r->offset;
+  } else if (tf->range == RP_TF_RANGE_PERCENTILES) {
+    double lo = quantile_at(r, tf->range_lo);
+    double hi = quantile_at(r, tf->range_hi);
+    /* A volume with few distinct values can put both percentiles on one:
+     * fall back to the whole range rather than a step function. */
+    if (hi > lo)
+      out[0] = lo, out[1] = hi;
+  }
+  /* Kernels receive the span as floats (rp_frame_params.value_min/max):
+   * rounded here, the host passes place every value exactly as they do. */
+  out[0] = (float)out[0], out[1] = (float)out[1];
+}
+
+void rp__tf_volume_range(const rp_tf *tf, const rp_volume *v,
+                         double out[2]) {
+  rp__value_range r;
+  rp__volume_values(v, &r);
+  rp__tf_stored_range(tf, &r, out);
+}
+
+void rp_tf_data_range(const rp_tf *tf, const rp_volume *vol, double *lo,
+                      double *hi) {
+  double r[2] = {0.0, 0.0};
+  if (tf != NULL && vol != NULL) {
+    rp__tf_volume_range(tf, vol, r);
+    r[0] += vol->data_offset, r[1] += vol->data_offset;
+  }
+  if (lo != NULL)
+    *lo = r[0];
+  if (hi != NULL)
+    *hi = r[1];
 }
 
 int rp__tf_clone(rp_context *ctx, const rp_tf *src, rp_tf **out) {
@@ -217,6 +383,8 @@ int rp__tf_clone(rp_context *ctx, const rp_tf *src, rp_tf **out) {
   tf->id = rp__next_id();
   tf->lut_size = src->lut_size;
   tf->reference_step = src->reference_step;
+  tf->range = src->range;
+  tf->range_lo = src->range_lo, tf->range_hi = src->range_hi;
   memcpy(tf->lut, src->lut, bytes);
   *out = tf;
   return 0;
@@ -224,7 +392,8 @@ int rp__tf_clone(rp_context *ctx, const rp_tf *src, rp_tf **out) {
 
 int rp__tf_same(const rp_tf *a, const rp_tf *b) {
   return a->lut_size == b->lut_size &&
-         a->reference_step == b->reference_step &&
+         a->reference_step == b->reference_step && a->range == b->range &&
+         a->range_lo == b->range_lo && a->range_hi == b->range_hi &&
          memcmp(a->lut, b->lut, (size_t)a->lut_size * 4 * sizeof(float)) ==
              0;
 }

@@ -36,7 +36,7 @@ static const script_key script_keys[] = {
     {0, 0, 10, 3}, {80, 120, 35, 1.8f}, {160, 200, 10, 2.5f},
     {199, 240, 10, 2.5f}};
 
-static const char *const script_tfs[] = {"ct-bone", "ct-soft", "opaque",
+static const char *const script_tfs[] = {"minmax-bone", "minmax-soft", "opaque",
                                          "nearly-transparent"};
 #define SCRIPT_TF_COUNT (sizeof script_tfs / sizeof script_tfs[0])
 #define PLAIN (RP_EFFECT_ERT | RP_EFFECT_SKIP)

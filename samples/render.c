@@ -46,7 +46,7 @@ int main(int argc, char **argv) {
     err = check(ctx, rp_volume_generate(ctx, &g, &vol), "generate");
   }
   if (err == 0)
-    err = check(ctx, rp_tf_create_preset(ctx, "ct-bone", &tf), "tf");
+    err = check(ctx, rp_tf_create_preset(ctx, "minmax-bone", &tf), "tf");
   /* Histograms once per volume, occupancy once per transfer function: they
    * let the renderer skip empty space. The occupancy reads the histograms,
    * so they live as long as it does. */

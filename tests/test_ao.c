@@ -25,7 +25,7 @@ static rp_volume *generated(rp_context *ctx, rp_generator kind, uint32_t nx,
 static rp_tf *constant_tf(rp_context *ctx, float alpha, float ref_step) {
   rp_tf_point pts[2] = {{0.0f, 1.0f, 1.0f, 1.0f, alpha},
                         {1.0f, 1.0f, 1.0f, 1.0f, alpha}};
-  rp_tf_desc d = {pts, 2, ref_step, 0};
+  rp_tf_desc d = {pts, 2, ref_step, 0, 0, 0, 0, 0};
   rp_tf *tf = NULL;
   assert_int_equal(rp_tf_create(ctx, &d, &tf), 0);
   return tf;
@@ -185,11 +185,11 @@ static void record_progress(double f, void *user) {
 /* Bricked AO equals unbricked AO on every voxel of a full brick, is 255
  * elsewhere, and the images rendered with either are identical: the
  * overlap keeps every voxel a visible sample interpolates. The phantom
- * under ct-bone has empty bricks next to full ones all along its core. */
+ * under minmax-bone has empty bricks next to full ones all along its core. */
 static void test_bricking_is_seamless(void **state) {
   rp_context *ctx = *state;
   rp_volume *vol = generated(ctx, RP_GEN_PHANTOM, 38, 35, 33);
-  rp_tf *tf = rp_test_preset(ctx, "ct-bone");
+  rp_tf *tf = rp_test_preset(ctx, "minmax-bone");
   rp_ao_desc bricked = {8, 6, 5.0f, 1.0f, 0}, full = bricked;
   rp_ao *a = NULL, *b = NULL;
   uint64_t computed, total;
@@ -285,7 +285,7 @@ static void test_plan_counts(void **state) {
   rp_context *ctx = *state;
   uint32_t dims[3] = {30, 27, 25}, g[3] = {8, 7, 7};
   rp_volume *vol = generated(ctx, RP_GEN_PHANTOM, dims[0], dims[1], dims[2]);
-  rp_tf *tf = rp_test_preset(ctx, "ct-bone");
+  rp_tf *tf = rp_test_preset(ctx, "minmax-bone");
   const uint8_t *vox = rp_volume_data(vol);
   rp_volume_info info;
   rp_ao_plan *plan = NULL, *all = NULL;
@@ -352,8 +352,8 @@ static void test_plan_counts(void **state) {
 static void test_reference_device(void **state) {
   rp_context *ctx = *state;
   rp_volume *vol = generated(ctx, RP_GEN_PHANTOM, 27, 22, 19);
-  rp_tf *tf = rp_test_preset(ctx, "ct-soft"),
-        *other = rp_test_preset(ctx, "ct-bone");
+  rp_tf *tf = rp_test_preset(ctx, "minmax-soft"),
+        *other = rp_test_preset(ctx, "minmax-bone");
   rp_histograms *h = NULL;
   rp_occupancy *occ = NULL, *occ2 = NULL;
   rp_device_desc dd = {0};
@@ -377,7 +377,7 @@ static void test_reference_device(void **state) {
   assert_int_equal(rp_occupancy_build(ctx, h, other, &occ2), 0);
   assert_int_equal(rp_device_set_volume(dev, vol), 0);
   assert_int_equal(rp_ao_plan_create(ctx, vol, tf, &desc, &plan), 0);
-  /* The plan is for ct-soft; the device holds no TF, then another. */
+  /* The plan is for minmax-soft; the device holds no TF, then another. */
   assert_int_equal(rp_device_compute_ao(dev, plan, boxes[0], boxes[0] + 3,
                                         got),
                    RP_ESTATE);
@@ -426,7 +426,7 @@ static void test_reference_device(void **state) {
                                        NULL),
                    0);
   assert_memory_equal(got, want, 64 * 48 * 4);
-  /* AO for ct-soft does not render under ct-bone. */
+  /* AO for minmax-soft does not render under minmax-bone. */
   assert_int_equal(rp_device_set_tf(dev, other, occ2), 0);
   assert_int_equal(rp_device_render(dev, &cam, &d, NULL, got, NULL),
                    RP_ESTATE);
@@ -453,7 +453,7 @@ static void test_reference_device(void **state) {
 static void test_bad_desc(void **state) {
   rp_context *ctx = *state;
   rp_volume *vol = generated(ctx, RP_GEN_PHANTOM, 8, 8, 8);
-  rp_tf *tf = rp_test_preset(ctx, "ct-soft");
+  rp_tf *tf = rp_test_preset(ctx, "minmax-soft");
   struct {
     rp_ao_desc d;
     int err;
@@ -507,7 +507,7 @@ static rp_volume *lopsided(rp_context *ctx) {
   return vol;
 }
 
-/* The lopsided volume under ct-bone with its occupancy, a plan for
+/* The lopsided volume under minmax-bone with its occupancy, a plan for
  * `desc` and (want_reference) the reference's AO of it. */
 typedef struct lopsided_scene {
   rp_volume *vol;
@@ -522,7 +522,7 @@ static void scene_open(rp_context *ctx, lopsided_scene *sc,
                        const rp_ao_desc *desc, int want_reference) {
   memset(sc, 0, sizeof *sc);
   sc->vol = lopsided(ctx);
-  sc->tf = rp_test_preset(ctx, "ct-bone");
+  sc->tf = rp_test_preset(ctx, "minmax-bone");
   assert_int_equal(rp_histograms_build(ctx, sc->vol, &sc->h), 0);
   assert_int_equal(rp_occupancy_build(ctx, sc->h, sc->tf, &sc->occ), 0);
   assert_int_equal(rp_ao_plan_create(ctx, sc->vol, sc->tf, desc, &sc->plan),
@@ -761,7 +761,7 @@ static void test_static_finds_balance(void **state) {
   uint32_t dims[3] = {96, 32, 32}, trial;
   unsigned seed = 99;
   rp_ao_desc desc = {2, 1, 2.0f, 1.0f, 0};
-  rp_tf *tf = rp_test_preset(ctx, "ct-bone");
+  rp_tf *tf = rp_test_preset(ctx, "minmax-bone");
   uint8_t *v = malloc(96 * 32 * 32);
   assert_non_null(v);
   for (trial = 0; trial < 24; trial++) {
@@ -941,7 +941,7 @@ static void test_device_lost(void **state) {
 static void test_bad_schedule(void **state) {
   rp_context *ctx = *state;
   lopsided_scene sn;
-  rp_tf *other = rp_test_preset(ctx, "ct-soft");
+  rp_tf *other = rp_test_preset(ctx, "minmax-soft");
   rp_ao_plan *stale = NULL;
   rp_ao *got = NULL;
   device_set ds;

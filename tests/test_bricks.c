@@ -96,7 +96,7 @@ static double stored_voxel(const rp__bricks *b, uint32_t id, size_t i,
  * volume (the border past the end replicates the edge). */
 static void check_layout(rp_voxel_type type, uint32_t x, uint32_t y,
                          uint32_t z, uint32_t size) {
-  scene s = make_scene(RP_GEN_PHANTOM, x, y, z, type, "ct-soft");
+  scene s = make_scene(RP_GEN_PHANTOM, x, y, z, type, "minmax-soft");
   rp__bricks *b = NULL;
   rp__bricks_info info;
   uint32_t bx, by, bz, i, j, k, st = size + 1;
@@ -215,7 +215,7 @@ static uint64_t check_cover(const scene *s, rp__bricks *b, const rp_camera *c,
 }
 
 static void test_needed_covers_samples(void **state) {
-  scene s = make_scene(RP_GEN_PHANTOM, 45, 38, 29, RP_U8, "ct-soft");
+  scene s = make_scene(RP_GEN_PHANTOM, 45, 38, 29, RP_U8, "minmax-soft");
   rp__bricks *b = NULL;
   rp_region whole = {0, 0, 48, 40}, quarter = {24, 0, 48, 24};
   rp_region strip = {8, 16, 16, 40};
@@ -442,7 +442,7 @@ static void check_backend_images(const char *backend) {
   int ran = 0;
   for (v = 0; v < sizeof vols / sizeof vols[0]; v++) {
     scene s = make_scene(vols[v].kind, vols[v].x, vols[v].y, vols[v].z,
-                         vols[v].type, "ct-soft");
+                         vols[v].type, "minmax-soft");
     pair p;
     uint32_t most = 0;
     size_t e;
@@ -469,7 +469,7 @@ static void check_backend_images(const char *backend) {
      * the cut into parts was exercised. */
     assert_true(most > 1);
     /* A new TF: other bricks are visible, slot 0 holds another value. */
-    set_tf(&s, "ct-bone");
+    set_tf(&s, "minmax-bone");
     if (rp_device_set_tf(p.whole, s.tf, s.occ) != 0 ||
         rp_device_set_tf(p.bricked, s.tf, s.occ) != 0)
       fail_msg("%s: %s", backend, rp_last_error(ctx));
@@ -490,7 +490,7 @@ static void check_backend_images(const char *backend) {
 /* Small images of a small volume: one tile's rays need more bricks than
  * an eighth of the volume holds, so tiles are cast in depth slabs. */
 static void check_backend_slabs(const char *backend) {
-  scene s = make_scene(RP_GEN_PHANTOM, 64, 64, 64, RP_U8, "ct-soft");
+  scene s = make_scene(RP_GEN_PHANTOM, 64, 64, 64, RP_U8, "minmax-soft");
   pair p;
   uint32_t slabs = 0;
   size_t e;
@@ -558,7 +558,7 @@ static void test_images_vulkan(void **state) {
 /* The second frame of a camera that fits the pool in one part uploads
  * nothing; a camera elsewhere misses and evicts; the counters add up. */
 static void test_camera_path_counts(void **state) {
-  scene s = make_scene(RP_GEN_PHANTOM, 64, 64, 64, RP_U8, "ct-soft");
+  scene s = make_scene(RP_GEN_PHANTOM, 64, 64, 64, RP_U8, "minmax-soft");
   pair p;
   rp_brick_stats st0, st1, st2, st3;
   rp_render_desc d = {0};

@@ -92,10 +92,12 @@ static rp_camera camera(const rp_volume *vol) {
 static void frame_params(const scene *s, const rp_camera *cam,
                          rp_render_desc *d, rp__raygen *rg,
                          rp_frame_params *p) {
+  double span[2];
   *d = rp__render_desc_defaults(d);
+  rp__tf_volume_range(s->tf, s->vol, span);
   assert_int_equal(rp__frame_params(ctx, s->vol, s->occ, cam, d,
                                     rp_tf_reference_step(s->tf),
-                                    (uint32_t)s->tf->lut_size, rg, p),
+                                    (uint32_t)s->tf->lut_size, span, rg, p),
                    0);
 }
 
@@ -146,7 +148,7 @@ static uint64_t total_samples(const image *im) {
  * caps included, are the conformance suite's). Uploads are timed by
  * profiling events like every other operation. */
 static void probe_and_caps(void **state) {
-  scene s = make_scene(RP_GEN_PHANTOM, 24, 20, 18, RP_U8, "ct-bone");
+  scene s = make_scene(RP_GEN_PHANTOM, 24, 20, 18, RP_U8, "minmax-bone");
   device d;
   uint32_t n = 0;
   (void)state;
@@ -206,7 +208,7 @@ static void build_failure(void **state) {
 
 /* Sub-devices: one compute unit each, and the same image. */
 static void sub_devices(void **state) {
-  scene s = make_scene(RP_GEN_PHANTOM, 48, 48, 48, RP_U8, "ct-bone");
+  scene s = make_scene(RP_GEN_PHANTOM, 48, 48, 48, RP_U8, "minmax-bone");
   rp_camera cam = camera(s.vol);
   rp_render_desc d = {0};
   rp__raygen rg;
@@ -336,7 +338,7 @@ static void opacity_correction(void **state) {
  * makes it, upload_ao(NULL) releases it (conformance's ao_state holds
  * every backend to refusing what it does not hold). */
 static void ao_buffer(void **state) {
-  scene s = make_scene(RP_GEN_PHANTOM, 24, 20, 18, RP_U8, "ct-bone");
+  scene s = make_scene(RP_GEN_PHANTOM, 24, 20, 18, RP_U8, "minmax-bone");
   uint8_t *ao = malloc(s.vol->voxel_count);
   const rp_cl_impl *impl;
   device dev;

@@ -68,7 +68,7 @@ static int workload(rp_context *ctx) {
   g.dims[0] = 40, g.dims[1] = 20, g.dims[2] = 33;
   if ((err = rp_volume_generate(ctx, &g, &v)) != 0)
     goto out;
-  if ((err = rp_tf_create_preset(ctx, "ct-bone", &tf)) != 0)
+  if ((err = rp_tf_create_preset(ctx, "minmax-bone", &tf)) != 0)
     goto out;
   if ((err = rp_histograms_build(ctx, v, &h)) != 0)
     goto out;

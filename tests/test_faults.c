@@ -26,7 +26,7 @@ static rp_context *ctx;
 typedef rp_test_scene scene;
 
 static scene make_scene(uint32_t n) {
-  return rp_test_scene_make(ctx, RP_GEN_PHANTOM, n, 5, "ct-soft");
+  return rp_test_scene_make(ctx, RP_GEN_PHANTOM, n, 5, "minmax-soft");
 }
 
 static rp_device *open_dev(rp_device_desc *dd, const scene *s) {

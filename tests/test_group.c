@@ -40,7 +40,7 @@ static void scene_make(scene *s, uint32_t w, uint32_t h) {
   g.seed = 7;
   assert_int_equal(rp_volume_generate(s->ctx, &g, &s->vol), 0);
   assert_int_equal(rp_histograms_build(s->ctx, s->vol, &s->h), 0);
-  assert_int_equal(rp_tf_create_preset(s->ctx, "ct-bone", &s->tf), 0);
+  assert_int_equal(rp_tf_create_preset(s->ctx, "minmax-bone", &s->tf), 0);
   assert_int_equal(rp_occupancy_build(s->ctx, s->h, s->tf, &s->occ), 0);
   rp_camera_orbit(&s->cam, s->vol, 30.0f, 20.0f, 2.0f);
   s->desc.width = w;

@@ -256,7 +256,7 @@ static void test_group_of_one_ao(void **state) {
   gen.kind = RP_GEN_PHANTOM;
   gen.dims[0] = gen.dims[1] = gen.dims[2] = 32;
   assert_int_equal(rp_volume_generate(ctx, &gen, &vol), 0);
-  tf = rp_test_preset(ctx, "ct-bone");
+  tf = rp_test_preset(ctx, "minmax-bone");
   assert_int_equal(rp_histograms_build(ctx, vol, &h), 0);
   assert_int_equal(rp_occupancy_build(ctx, h, tf, &occ), 0);
   assert_int_equal(rp_ao_plan_create(ctx, vol, tf, NULL, &plan), 0);

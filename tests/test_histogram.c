@@ -183,7 +183,7 @@ static void bin_value_ranges_are_exact(void **state) {
 /* Values outside [min, max], and NaN, never reach an integer cast: below
  * is bin 0, above is the bin of max, for every voxel type. */
 static void bin_of_outside_the_range(void **state) {
-  rp__value_range u8 = {RP_U8, 3, 200}, f32 = {RP_F32, -2, 6};
+  rp__value_range u8 = {RP_U8, 3, 200, 0, {0}}, f32 = {RP_F32, -2, 6, 0, {0}};
   (void)state;
   assert_int_equal(rp__bin_of(&u8, -5), 0);
   assert_int_equal(rp__bin_of(&u8, 1e30), rp__bin_of(&u8, 200));

@@ -79,7 +79,7 @@ static void scene_make(scene *s) {
   g.seed = 7;
   assert_int_equal(rp_volume_generate(s->ctx, &g, &s->vol), 0);
   assert_int_equal(rp_histograms_build(s->ctx, s->vol, &s->h), 0);
-  s->tf = rp_test_preset(s->ctx, "ct-bone");
+  s->tf = rp_test_preset(s->ctx, "minmax-bone");
   assert_int_equal(rp_occupancy_build(s->ctx, s->h, s->tf, &s->occ), 0);
   s->desc.width = W;
   s->desc.height = H;

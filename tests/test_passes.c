@@ -254,7 +254,7 @@ static void ert_is_deterministic_per_seed(void **state) {
   g.dims[0] = g.dims[1] = g.dims[2] = 64;
   assert_int_equal(rp_volume_generate(ctx, &g, &vol), 0);
   assert_int_equal(rp_histograms_build(ctx, vol, &h), 0);
-  assert_int_equal(rp_tf_create_preset(ctx, "ct-soft", &tf), 0);
+  assert_int_equal(rp_tf_create_preset(ctx, "minmax-soft", &tf), 0);
   assert_int_equal(rp_occupancy_build(ctx, h, tf, &occ), 0);
   rp_camera_orbit(&cam, vol, 10, 10, 1.8f);
   assert_int_equal(rp__raygen_init(ctx, &cam, vol, 64, 64, &rg), 0);

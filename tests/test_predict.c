@@ -358,7 +358,7 @@ static void test_probe_transparent(void **state) {
  * own count of shaded samples on a generated phantom, over views, TFs,
  * and ERT on and off: within 0.03 of it (k within 0.18 fetches). */
 static void test_probe_shaded_share(void **state) {
-  static const char *const tfs[] = {"ct-soft", "ct-bone", "mri"};
+  static const char *const tfs[] = {"minmax-soft", "minmax-bone", "mri"};
   scene s;
   rp_render_desc d = {0};
   rp_frame_probe p;
@@ -431,7 +431,7 @@ static void test_probe_shaded_share(void **state) {
         est = (e.fetches - 1.0) / 6.0;
         print_message("shaded share %s view %d ert %d: reference %.4f, "
                       "probe %.4f\n", tfs[t], v, ert, truth, est);
-        /* Measured: at most 0.017 apart (ct-bone with ERT: 0.031 for
+        /* Measured: at most 0.017 apart (minmax-bone with ERT: 0.031 for
          * 0.015, interpolation across its bone edge). */
         assert_true(fabs(est - truth) <= 0.03);
         worst = fmax(worst, fabs(est - truth));
@@ -484,7 +484,7 @@ static double probe_lit_share(const rp_frame_probe *p) {
 }
 
 static void test_probe_fewer_rays(void **state) {
-  static const char *const tfs[] = {"ct-soft", "ct-bone"};
+  static const char *const tfs[] = {"minmax-soft", "minmax-bone"};
   static const uint32_t caps[] = {576, 256, RP__PROBE_MIN_RAYS};
   scene s;
   rp_render_desc d = {0};

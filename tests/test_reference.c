@@ -73,7 +73,7 @@ static rp_volume *generated(rp_context *ctx, rp_generator kind, uint32_t nx,
 /* The same colour and alpha at every data value. */
 static rp_tf *const_tf(rp_context *ctx, float r, float g, float b, float a) {
   rp_tf_point p = {0.5f, r, g, b, a};
-  rp_tf_desc d = {&p, 1, 0.0f, 0};
+  rp_tf_desc d = {&p, 1, 0.0f, 0, 0, 0, 0, 0};
   rp_tf *tf = NULL;
   assert_int_equal(rp_tf_create(ctx, &d, &tf), 0);
   return tf;
@@ -671,7 +671,7 @@ static int camera_cases(const rp_volume *vol, cam_case out[6]) {
 
 static void check_skip_identity(rp_context *ctx, const rp_volume *vol,
                                 const char *vname, uint64_t *saved) {
-  const char *presets[] = {"ct-bone", "ct-soft", "mri"};
+  const char *presets[] = {"minmax-bone", "minmax-soft", "mri"};
   const uint32_t effect_sets[] = {0, RP_EFFECT_SHADING | RP_EFFECT_ERT};
   const float steps[] = {1.0f, 0.7f};
   cam_case cams[6];
@@ -795,7 +795,7 @@ static void test_skip_lattice(void **state) {
 static void test_ert_bound(void **state) {
   rp_context *ctx = rp_test_context();
   rp_volume *ph = generated(ctx, RP_GEN_PHANTOM, 48, 48, 48);
-  const char *names[] = {"ct-soft", "opaque", "mri"};
+  const char *names[] = {"minmax-soft", "opaque", "mri"};
   const float thresholds[] = {0.0f, 0.9f, 0.5f};
   rp_camera cam = orbit(ph, RP_PERSPECTIVE, 40.0f, 25.0f, 2.2f);
   image full = image_new(32, 24), cut = image_new(32, 24);
@@ -840,7 +840,7 @@ static void test_odd_sizes(void **state) {
   rp_context *ctx = rp_test_context();
   rp_volume *ph = generated(ctx, RP_GEN_PHANTOM, 24, 24, 24);
   rp_volume *cv = const_volume(ctx, 20, 20, 20, NULL);
-  rp_tf *tf = rp_test_preset(ctx, "ct-soft"),
+  rp_tf *tf = rp_test_preset(ctx, "minmax-soft"),
         *ctf = const_tf(ctx, 1, 1, 1, 0.5f);
   rp_camera cam;
   image im;
@@ -904,7 +904,7 @@ static void test_odd_sizes(void **state) {
 static void test_camera_inside(void **state) {
   rp_context *ctx = rp_test_context();
   rp_volume *ph = generated(ctx, RP_GEN_PHANTOM, 40, 40, 40);
-  rp_tf *tf = rp_test_preset(ctx, "ct-soft");
+  rp_tf *tf = rp_test_preset(ctx, "minmax-soft");
   rp_camera out = orbit(ph, RP_PERSPECTIVE, 70.0f, 15.0f, 2.5f);
   rp_camera in = orbit(ph, RP_PERSPECTIVE, 70.0f, 15.0f, 0.25f);
   image a = image_new(24, 24), b = image_new(24, 24);
@@ -1310,7 +1310,7 @@ static void test_bonsai_skip(void **state) {
   err = rp_volume_load(ctx, path, &vol);
   if (err != 0)
     fail_msg("loading %s: %s", path, rp_last_error(ctx));
-  tf = rp_test_preset(ctx, "ct-bone");
+  tf = rp_test_preset(ctx, "minmax-bone");
   o = make_occ(ctx, vol, tf);
   cam = orbit(vol, RP_PERSPECTIVE, 30.0f, 15.0f, 1.8f);
   off = image_new(64, 64);

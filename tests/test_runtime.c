@@ -201,8 +201,8 @@ static void test_passes_per_event(void **state) {
   vol = make_volume(a.ctx, 32, 1);
   /* The runtime takes `vol`; the oracle needs one of its own. */
   vol2 = make_volume(a.ctx, 32, 1);
-  assert_int_equal(rp_tf_create_preset(a.ctx, "ct-bone", &bone), 0);
-  assert_int_equal(rp_tf_create_preset(a.ctx, "ct-soft", &soft), 0);
+  assert_int_equal(rp_tf_create_preset(a.ctx, "minmax-bone", &bone), 0);
+  assert_int_equal(rp_tf_create_preset(a.ctx, "minmax-soft", &soft), 0);
   cam = orbit(vol2, 30.0f);
   assert_int_equal(rp_runtime_set_volume(a.rt, vol), 0);
   assert_int_equal(rp_runtime_set_tf(a.rt, bone), 0);
@@ -300,7 +300,7 @@ static void test_requests(void **state) {
   assert_int_equal(a.s.frames, 0); /* no scene yet */
   vol = make_volume(a.ctx, 24, 3);
   cam = orbit(vol, 10.0f);
-  tf = post_scene(a.rt, a.ctx, vol, "ct-bone", &cam);
+  tf = post_scene(a.rt, a.ctx, vol, "minmax-bone", &cam);
   assert_int_equal(rp_runtime_request_frame(a.rt), 0);
   assert_int_equal(rp_runtime_request_frame(a.rt), 0);
   while (a.s.frames == 0)
@@ -358,7 +358,7 @@ static void test_bad_input(void **state) {
   rp_runtime_get_counters(a.rt, &c);
   assert_int_equal(c.events, 0);
 
-  tf = post_scene(a.rt, a.ctx, vol, "ct-bone", &cam);
+  tf = post_scene(a.rt, a.ctx, vol, "minmax-bone", &cam);
   (void)frame(&a);
   assert_int_equal(a.s.last.status, 0);
   assert_true(a.s.has_image);
@@ -402,7 +402,7 @@ static void test_ao_only_when_on(void **state) {
   vol = make_volume(a.ctx, 24, 2);
   copy = make_volume(a.ctx, 24, 2); /* the same voxels: the oracle's */
   cam = orbit(vol, 40.0f);
-  tf = post_scene(a.rt, a.ctx, vol, "ct-soft", &cam);
+  tf = post_scene(a.rt, a.ctx, vol, "minmax-soft", &cam);
   (void)frame(&a);
   (void)frame(&a);
   rp_runtime_get_counters(a.rt, &c);
@@ -426,7 +426,7 @@ static void test_ao_only_when_on(void **state) {
   assert_true(a.s.last.ao_ms == 0.0);
   assert_true(a.s.last.effects & RP_EFFECT_AO);
 
-  assert_int_equal(rp_tf_create_preset(a.ctx, "ct-bone", &tf2), 0);
+  assert_int_equal(rp_tf_create_preset(a.ctx, "minmax-bone", &tf2), 0);
   assert_int_equal(rp_runtime_set_tf(a.rt, tf2), 0);
   (void)frames_until_ao(&a);
   rp_runtime_get_counters(a.rt, &c);
@@ -469,7 +469,7 @@ static void test_ao_in_steps(void **state) {
   vol = make_volume(a.ctx, 24, 2);
   copy = make_volume(a.ctx, 24, 2); /* the same voxels: the oracle's */
   cam = orbit(vol, 40.0f);
-  tf = post_scene(a.rt, a.ctx, vol, "ct-soft", &cam);
+  tf = post_scene(a.rt, a.ctx, vol, "minmax-soft", &cam);
   assert_int_equal(rp_runtime_set_effects(a.rt, EFFECTS | RP_EFFECT_AO), 0);
   (void)frame(&a);
   assert_int_equal(a.s.last.status, 0);
@@ -478,7 +478,7 @@ static void test_ao_in_steps(void **state) {
   assert_true(a.s.last.ao_progress > 0.0 && a.s.last.ao_progress < 1.0);
   expect_reference(a.ctx, copy, tf, &cam, a.s.image);
   /* A TF change mid-run: the run restarts for the new TF. */
-  assert_int_equal(rp_tf_create_preset(a.ctx, "ct-bone", &tf2), 0);
+  assert_int_equal(rp_tf_create_preset(a.ctx, "minmax-bone", &tf2), 0);
   assert_int_equal(rp_runtime_set_tf(a.rt, tf2), 0);
   n = frames_until_ao(&a);
   print_message("AO in steps: ready after %d frames\n", n);
@@ -521,7 +521,7 @@ static void test_several_devices(void **state) {
   vol = make_volume(a.ctx, 32, 3);
   vol2 = make_volume(a.ctx, 32, 3);
   cam = orbit(vol2, 50.0f);
-  tf = post_scene(a.rt, a.ctx, vol, "ct-bone", &cam);
+  tf = post_scene(a.rt, a.ctx, vol, "minmax-bone", &cam);
   for (f = 0; f < 5; f++) {
     double sum = 0.0, tail = 0.0;
     (void)frame(&a);
@@ -595,7 +595,7 @@ static void test_out_of_core(void **state) {
   vol = make_volume(a.ctx, 64, 3);
   cam = orbit(vol, 30.0f);
   back = orbit(vol, 210.0f);
-  tf = post_scene(a.rt, a.ctx, vol, "ct-bone", &cam);
+  tf = post_scene(a.rt, a.ctx, vol, "minmax-bone", &cam);
   for (f = 0; f < 3; f++) {
     (void)frame(&a);
     if (a.s.last.status != 0)
@@ -647,7 +647,7 @@ static void test_effects_wait_for_kernels(void **state) {
   app_open_devices(&a, &dd, 1);
   vol = make_volume(a.ctx, 24, 5);
   cam = orbit(vol, 40.0f);
-  tf = post_scene(a.rt, a.ctx, vol, "ct-bone", &cam);
+  tf = post_scene(a.rt, a.ctx, vol, "minmax-bone", &cam);
   (void)frame(&a);
   assert_int_equal(a.s.last.status, 0);
   assert_int_equal(a.s.last.effects, EFFECTS); /* built by the frame */
@@ -756,7 +756,7 @@ static void test_close_in_flight(void **state) {
   app_open_devices(&a, &slow, 1);
   vol = make_volume(a.ctx, 64, 4);
   cam = orbit(vol, 30.0f);
-  tf = post_scene(a.rt, a.ctx, vol, "ct-soft", &cam);
+  tf = post_scene(a.rt, a.ctx, vol, "minmax-soft", &cam);
   assert_int_equal(rp_runtime_request_frame(a.rt), 0);
   uv_run(&a.loop, UV_RUN_NOWAIT); /* the frame starts on the worker */
   for (;;) { /* wait until the worker is inside the frame */
@@ -774,7 +774,7 @@ static void test_close_in_flight(void **state) {
   app_open(&a);
   vol = make_volume(a.ctx, 16, 4);
   cam = orbit(vol, 30.0f);
-  tf = post_scene(a.rt, a.ctx, vol, "ct-soft", &cam);
+  tf = post_scene(a.rt, a.ctx, vol, "minmax-soft", &cam);
   a.s.close_in_callback = 1;
   assert_int_equal(rp_runtime_request_frame(a.rt), 0);
   while (!a.s.closed && uv_run(&a.loop, UV_RUN_ONCE) != 0)
@@ -840,7 +840,7 @@ static void test_timer_pacing(void **state) {
   vol = make_volume(ctx, 16, 5);
   cam = orbit(vol, 0.0f);
   t0 = now_ms();
-  tf = post_scene(rt, ctx, vol, "ct-bone", &cam);
+  tf = post_scene(rt, ctx, vol, "minmax-bone", &cam);
   while (frames_of(&s, NULL) < 6 && now_ms() - t0 < 20000.0)
     uv_sleep(5);
   n = frames_of(&s, NULL);
@@ -869,7 +869,7 @@ static void test_destroy_in_flight(void **state) {
   rt = own_runtime(ctx, &s, 10.0);
   vol = make_volume(ctx, 48, 6);
   cam = orbit(vol, 0.0f);
-  tf = post_scene(rt, ctx, vol, "ct-soft", &cam);
+  tf = post_scene(rt, ctx, vol, "minmax-soft", &cam);
   uv_sleep(2);
   assert_int_equal(rp_runtime_destroy(rt), 0);
   assert_int_equal(rp_runtime_destroy(NULL), 0);
@@ -915,7 +915,7 @@ static void test_camera_thread_1khz(void **state) {
   rt = own_runtime(ctx, &s, 5.0);
   vol = make_volume(ctx, 32, 7);
   vol2 = make_volume(ctx, 32, 7);
-  assert_int_equal(rp_tf_create_preset(ctx, "ct-bone", &tf), 0);
+  assert_int_equal(rp_tf_create_preset(ctx, "minmax-bone", &tf), 0);
   assert_int_equal(rp_runtime_set_volume(rt, vol), 0);
   assert_int_equal(rp_runtime_set_tf(rt, tf), 0);
   p.rt = rt;

@@ -111,8 +111,8 @@ static void test_step(void **state) {
   int i;
   (void)state;
   assert_non_null(s);
-  assert_int_equal(rp_tf_create_preset(ctx, "ct-soft", &tfs[0]), 0);
-  assert_int_equal(rp_tf_create_preset(ctx, "ct-bone", &tfs[1]), 0);
+  assert_int_equal(rp_tf_create_preset(ctx, "minmax-soft", &tfs[0]), 0);
+  assert_int_equal(rp_tf_create_preset(ctx, "minmax-bone", &tfs[1]), 0);
   /* Manual pacing has no loop to be given. */
   assert_int_equal(uv_loop_init(&loop), 0);
   base_desc(&d, s, RP_PACE_MANUAL);
@@ -170,8 +170,8 @@ static void test_step_as_loop(void **state) {
   (void)state;
   assert_non_null(a);
   assert_non_null(b);
-  assert_int_equal(rp_tf_create_preset(ctx, "ct-soft", &tfs[0]), 0);
-  assert_int_equal(rp_tf_create_preset(ctx, "ct-bone", &tfs[1]), 0);
+  assert_int_equal(rp_tf_create_preset(ctx, "minmax-soft", &tfs[0]), 0);
+  assert_int_equal(rp_tf_create_preset(ctx, "minmax-bone", &tfs[1]), 0);
   assert_int_equal(uv_loop_init(&loop), 0);
   base_desc(&d, a, RP_PACE_MANUAL);
   d.controller = RP_CONTROL_LAST_FRAME;
@@ -221,7 +221,7 @@ static void test_density(void **state) {
   float step, scale;
   (void)state;
   assert_non_null(s);
-  assert_int_equal(rp_tf_create_preset(ctx, "ct-soft", &tfs[0]), 0);
+  assert_int_equal(rp_tf_create_preset(ctx, "minmax-soft", &tfs[0]), 0);
   base_desc(&d, s, RP_PACE_MANUAL);
   d.space.space = RP_SPACE_HYBRID;
   d.density = 2.0; /* over the hybrid space's top density, 1 */
@@ -268,9 +268,9 @@ static void test_ao_switch_back(void **state) {
   int n;
   (void)state;
   assert_non_null(s);
-  assert_int_equal(rp_tf_create_preset(ctx, "ct-soft", &tfs[0]), 0);
-  assert_int_equal(rp_tf_create_preset(ctx, "ct-bone", &tfs[1]), 0);
-  assert_int_equal(rp_tf_create_preset(ctx, "ct-soft", &copy), 0);
+  assert_int_equal(rp_tf_create_preset(ctx, "minmax-soft", &tfs[0]), 0);
+  assert_int_equal(rp_tf_create_preset(ctx, "minmax-bone", &tfs[1]), 0);
+  assert_int_equal(rp_tf_create_preset(ctx, "minmax-soft", &copy), 0);
   base_desc(&d, s, RP_PACE_MANUAL);
   d.effects = EFFECTS | RP_EFFECT_AO;
   d.ao_frame_share = 0.002; /* 2 ms of the target: a block a frame */
@@ -342,7 +342,7 @@ static void test_min_step(void **state) {
   int k, f;
   (void)state;
   assert_non_null(s);
-  assert_int_equal(rp_tf_create_preset(ctx, "ct-bone", &tfs[0]), 0);
+  assert_int_equal(rp_tf_create_preset(ctx, "minmax-bone", &tfs[0]), 0);
   for (k = 0; k < 2; k++) {
     rp_runtime *rt = open_test_device(ctx, s, RP_CONTROL_PREDICTED, -1.0,
                                       min_steps[k], 1000.0, 0.0);
@@ -374,8 +374,8 @@ static void orbit_on_test_device(rp_context *ctx, rp_controller_kind kind,
   rp_runtime *rt;
   int i;
   assert_non_null(s);
-  assert_int_equal(rp_tf_create_preset(ctx, "ct-soft", &tfs[0]), 0);
-  assert_int_equal(rp_tf_create_preset(ctx, "ct-bone", &tfs[1]), 0);
+  assert_int_equal(rp_tf_create_preset(ctx, "minmax-soft", &tfs[0]), 0);
+  assert_int_equal(rp_tf_create_preset(ctx, "minmax-bone", &tfs[1]), 0);
   rt = open_test_device(ctx, s, kind, noise_sd, 0.0f, target, miss_rate);
   assert_int_equal(rp_runtime_set_volume(rt, make_volume(ctx, 24)), 0);
   for (i = 0; i < n; i++) {
@@ -495,7 +495,7 @@ static uint32_t probe_rays_at(rp_context *ctx, double target,
   rp_tf *tf = NULL;
   int i;
   assert_non_null(s);
-  assert_int_equal(rp_tf_create_preset(ctx, "ct-soft", &tf), 0);
+  assert_int_equal(rp_tf_create_preset(ctx, "minmax-soft", &tf), 0);
   base_desc(&d, s, RP_PACE_MANUAL);
   d.controller = RP_CONTROL_NONE;
   d.target_ms = target;

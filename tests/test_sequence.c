@@ -824,10 +824,10 @@ static const bad_case bad_cases[] = {
     /* Transfer functions. */
     {TOP("\"frames\": 10, \"tfs\": [], \"events\": [" EV0 "]"), RP_EFORMAT,
      "tfs: empty; at least one transfer function is needed"},
-    {TOP("\"frames\": 10, \"tfs\": [\"ct-bones\"], \"events\": [" EV0 "]"),
-     RP_EINVAL, "tfs[0]: unknown transfer function preset \"ct-bones\" "
-     "(known: transparent, opaque, ct-bone, ct-soft, mri, ramp, "
-     "nearly-transparent)"},
+    {TOP("\"frames\": 10, \"tfs\": [\"minmax-bones\"], \"events\": [" EV0 "]"),
+     RP_EINVAL, "tfs[0]: unknown transfer function preset \"minmax-bones\" "
+     "(known: transparent, opaque, ct-bone, ct-soft, ct-lung, ct-angio, "
+     "mri, minmax-bone, minmax-soft, ramp, nearly-transparent)"},
     {TOP("\"frames\": 10, \"tfs\": [\"ramp\", {\"points\": [[0.5, 0, 0, 0, "
          "0], [0.25, 1, 1, 1, 1]]}], \"events\": [" EV0 "]"),
      RP_EINVAL, "tfs[1]: transfer function: point 1 field 'x'"},

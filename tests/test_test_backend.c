@@ -31,7 +31,7 @@ static rp_context *ctx;
 typedef rp_test_scene scene;
 
 static scene make_scene(uint32_t n) {
-  return rp_test_scene_make(ctx, RP_GEN_PHANTOM, n, 3, "ct-bone");
+  return rp_test_scene_make(ctx, RP_GEN_PHANTOM, n, 3, "minmax-bone");
 }
 
 /* A device of `backend` holding the scene; `test` (may be NULL) chained

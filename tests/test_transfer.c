@@ -133,7 +133,7 @@ static void rejects_bad_points(void **state) {
   assert_int_equal(rp_tf_create(ctx, &d, &tf), RP_ENOTFINITE);
   assert_null(tf); /* failed calls leave the output alone */
   assert_int_equal(rp_tf_create_preset(ctx, "no-such", &tf), RP_EINVAL);
-  assert_non_null(strstr(rp_last_error(ctx), "ct-bone"));
+  assert_non_null(strstr(rp_last_error(ctx), "minmax-bone"));
   assert_int_equal(rp_tf_create(NULL, &d, &tf), RP_EINVAL);
   rp_tf_destroy(NULL);
   rp_context_destroy(ctx);
@@ -297,7 +297,7 @@ static void alpha_any_is_alpha_max_above_zero(void **state) {
   static const rp_tf_point spike[3] = {{511.0f / 1024, 1, 1, 1, 0.0f},
                                        {512.0f / 1024, 1, 1, 1, 0.5f},
                                        {513.0f / 1024, 1, 1, 1, 0.0f}};
-  const char *presets[4] = {"transparent", "opaque", "ct-bone",
+  const char *presets[4] = {"transparent", "opaque", "minmax-bone",
                             "nearly-transparent"};
   rp_context *ctx = rp_test_context();
   uint64_t seed = 12345, tried = 0, on = 0;

@@ -89,6 +89,7 @@ static void frame_init(const scene *s, const rp_camera *cam,
                        const frame_desc *fd, frame *f) {
   rp_render_desc d = {0};
   int lut_size = 0;
+  double span[2];
   d.width = fd->width;
   d.height = fd->height;
   d.step = fd->step;
@@ -96,9 +97,10 @@ static void frame_init(const scene *s, const rp_camera *cam,
   d.image_scale = fd->scale;
   f->d = rp__render_desc_defaults(&d);
   rp_tf_lut(s->tf, &lut_size);
+  rp__tf_volume_range(s->tf, s->vol, span);
   assert_int_equal(rp__frame_params(g_ctx, s->vol, s->occ, cam, &f->d,
                                     rp_tf_reference_step(s->tf),
-                                    (uint32_t)lut_size, &f->rg, &f->p),
+                                    (uint32_t)lut_size, span, &f->rg, &f->p),
                    0);
 }
 
@@ -236,7 +238,7 @@ static void test_ao_layouts(void **state) {
   int plain;
   (void)state;
   scene_init(&s, generate(RP_GEN_PHANTOM, 40, 37, 33, RP_U8),
-             rp_test_preset(g_ctx, "ct-soft"));
+             rp_test_preset(g_ctx, "minmax-soft"));
   for (plain = 0; plain < 2; plain++) {
     rp_ao_plan *plan = NULL;
     rp_ao *ref = NULL;
@@ -292,7 +294,7 @@ static void test_ao_memory(void **state) {
   uint8_t *ao;
   (void)state;
   scene_init(&s, generate(RP_GEN_PHANTOM, 24, 20, 18, RP_U8),
-             rp_test_preset(g_ctx, "ct-soft"));
+             rp_test_preset(g_ctx, "minmax-soft"));
   scene_upload(&s, NULL);
   cameras(s.vol, cams);
   frame_init(&s, &cams[0], &fd, &f);
@@ -322,7 +324,7 @@ static void test_ao_memory(void **state) {
   free(ao);
   scene_free(&s);
   scene_init(&s, generate(RP_GEN_PHANTOM, 20, 20, 18, RP_U8),
-             rp_test_preset(g_ctx, "ct-soft"));
+             rp_test_preset(g_ctx, "minmax-soft"));
   scene_upload(&s, NULL);
   rp_vk_get_stats(g_impl, &st);
   assert_int_equal(st.ao_bytes, 0);
@@ -444,7 +446,7 @@ static void test_pipeline_cache(void **state) {
   (void)state;
   setenv("RP_VK_PIPELINE_CACHE", cache_dir(), 1);
   scene_init(&s, generate(RP_GEN_PHANTOM, 24, 24, 24, RP_U8),
-             rp_test_preset(g_ctx, "ct-soft"));
+             rp_test_preset(g_ctx, "minmax-soft"));
 
   cached_device_run(&s, &cold);
   snprintf(path, sizeof path, "%s", cold.cache_path);

@@ -193,7 +193,7 @@ if [ -n "$ao_col" ] && [ -z "$short" ]; then pass=$((pass + 1)); else
 # devices still hold the first's AO, so that frame renders with it, and
 # the abandoned run is never stepped against the wrong TF.
 cat >"$dir/back.json" <<'EOF'
-{"frames": 8, "tfs": ["ct-soft", "ct-bone"],
+{"frames": 8, "tfs": ["minmax-soft", "minmax-bone"],
  "events": [{"frame": 0, "camera": {"azimuth": 30, "distance": 2.5},
              "tf": 0, "target_fraction": 0.5,
              "effects": ["shading", "ao", "ert", "skip"]},

@@ -79,7 +79,7 @@ rp_volume *thin_volume(const uint32_t dims[3]) {
 rp_tf *solid_tf(void) {
   rp_tf_point pts[2] = {{0.0f, 0.2f, 0.4f, 0.9f, 0.3f},
                         {1.0f, 0.9f, 0.5f, 0.1f, 0.5f}};
-  rp_tf_desc d = {pts, 2, 2.0f, 0};
+  rp_tf_desc d = {pts, 2, 2.0f, 0, 0, 0, 0, 0};
   rp_tf *tf = NULL;
   assert_int_equal(rp_tf_create(ctx, &d, &tf), 0);
   return tf;
@@ -349,11 +349,13 @@ void bare_frame(const scene *s, const rp_tf *tf, const rp_occupancy *occ,
                 const rp_camera *cam, rp_render_desc *d, rp__raygen *rg,
                 rp_frame_params *p) {
   int n = 0;
+  double span[2];
   rp_tf_lut(tf, &n);
+  rp__tf_volume_range(tf, s->vol, span);
   *d = rp__render_desc_defaults(d);
   assert_int_equal(rp__frame_params(ctx, s->vol, occ, cam, d,
                                     rp_tf_reference_step(tf), (uint32_t)n,
-                                    rg, p),
+                                    span, rg, p),
                    0);
 }
 

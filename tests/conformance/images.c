@@ -8,7 +8,7 @@
 
 #include "conformance.h"
 
-static const char *const tfs[] = {"ct-bone", "transparent", "opaque",
+static const char *const tfs[] = {"minmax-bone", "transparent", "opaque",
                                   "nearly-transparent", "mri"};
 #define TFS 5
 /* AO appears once, with every other effect: each set is a kernel
@@ -203,7 +203,7 @@ void odd_viewports_and_scales(void **state) {
   int e, c;
   (void)state;
   assert_int_equal(rp_device_set_volume(dev, s.vol), 0);
-  assert_int_equal(rp_tf_create_preset(ctx, "ct-soft", &tf), 0);
+  assert_int_equal(rp_tf_create_preset(ctx, "minmax-soft", &tf), 0);
   assert_int_equal(rp_occupancy_build(ctx, s.h, tf, &occ), 0);
   assert_int_equal(rp_device_set_tf(dev, tf, occ), 0);
   for (v = 0; v < sizeof sizes / sizeof sizes[0]; v++)
@@ -288,7 +288,7 @@ void views_and_steps(void **state) {
   for (si = 0; si < 4; si++) {
     l = si == 0 ? light(make_scene("phantom 48^3 u8", RP_GEN_PHANTOM, 48,
                                    48, 48, RP_U8),
-                        rp_test_preset(ctx, "ct-bone"))
+                        rp_test_preset(ctx, "minmax-bone"))
         : si == 1 ? light(make_scene("Marschner-Lobb 41x37x29 u16",
                                      RP_GEN_MARSCHNER_LOBB, 41, 37, 29,
                                      RP_U16),
@@ -297,7 +297,7 @@ void views_and_steps(void **state) {
                                      17, 30, RP_U8),
                           rp_test_preset(ctx, "nearly-transparent"))
                   : light(scene_of("float blob", rp_test_float_blob(ctx)),
-                          rp_test_preset(ctx, "ct-soft"));
+                          rp_test_preset(ctx, "minmax-soft"));
     for (e = 0; e < 4; e++)
       for (c = 0; c < 3; c++)
         for (v = 0; v < 6; v++) {
@@ -321,7 +321,7 @@ void views_and_steps(void **state) {
     unlit(&l);
   }
   l = light(make_scene("phantom 48^3 u8", RP_GEN_PHANTOM, 48, 48, 48, RP_U8),
-            rp_test_preset(ctx, "ct-soft"));
+            rp_test_preset(ctx, "minmax-soft"));
   for (v = 6; v < 11; v++) {
     rp_camera cam =
         camera(l.s.vol, (v - 6) % 2 ? CAM_INSIDE2 : CAM_OUTSIDE);
@@ -356,7 +356,7 @@ void scenes_from_three_cameras(void **state) {
     lit_scene l =
         si == 0 ? light(make_scene("phantom u8", RP_GEN_PHANTOM, 48, 48, 48,
                                    RP_U8),
-                        rp_test_preset(ctx, "ct-soft"))
+                        rp_test_preset(ctx, "minmax-soft"))
         : si == 1 ? light(scene_of("sparse u8", sparse_volume()),
                           rp_test_ramp_tf(ctx, 1.0f))
         : si == 2 ? light(make_scene("Marschner-Lobb u16",

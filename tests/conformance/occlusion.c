@@ -166,12 +166,12 @@ void ao_volume(void **state) {
   k.what = "phantom u8 40x37x33", k.ways = 3, k.dark = 3, k.skips = 1;
   k.boxes = sizeof ao_boxes / sizeof ao_boxes[0];
   ao_scene(lit(make_scene(k.what, RP_GEN_PHANTOM, 40, 37, 33, RP_U8),
-               rp_test_preset(ctx, "ct-bone")),
+               rp_test_preset(ctx, "minmax-bone")),
            &k);
   k.what = "phantom u16 39x34x37", k.ways = 2, k.dark = 2;
   k.boxes = AO_BOXES_ALL;
   ao_scene(lit(make_scene(k.what, RP_GEN_PHANTOM, 39, 34, 37, RP_U16),
-               rp_test_preset(ctx, "ct-soft")),
+               rp_test_preset(ctx, "minmax-soft")),
            &k);
   k.what = "Marschner-Lobb u16 23x30x19", k.desc = odd, k.ways = 1;
   k.dark = 1, k.skips = 0;
@@ -181,7 +181,7 @@ void ao_volume(void **state) {
            &k);
   k.what = "float blob", k.ways = 2, k.skips = 1;
   ao_scene(lit(scene_of(k.what, rp_test_float_blob(ctx)),
-               rp_test_preset(ctx, "ct-soft")),
+               rp_test_preset(ctx, "minmax-soft")),
            &k);
   memset(&k, 0, sizeof k);
   k.what = "float32 ramp", k.ways = 1, k.boxes = AO_BOXES_ALL;
@@ -303,15 +303,15 @@ void ao_render(void **state) {
   (void)state;
   for (g = 0; g < 3; g++) {
     lit_scene l =
-        g == 0 ? lit(make_scene("phantom u8 ct-soft", RP_GEN_PHANTOM, 40, 37,
+        g == 0 ? lit(make_scene("phantom u8 minmax-soft", RP_GEN_PHANTOM, 40, 37,
                                 33, RP_U8),
-                     rp_test_preset(ctx, "ct-soft"))
-        : g == 1 ? lit(make_scene("phantom u8 ct-bone", RP_GEN_PHANTOM, 40,
+                     rp_test_preset(ctx, "minmax-soft"))
+        : g == 1 ? lit(make_scene("phantom u8 minmax-bone", RP_GEN_PHANTOM, 40,
                                   37, 33, RP_U8),
-                       rp_test_preset(ctx, "ct-bone"))
-                 : lit(make_scene("phantom u16 ct-soft", RP_GEN_PHANTOM, 39,
+                       rp_test_preset(ctx, "minmax-bone"))
+                 : lit(make_scene("phantom u16 minmax-soft", RP_GEN_PHANTOM, 39,
                                   34, 37, RP_U16),
-                       rp_test_preset(ctx, "ct-soft"));
+                       rp_test_preset(ctx, "minmax-soft"));
     rp_ao *ao = NULL;
     assert_int_equal(rp_ao_compute_reference(ctx, l.s.vol, l.tf, NULL, NULL,
                                              NULL, &ao),
@@ -375,7 +375,7 @@ void ao_state(void **state) {
   assert_int_equal(b.ops->upload_ao(b.impl, &one), RP_ESTATE);
   assert_int_equal(b.ops->upload_ao(b.impl, NULL), 0);
   l = lit(make_scene("phantom 24x20x18", RP_GEN_PHANTOM, 24, 20, 18, RP_U8),
-          rp_test_preset(ctx, "ct-bone"));
+          rp_test_preset(ctx, "minmax-bone"));
   bare_upload(&b, &l.s, l.tf, l.occ);
   cam = camera(l.s.vol, CAM_OUTSIDE);
   d.width = d.height = 24;
@@ -418,7 +418,7 @@ void ao_state(void **state) {
   assert_int_equal(b.ops->raycast(b.impl, &p, &all, rgba, tiles, NULL), 0);
   other = lit(make_scene("phantom 25x20x18", RP_GEN_PHANTOM, 25, 20, 18,
                          RP_U8),
-              rp_test_preset(ctx, "ct-bone"));
+              rp_test_preset(ctx, "minmax-bone"));
   bare_upload(&b, &other.s, other.tf, other.occ);
   d.effects = RP_EFFECT_AO | RP_EFFECT_SHADING;
   bare_frame(&other.s, other.tf, other.occ, &cam, &d, &rg, &p);

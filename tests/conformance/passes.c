@@ -163,21 +163,21 @@ void depth_pass(void **state) {
   static const int four[] = {CAM_OUTSIDE, CAM_INSIDE, CAM_ORTHO, CAM_AWAY};
   static const int three[] = {CAM_OUTSIDE, CAM_INSIDE2, CAM_AXIS};
   depth_tally t = {0, 0};
-  lit_scene blob = lit(blob_scene(), rp_test_preset(ctx, "ct-soft"));
+  lit_scene blob = lit(blob_scene(), rp_test_preset(ctx, "minmax-soft"));
   (void)state;
   check_blob_box(&blob);
   depth_scene(lit(make_scene("phantom 64x50x40", RP_GEN_PHANTOM, 64, 50, 40,
                              RP_U8),
-                  rp_test_preset(ctx, "ct-soft")),
+                  rp_test_preset(ctx, "minmax-soft")),
               five, 5, 61, 45, &t);
   depth_scene(blob, five, 5, 61, 45, &t);
   depth_scene(lit(make_scene("phantom 48x40x56", RP_GEN_PHANTOM, 48, 40, 56,
                              RP_U8),
-                  rp_test_preset(ctx, "ct-bone")),
+                  rp_test_preset(ctx, "minmax-bone")),
               four, 4, 45, 38, &t);
   depth_scene(lit(make_scene("phantom 48^3", RP_GEN_PHANTOM, 48, 48, 48,
                              RP_U8),
-                  rp_test_preset(ctx, "ct-bone")),
+                  rp_test_preset(ctx, "minmax-bone")),
               three, 3, 80, 64, &t);
   print_message("%s: depth pass: %llu of %llu rays off (rounding at block "
                 "faces)\n", backend_name(), (unsigned long long)t.off_rays,
@@ -290,18 +290,18 @@ void ert_prepass(void **state) {
   int c;
   (void)state;
   l = lit(make_scene("phantom 64x50x40", RP_GEN_PHANTOM, 64, 50, 40, RP_U8),
-          rp_test_preset(ctx, "ct-soft"));
+          rp_test_preset(ctx, "minmax-soft"));
   for (c = 0; c < CAMERAS; c++)
     cams[c] = camera(l.s.vol, c);
   ert_scene(l, cams, CAMERAS, &matrix, &t);
-  l = lit(blob_scene(), rp_test_preset(ctx, "ct-soft"));
+  l = lit(blob_scene(), rp_test_preset(ctx, "minmax-soft"));
   for (c = 0; c < CAMERAS; c++)
     cams[c] = camera(l.s.vol, c);
   ert_scene(l, cams, CAMERAS, &matrix, &t);
   /* Each camera a seed and frame of its own; inside, a threshold of
    * 0.5. */
   l = lit(make_scene("phantom 48^3", RP_GEN_PHANTOM, 48, 48, 48, RP_U8),
-          rp_test_preset(ctx, "ct-soft"));
+          rp_test_preset(ctx, "minmax-soft"));
   device_scene(dev, &l.s, l.tf, l.occ);
   for (c = 0; c < 3; c++) {
     static const ert_case one = {150, 97, RP_EFFECT_ERT, 1, 1, 0.0};
@@ -389,15 +389,15 @@ void regions_compose(void **state) {
   (void)state;
   l = lit(make_scene("ML 41x37x29 u16", RP_GEN_MARSCHNER_LOBB, 41, 37, 29,
                      RP_U16),
-          rp_test_preset(ctx, "ct-bone"));
+          rp_test_preset(ctx, "minmax-bone"));
   quadrants(&l, CAM_ORTHO, 53, 37, 24, 16);
   unlit(&l);
   l = lit(make_scene("phantom 48^3", RP_GEN_PHANTOM, 48, 48, 48, RP_U8),
-          rp_test_preset(ctx, "ct-bone"));
+          rp_test_preset(ctx, "minmax-bone"));
   quadrants(&l, CAM_INSIDE2, 61, 45, 32, 24);
   unlit(&l);
   l = lit(make_scene("phantom 40^3", RP_GEN_PHANTOM, 40, 40, 40, RP_U8),
-          rp_test_preset(ctx, "ct-bone"));
+          rp_test_preset(ctx, "minmax-bone"));
   quadrants(&l, CAM_OUTSIDE, 37, 29, 16, 16);
   cam = camera(l.s.vol, CAM_OUTSIDE);
   d.width = 37, d.height = 29;
@@ -465,7 +465,7 @@ void fetch_counts(void **state) {
   size_t e;
   (void)state;
   l = lit(make_scene("phantom 48^3", RP_GEN_PHANTOM, 48, 48, 48, RP_U8),
-          rp_test_preset(ctx, "ct-soft"));
+          rp_test_preset(ctx, "minmax-soft"));
   device_scene(dev, &l.s, l.tf, l.occ);
   cam = camera(l.s.vol, CAM_OUTSIDE);
   for (e = 0; e < sizeof sets / sizeof sets[0]; e++) {
@@ -479,7 +479,7 @@ void fetch_counts(void **state) {
   shading_pair(&l, 160, 0, &t);
   unlit(&l);
   l = lit(make_scene("phantom 64^3", RP_GEN_PHANTOM, 64, 64, 64, RP_U8),
-          rp_test_preset(ctx, "ct-soft"));
+          rp_test_preset(ctx, "minmax-soft"));
   device_scene(dev, &l.s, l.tf, l.occ);
   shading_pair(&l, 96, RP_EFFECT_SKIP, &t);
   unlit(&l);

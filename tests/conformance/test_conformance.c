@@ -66,7 +66,7 @@ static double now_ns(void) {
 static void device_time(void **state) {
   scene s = make_scene("phantom 48^3", RP_GEN_PHANTOM, 48, 48, 48, RP_U8);
   rp_camera cam = camera(s.vol, CAM_OUTSIDE);
-  rp_tf *tf = rp_test_preset(ctx, "ct-bone");
+  rp_tf *tf = rp_test_preset(ctx, "minmax-bone");
   rp_occupancy *occ = NULL;
   int r;
   (void)state;
@@ -171,7 +171,7 @@ static void slowed_and_failing_devices(void **state) {
   double wall_ns, reported_ns, plain_ns[3];
   int i;
   (void)state;
-  assert_int_equal(rp_tf_create_preset(ctx, "ct-bone", &tf), 0);
+  assert_int_equal(rp_tf_create_preset(ctx, "minmax-bone", &tf), 0);
   assert_int_equal(rp_occupancy_build(ctx, s.h, tf, &occ), 0);
   d.width = d.height = 8;
   d.effects = RP_EFFECT_ERT | RP_EFFECT_SKIP;
@@ -359,7 +359,7 @@ static void partitioned_devices(void **state) {
   /* One compute unit renders what the whole device renders. */
   dd.compute_units = 1;
   assert_int_equal(rp_device_create(ctx, &dd, &part), 0);
-  assert_int_equal(rp_tf_create_preset(ctx, "ct-bone", &tf), 0);
+  assert_int_equal(rp_tf_create_preset(ctx, "minmax-bone", &tf), 0);
   assert_int_equal(rp_occupancy_build(ctx, s.h, tf, &occ), 0);
   d.width = 40, d.height = 32;
   d.effects = RP_EFFECT_SHADING | RP_EFFECT_ERT | RP_EFFECT_SKIP;

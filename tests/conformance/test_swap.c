@@ -62,7 +62,7 @@ static void swap_mid_sequence(void **state) {
   g.dims[0] = 56, g.dims[1] = 48, g.dims[2] = 40;
   assert_int_equal(rp_volume_generate(ctx, &g, &vol), 0);
   assert_int_equal(rp_histograms_build(ctx, vol, &h), 0);
-  assert_int_equal(rp_tf_create_preset(ctx, "ct-soft", &tf), 0);
+  assert_int_equal(rp_tf_create_preset(ctx, "minmax-soft", &tf), 0);
   assert_int_equal(rp_occupancy_build(ctx, h, tf, &occ), 0);
   rd.width = W, rd.height = H;
   rd.effects = RP_EFFECT_SHADING | RP_EFFECT_ERT | RP_EFFECT_SKIP;

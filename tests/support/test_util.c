@@ -190,7 +190,7 @@ rp_tf *rp_test_ramp_tf(rp_context *ctx, float ref_step) {
                         {0.35f, 0.9f, 0.6f, 0.1f, 0.0f},
                         {0.6f, 1.0f, 0.9f, 0.3f, 0.25f},
                         {1.0f, 0.9f, 0.1f, 0.1f, 0.6f}};
-  rp_tf_desc d = {pts, 4, ref_step, 256};
+  rp_tf_desc d = {pts, 4, ref_step, 256, 0, 0, 0, 0};
   rp_tf *tf = NULL;
   assert_int_equal(rp_tf_create(ctx, &d, &tf), 0);
   return tf;
