@@ -48,8 +48,9 @@ build() { # build DIR [cmake args...]
 if [ "$mode" = demo ]; then
   build build -DCMAKE_BUILD_TYPE=Release
   mkdir -p out
-  ./build/raypace render gen:phantom:160 --tf ct-bone --shading \
-    --camera 35,25,2.4 --size 512x512 -o out/demo.png
+  # A generated CT head in HU under the bone window, from the front.
+  ./build/raypace render gen:ct:160 --tf ct-bone --size 512x512 \
+    -o out/demo.png
   echo "demo image: $(pwd)/out/demo.png"
   exit 0
 fi

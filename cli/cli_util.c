@@ -6,6 +6,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/stat.h>
 #include <time.h>
 #include <unistd.h>
 
@@ -99,9 +100,12 @@ static int parse_generator(rp_context *ctx, const char *spec,
         d.kind = RP_GEN_PHANTOM;
       else if (strcmp(tok, "noise") == 0)
         d.kind = RP_GEN_NOISE;
-      else {
+      else if (strcmp(tok, "ct") == 0) {
+        d.kind = RP_GEN_CT_HEAD;
+        d.type = RP_S16;
+      } else {
         fprintf(stderr, "raypace: generator '%s' is unknown (ml, phantom, "
-                        "noise)\n", tok);
+                        "noise, ct)\n", tok);
         return 1;
       }
     } else if (sscanf(tok, "%ux%ux%u%c", &x, &y, &z, &extra) == 3) {
@@ -455,4 +459,57 @@ void cli_progress(double fraction, void *user) {
   fprintf(stderr, "] %3d%%%s", (int)(fraction * 100.0 + 0.5),
           fraction >= 1.0 ? "\n" : "");
   fflush(stderr);
+}
+
+const char *cli_tf_name(const rp_volume *vol, const cli_tf *tf) {
+  rp_volume_info info;
+  if (tf->spec != NULL)
+    return tf->spec;
+  rp_volume_get_info(vol, &info);
+  /* Signed data is CT in HU far more often than not; unsigned CT is
+   * usually HU shifted by an unknown amount, where a window on [min, max]
+   * is the safer guess. */
+  return info.type == RP_S8 || info.type == RP_S16 || info.type == RP_S32
+             ? "ct-bone"
+             : "minmax-bone";
+}
+
+int cli_make_tf(rp_context *ctx, const rp_volume *vol, const cli_tf *tf,
+                rp_tf **out) {
+  const char *name = cli_tf_name(vol, tf);
+  struct stat st;
+  rp_tf *base = NULL;
+  int err;
+  /* A name with a '/' or '.' or one that is an existing file is a file;
+   * presets are bare words. */
+  if (strpbrk(name, "/.") != NULL || stat(name, &st) == 0)
+    err = rp_tf_load(ctx, name, &base);
+  else
+    err = rp_tf_create_preset(ctx, name, &base);
+  if (err != 0)
+    return cli_error(ctx, "--tf", err);
+  if (tf->windowed == 0) {
+    *out = base;
+    return 0;
+  }
+  if (tf->windowed != 3) {
+    rp_tf_destroy(base);
+    fprintf(stderr, "raypace: --window and --level go together\n");
+    return 1;
+  }
+  err = rp_tf_window(ctx, base, tf->window, tf->level, out);
+  rp_tf_destroy(base);
+  return err != 0 ? cli_error(ctx, "--window/--level", err) : 0;
+}
+
+int cli_parse_window(cli_tf *tf, int is_width, const char *s) {
+  char *end;
+  double v = strtod(s, &end);
+  if (end == s || *end != '\0' || !isfinite(v) || (is_width && !(v > 0.0)))
+    return 1;
+  if (is_width)
+    tf->window = v, tf->windowed |= 1;
+  else
+    tf->level = v, tf->windowed |= 2;
+  return 0;
 }

@@ -104,4 +104,20 @@ void cli_progress(double fraction, void *user);
 /* Prints "raypace: <what>: <rp_strerror>: <last error>" to stderr. */
 int cli_error(rp_context *ctx, const char *what, int err);
 
+/* What --tf, --window and --level asked for. */
+typedef struct cli_tf {
+  const char *spec; /* a preset name or a TF file; NULL: by the volume */
+  int windowed;     /* bit 0: --window given, bit 1: --level */
+  double window, level;
+} cli_tf;
+/* The TF name to use on `vol`: spec, or ct-bone for signed (HU) data and
+ * minmax-bone otherwise. */
+const char *cli_tf_name(const rp_volume *vol, const cli_tf *tf);
+/* Parses --window (is_width) or --level into tf; 1 when bad. */
+int cli_parse_window(cli_tf *tf, int is_width, const char *s);
+/* Builds the TF (a preset or a file, then the window when given); 0, or
+ * 1 with the error printed. */
+int cli_make_tf(rp_context *ctx, const rp_volume *vol, const cli_tf *tf,
+                rp_tf **out);
+
 #endif

@@ -45,8 +45,11 @@ static void usage_info(FILE *f) {
   fprintf(f,
           "usage: raypace info VOLUME [--tf PRESET] [--histograms] [--json]"
           "\n\n"
-          "  --tf PRESET    count empty blocks under this transfer function\n"
-          "                 (default minmax-bone)\n"
+          "  --tf PRESET|FILE  count empty blocks under this transfer\n"
+          "                 function (default ct-bone for signed data, else\n"
+          "                 minmax-bone)\n"
+          "  --window W --level L  place the TF on [L - W/2, L + W/2] in\n"
+          "                 data units (HU for CT)\n"
           "  --histograms   also print per-block density histograms H (64\n"
           "                 bins) and opacity histograms H-alpha (16 bytes)\n"
           "  --json         one JSON object on stdout\n");
@@ -56,7 +59,16 @@ static void usage_render(FILE *f) {
   const char *const *p;
   fprintf(f,
           "usage: raypace render VOLUME -o OUT.png [options]\n\n"
-          "  --tf PRESET           transfer function (default minmax-bone)\n"
+          "  --tf PRESET|FILE      transfer function: a preset (below) or a\n"
+          "                        file of 'x r g b a' lines (rp_tf_load);\n"
+          "                        default ct-bone for signed (HU) data,\n"
+          "                        else minmax-bone\n"
+          "  --window W --level L  place the TF on [L - W/2, L + W/2] in\n"
+          "                        data units (HU for CT)\n"
+          "  --view NAME           anterior, posterior, left, right,\n"
+          "                        superior or inferior (superior up; the\n"
+          "                        default, anterior, for a volume whose\n"
+          "                        file gives its orientation)\n"
           "  --camera AZ,EL,DIST   orbit: azimuth and elevation in degrees,\n"
           "                        distance in bounding radii (default "
           "30,20,2.5)\n"
@@ -64,7 +76,8 @@ static void usage_render(FILE *f) {
           "  --fov DEG             vertical field of view (default 40)\n"
           "  --size WxH            image size (default 512x512)\n"
           "  --step D              sample step in voxels (default 1)\n"
-          "  --shading             gradient shading\n"
+          "  --no-shading          no gradient shading (on by default)\n"
+          "  --shading             accepted for older scripts\n"
           "  --ao                  ambient occlusion (computed first, on the\n"
           "                        rendering device(s), with a progress bar)\n"
           "  --ao-scheme NAME      with --devices: dynamic (default), static\n"
@@ -158,7 +171,7 @@ typedef struct scene {
 /* Builds `sc`; 0, or 1 with the error printed. `h_what` names a failure
  * to build H in the message (the commands have always named it
  * differently). scene_close frees what was built, either way. */
-static int scene_open(scene *sc, const char *volume, const char *tf_name,
+static int scene_open(scene *sc, const char *volume, const cli_tf *tf,
                       const char *h_what) {
   double t0;
   int err;
@@ -167,8 +180,8 @@ static int scene_open(scene *sc, const char *volume, const char *tf_name,
     return cli_error(sc->ctx, "context", err);
   if (cli_open_volume(sc->ctx, volume, &sc->vol) != 0)
     return 1;
-  if ((err = rp_tf_create_preset(sc->ctx, tf_name, &sc->tf)) != 0)
-    return cli_error(sc->ctx, "--tf", err);
+  if (cli_make_tf(sc->ctx, sc->vol, tf, &sc->tf) != 0)
+    return 1;
   t0 = cli_now();
   if ((err = rp_histograms_build(sc->ctx, sc->vol, &sc->h)) != 0)
     return cli_error(sc->ctx, h_what, err);
@@ -191,23 +204,33 @@ static void scene_close(scene *sc) {
 /* ---- info ---------------------------------------------------------------- */
 
 typedef struct info_opts {
-  const char *volume, *tf;
+  const char *volume, *tf; /* tf: the name used, set once the volume is */
+  cli_tf tfo;
   int json, hist;
 } info_opts;
 
 /* 0, or 1 after --help, or 2 (usage printed). */
 static int parse_info(int argc, char **argv, info_opts *o) {
   static const struct option opts[] = {{"tf", required_argument, 0, 't'},
+                                       {"window", required_argument, 0, 'W'},
+                                       {"level", required_argument, 0, 'l'},
                                        {"histograms", no_argument, 0, 'H'},
                                        {"json", no_argument, 0, 'j'},
                                        {"help", no_argument, 0, 'h'},
                                        {0, 0, 0, 0}};
-  int c;
+  int c, li = 0;
   memset(o, 0, sizeof *o);
-  o->tf = "minmax-bone";
-  while ((c = getopt_long(argc, argv, "h", opts, NULL)) != -1) {
+  while ((c = getopt_long(argc, argv, "h", opts, &li)) != -1) {
     switch (c) {
-    case 't': o->tf = optarg; break;
+    case 't': o->tfo.spec = optarg; break;
+    case 'W':
+    case 'l':
+      if (cli_parse_window(&o->tfo, c == 'W', optarg) != 0) {
+        fprintf(stderr, "raypace info: bad value '%s' for --%s\n", optarg,
+                opts[li].name);
+        return 2;
+      }
+      break;
     case 'H': o->hist = 1; break;
     case 'j': o->json = 1; break;
     case 'h': usage_info(stdout); return 1;
@@ -300,8 +323,10 @@ static int cmd_info(int argc, char **argv) {
   int rc;
   if ((rc = parse_info(argc, argv, &o)) != 0)
     return rc == 1 ? 0 : rc;
-  if ((rc = scene_open(&sc, o.volume, o.tf, "histograms")) == 0)
+  if ((rc = scene_open(&sc, o.volume, &o.tfo, "histograms")) == 0) {
+    o.tf = cli_tf_name(sc.vol, &o.tfo);
     rc = o.json ? info_json(&o, &sc) : info_text(&o, &sc);
+  }
   scene_close(&sc);
   return rc;
 }
@@ -309,7 +334,11 @@ static int cmd_info(int argc, char **argv) {
 /* ---- render -------------------------------------------------------------- */
 
 typedef struct render_opts {
-  const char *volume, *out, *tf, *backend;
+  const char *volume, *out, *tf, *backend; /* tf: set with the volume */
+  cli_tf tfo;
+  const char *view; /* an rp_view name; NULL: anterior for a volume whose
+                       orientation is known, else the orbit */
+  int orbit_given;
   float orbit[3], background[3], fov, step, ert_threshold, scale;
   uint32_t device;
   uint32_t width, height;
@@ -327,6 +356,10 @@ typedef struct render_opts {
 static int parse_render(int argc, char **argv, render_opts *o) {
   static const struct option opts[] = {
       {"tf", required_argument, 0, 't'},
+      {"window", required_argument, 0, 'W'},
+      {"level", required_argument, 0, 'l'},
+      {"view", required_argument, 0, 'v'},
+      {"no-shading", no_argument, 0, 'N'},
       {"camera", required_argument, 0, 'c'},
       {"ortho", no_argument, 0, 'O'},
       {"fov", required_argument, 0, 'f'},
@@ -353,17 +386,27 @@ static int parse_render(int argc, char **argv, render_opts *o) {
       {0, 0, 0, 0}};
   int c, li = 0;
   memset(o, 0, sizeof *o);
-  o->tf = "minmax-bone";
   o->backend = NULL;
   o->orbit[0] = 30, o->orbit[1] = 20, o->orbit[2] = 2.5f;
   o->width = o->height = 512;
   o->ert = o->skip = 1;
+  o->shading = 1;
   optind = 1;
   while ((c = getopt_long(argc, argv, "ho:", opts, &li)) != -1) {
     int bad = 0;
     switch (c) {
-    case 't': o->tf = optarg; break;
-    case 'c': bad = cli_parse_floats(optarg, o->orbit, 3); break;
+    case 't': o->tfo.spec = optarg; break;
+    case 'W':
+    case 'l': bad = cli_parse_window(&o->tfo, c == 'W', optarg); break;
+    case 'v':
+      o->view = optarg;
+      bad = rp_view_from_name(optarg) == 0;
+      break;
+    case 'N': o->shading = 0; break;
+    case 'c':
+      bad = cli_parse_floats(optarg, o->orbit, 3);
+      o->orbit_given = 1;
+      break;
     case 'O': o->ortho = 1; break;
     case 'f': bad = cli_parse_positive(optarg, &o->fov); break;
     case 's': bad = cli_parse_size(optarg, &o->width, &o->height); break;
@@ -426,6 +469,10 @@ static int parse_render(int argc, char **argv, render_opts *o) {
     o->devices[c].budget_bytes = o->mem.budget_bytes;
     o->devices[c].brick_size = o->mem.brick_size;
   }
+  if (o->view != NULL && o->orbit_given) {
+    fprintf(stderr, "raypace render: --view excludes --camera\n");
+    return 2;
+  }
   if (o->overlay && o->devices_spec == NULL) {
     fprintf(stderr, "raypace render: --overlay-split needs --devices\n");
     return 2;
@@ -441,11 +488,19 @@ static int parse_render(int argc, char **argv, render_opts *o) {
 /* The camera and render desc the options ask for. */
 static void render_setup(const render_opts *o, const rp_volume *vol,
                          rp_camera *cam, rp_render_desc *rd) {
+  rp_volume_info info;
+  rp_volume_get_info(vol, &info);
   memset(cam, 0, sizeof *cam);
   memset(rd, 0, sizeof *rd);
   cam->projection = o->ortho ? RP_ORTHOGRAPHIC : RP_PERSPECTIVE;
   cam->fov_y_deg = o->fov;
-  rp_camera_orbit(cam, vol, o->orbit[0], o->orbit[1], o->orbit[2]);
+  if (o->view != NULL || (!o->orbit_given && info.orientation.known))
+    (void)rp_camera_view(cam, vol,
+                         o->view != NULL ? rp_view_from_name(o->view)
+                                         : RP_VIEW_ANTERIOR,
+                         2.0f); /* closer than the orbit: a head fills it */
+  else
+    rp_camera_orbit(cam, vol, o->orbit[0], o->orbit[1], o->orbit[2]);
   rd->width = o->width;
   rd->height = o->height;
   rd->step = o->step;
@@ -981,7 +1036,8 @@ static int cmd_render(int argc, char **argv) {
   int rc;
   if ((rc = parse_render(argc, argv, &o)) != 0)
     return rc == 1 ? 0 : rc;
-  if ((rc = scene_open(&sc, o.volume, o.tf, "occupancy")) == 0) {
+  if ((rc = scene_open(&sc, o.volume, &o.tfo, "occupancy")) == 0) {
+    o.tf = cli_tf_name(sc.vol, &o.tfo);
     render_setup(&o, sc.vol, &cam, &rd);
     rc = o.ndevices > 0 ? render_group(&sc, &o, &cam, &rd)
                         : render_single(&sc, &o, &cam, &rd);

@@ -170,13 +170,18 @@ RP_API int rp_volume_load(rp_context *ctx, const char *path,
 typedef enum rp_generator {
   RP_GEN_MARSCHNER_LOBB = 1, /* analytic test signal, f_M = 6, alpha = .25 */
   RP_GEN_PHANTOM = 2,        /* CT-like: empty air, soft shell, dense core */
-  RP_GEN_NOISE = 3           /* white noise: worst case for every skip */
+  RP_GEN_NOISE = 3,          /* white noise: worst case for every skip */
+  /* A CT head in Hounsfield units (int16; RP_S16 or 0 only), in patient
+   * orientation (voxel axes along LPS): air, skin, fat, skull, brain,
+   * ventricles, eyes, a nose pointing anterior, the cervical spine and a
+   * contrast-filled vessel. \since 0.11 */
+  RP_GEN_CT_HEAD = 4
 } rp_generator;
 
 typedef struct rp_generate_desc {
   rp_generator kind;  /* required */
   uint32_t dims[3];   /* required, each >= 1 */
-  rp_voxel_type type; /* RP_U8 or RP_U16; 0: RP_U8 */
+  rp_voxel_type type; /* RP_U8 or RP_U16; 0: RP_U8 (RP_GEN_CT_HEAD: int16) */
   uint64_t seed;      /* for RP_GEN_NOISE */
 } rp_generate_desc;
 
@@ -366,6 +371,30 @@ typedef struct rp_camera {
   float fov_y_deg;     /* perspective vertical field of view; 0: 40 */
   float ortho_height;  /* orthographic view height; 0: bounding diameter */
 } rp_camera;
+
+/** Anatomical views: where the eye is, seen from the patient. \since 0.11 */
+typedef enum rp_view {
+  RP_VIEW_ANTERIOR = 1, /* from the front, superior up */
+  RP_VIEW_POSTERIOR,    /* from behind, superior up */
+  RP_VIEW_LEFT,         /* from the patient's left, superior up */
+  RP_VIEW_RIGHT,        /* from the patient's right, superior up */
+  RP_VIEW_SUPERIOR,     /* from above, anterior up */
+  RP_VIEW_INFERIOR      /* from below, anterior up */
+} rp_view;
+
+/** Points `cam` at the volume centre from an anatomical direction, at a
+ *  distance in bounding-sphere radii as rp_camera_orbit, using the
+ *  volume's orientation (rp_volume_info.orientation; when not known the
+ *  voxel axes are taken as LPS: +x left, +y posterior, +z superior). An
+ *  anterior view shows the patient's left on the image's right, as a
+ *  radiologist expects. Keeps projection and fov. \returns 0, or
+ *  RP_EINVAL for an unknown view or a NULL argument. \since 0.11 */
+RP_API int rp_camera_view(rp_camera *cam, const rp_volume *vol,
+                          rp_view view, float distance);
+/** The view's name ("anterior", ...), NULL for an unknown value; and the
+ *  view of a name (0 for an unknown one). \since 0.11 */
+RP_API const char *rp_view_name(rp_view view);
+RP_API rp_view rp_view_from_name(const char *name);
 
 /** Points `cam` at the volume centre from azimuth/elevation (degrees) and
  *  a distance in bounding-sphere radii (1.0 touches the sphere; below 1

@@ -85,6 +85,51 @@ void rp_camera_orbit(rp_camera *cam, const rp_volume *vol, float azimuth_deg,
   }
 }
 
+/* Eye direction and up of each view in patient space (LPS). */
+static const struct {
+  const char *name;
+  double eye[3], up[3];
+} views[] = {
+    {"anterior", {0, -1, 0}, {0, 0, 1}},  {"posterior", {0, 1, 0}, {0, 0, 1}},
+    {"left", {1, 0, 0}, {0, 0, 1}},       {"right", {-1, 0, 0}, {0, 0, 1}},
+    {"superior", {0, 0, 1}, {0, -1, 0}}, {"inferior", {0, 0, -1}, {0, -1, 0}},
+};
+#define N_VIEWS (int)(sizeof views / sizeof views[0])
+
+const char *rp_view_name(rp_view view) {
+  return view >= 1 && (int)view <= N_VIEWS ? views[view - 1].name : NULL;
+}
+
+rp_view rp_view_from_name(const char *name) {
+  int i;
+  for (i = 0; name != NULL && i < N_VIEWS; i++)
+    if (strcmp(views[i].name, name) == 0)
+      return (rp_view)(i + 1);
+  return (rp_view)0;
+}
+
+int rp_camera_view(rp_camera *cam, const rp_volume *vol, rp_view view,
+                   float distance) {
+  const double *D;
+  double d;
+  int a;
+  if (cam == NULL || vol == NULL || rp_view_name(view) == NULL)
+    return RP_EINVAL;
+  /* World axes are the voxel axes (scaled by the spacing), and column j of
+   * the direction matrix is voxel axis j in LPS: a patient-space vector v
+   * is D^T v in world space. */
+  D = vol->orientation.direction;
+  d = 0.5 * box_diameter(vol) * distance;
+  for (a = 0; a < 3; a++) {
+    const double *c = &D[3 * a];
+    const double *e = views[view - 1].eye, *u = views[view - 1].up;
+    cam->eye[a] = (float)(d * (c[0] * e[0] + c[1] * e[1] + c[2] * e[2]));
+    cam->up[a] = (float)(c[0] * u[0] + c[1] * u[1] + c[2] * u[2]);
+    cam->center[a] = 0.0f;
+  }
+  return 0;
+}
+
 static int check_vec(rp_context *ctx, const char *field, const float v[3]) {
   int a;
   for (a = 0; a < 3; a++)
