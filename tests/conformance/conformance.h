@@ -164,6 +164,8 @@ void matrix_phantom_u8(void **state);
 void matrix_marschner_lobb_u16(void **state);
 void matrix_noise(void **state);
 void matrix_float(void **state);
+void matrix_ct_head_s16(void **state);
+void matrix_thin_shell_u16(void **state);
 void matrix_real_volumes(void **state);
 void odd_viewports_and_scales(void **state);
 void views_and_steps(void **state);

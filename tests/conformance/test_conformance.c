@@ -399,6 +399,8 @@ int main(void) {
       cmocka_unit_test(matrix_marschner_lobb_u16),
       cmocka_unit_test(matrix_noise),
       cmocka_unit_test(matrix_float),
+      cmocka_unit_test(matrix_ct_head_s16),
+      cmocka_unit_test(matrix_thin_shell_u16),
       cmocka_unit_test(matrix_real_volumes),
       cmocka_unit_test(ao_volume),
       cmocka_unit_test(ao_render),
