@@ -252,3 +252,84 @@ rp_volume *rp_test_float_blob(rp_context *ctx) {
   static const float spacing[3] = {1.0f, 1.3f, 0.8f};
   return float_volume(ctx, dims, spacing, one_blob);
 }
+
+rp_volume *rp_test_load_ok(rp_context *ctx, const char *path) {
+  rp_volume *v = NULL;
+  int rc = rp_volume_load(ctx, path, &v);
+  if (rc != 0)
+    fail_msg("%s: %s: %s", path, rp_err_name(rc), rp_last_error(ctx));
+  assert_non_null(v);
+  return v;
+}
+
+void rp_test_load_fails(rp_context *ctx, const char *path, int code, ...) {
+  static int sentinel;
+  rp_volume *v = (rp_volume *)&sentinel;
+  const char *needle;
+  va_list ap;
+  int rc = rp_volume_load(ctx, path, &v);
+  if (rc != code)
+    fail_msg("%s: got %s, want %s (%s)", path, rp_err_name(rc),
+             rp_err_name(code), rp_last_error(ctx));
+  assert_ptr_equal(v, (rp_volume *)&sentinel);
+  va_start(ap, code);
+  while ((needle = va_arg(ap, const char *)) != NULL) {
+    if (strstr(rp_last_error(ctx), needle) == NULL) {
+      va_end(ap);
+      fail_msg("%s: message '%s' does not mention '%s'", path,
+               rp_last_error(ctx), needle);
+    }
+  }
+  va_end(ap);
+}
+
+double rp_test_voxel(const rp_volume *vol, size_t i) {
+  rp_volume_info info;
+  const uint8_t *p = rp_volume_data(vol);
+  double x;
+  rp_volume_get_info(vol, &info);
+  if (info.stored_type == RP_U8) {
+    x = p[i];
+  } else if (info.stored_type == RP_U16) {
+    uint16_t u;
+    memcpy(&u, p + 2 * i, 2);
+    x = u;
+  } else {
+    float f;
+    assert_int_equal(info.stored_type, RP_F32);
+    memcpy(&f, p + 4 * i, 4);
+    x = f;
+  }
+  return x + info.stored_offset;
+}
+
+void rp_test_expect_orientation(const rp_volume *vol,
+                                const double direction[9],
+                                const double origin[3], double tol) {
+  rp_volume_info info;
+  int i;
+  rp_volume_get_info(vol, &info);
+  assert_true(info.orientation.known);
+  for (i = 0; i < 9; i++)
+    if (!(fabs(info.orientation.direction[i] - direction[i]) <= tol))
+      fail_msg("direction[%d] (axis %d, component %d) = %.9g, want %.9g", i,
+               i / 3, i % 3, info.orientation.direction[i], direction[i]);
+  for (i = 0; i < 3; i++)
+    if (!(fabs(info.orientation.origin[i] - origin[i]) <= tol))
+      fail_msg("origin[%d] = %.9g, want %.9g", i, info.orientation.origin[i],
+               origin[i]);
+}
+
+const char *rp_test_write_with(const char *name, const char *text,
+                               const void *payload, size_t n) {
+  size_t t = strlen(text);
+  uint8_t *buf = malloc(t + n + 1);
+  const char *path;
+  assert_non_null(buf);
+  memcpy(buf, text, t);
+  if (n > 0)
+    memcpy(buf + t, payload, n);
+  path = rp_test_write_file(name, buf, t + n);
+  free(buf);
+  return path;
+}
