@@ -15,7 +15,7 @@ PKGS="cmake make gcc clang libclang-rt-14-dev pkg-config zlib1g-dev
 libpng-dev libcjson-dev libuv1-dev libcmocka-dev ocl-icd-opencl-dev
 opencl-headers pocl-opencl-icd libvulkan-dev mesa-vulkan-drivers glslc
 g++ libdlib-dev libjpeg-dev libblas-dev liblapack-dev gnuplot-nox
-libopenmpi-dev openmpi-bin"
+libopenmpi-dev openmpi-bin libnifti2-dev"
 missing=""
 for p in $PKGS; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "ok installed" ||

@@ -27,6 +27,7 @@
 #include <errno.h>
 #include <float.h>
 #include <math.h>
+#include <pthread.h>
 #include <stdio.h>
 #include <string.h>
 #include <sys/stat.h>
@@ -130,6 +131,30 @@ static int check_dims(rp_context *ctx, const char *path,
   return 0;
 }
 
+/* Sizes, type and bytes of a header against the context's limit: the
+ * voxel type it becomes, its size in the file, the voxel count. float64
+ * is read whole before it becomes float32, so its 8 bytes count. */
+static int check_size(rp_context *ctx, const char *path, const int64_t dim[8],
+                      int code, uint64_t dims[3], rp_voxel_type *type,
+                      int *file_bytes, size_t *voxels) {
+  size_t bytes = 0;
+  int rc;
+  if ((rc = check_dims(ctx, path, dim, dims)) != 0)
+    return rc;
+  if (!nifti_type(code, type, file_bytes))
+    return refuse_type(ctx, path, code);
+  if ((rc = rp__volume_size(ctx, path, "field 'dim'", dims, *type, voxels,
+                            &bytes)) != 0)
+    return rc;
+  if (*file_bytes == 8 && *voxels > ctx->desc.max_volume_bytes / 8)
+    return rp__fail(ctx, RP_ERANGE,
+                    "%s: field 'dim': %zu float64 voxels exceed the limit of "
+                    "%llu bytes (rp_context_desc.max_volume_bytes)",
+                    path, *voxels,
+                    (unsigned long long)ctx->desc.max_volume_bytes);
+  return 0;
+}
+
 /* ---- The header's first bytes, before nifticlib sees them --------------- */
 
 typedef struct nifti_peek {
@@ -169,7 +194,16 @@ static int peek_header(rp_context *ctx, const char *path, const char *hname,
   int16_t s16;
   int got, i;
   float f;
-  gzFile g = gzopen(hname, "rb");
+  struct stat st;
+  gzFile g;
+  /* A FIFO would block the open: regular files only, as volume_io.c. */
+  if (stat(hname, &st) != 0)
+    return rp__fail(ctx, RP_ENOENT, "%s: header %s: no such file", path,
+                    hname);
+  if (!S_ISREG(st.st_mode))
+    return rp__fail(ctx, RP_EIO, "%s: header %s: not a regular file", path,
+                    hname);
+  g = gzopen(hname, "rb");
   if (g == NULL)
     return rp__fail(ctx, errno == ENOENT ? RP_ENOENT : RP_EIO,
                     "%s: cannot open header %s", path, hname);
@@ -178,15 +212,18 @@ static int peek_header(rp_context *ctx, const char *path, const char *hname,
   if (got < 0)
     return rp__fail(ctx, RP_EIO, "%s: cannot read header %s (corrupt "
                     "gzip?)", path, hname);
-  if (got < 348)
-    return rp__fail(ctx, RP_ETRUNC,
-                    "%s: header truncated: %d bytes, a NIfTI-1 header takes "
-                    "348",
-                    path, got);
+  if (got < 4)
+    return rp__fail(ctx, RP_ETRUNC, "%s: header truncated: %d bytes", path,
+                    got);
   memcpy(&size, h, 4);
   swapped = size;
   swap_n((uint8_t *)&swapped, 4);
   memset(pk, 0, sizeof *pk);
+  if ((size == 348 || swapped == 348) && got < 348)
+    return rp__fail(ctx, RP_ETRUNC,
+                    "%s: header truncated: %d bytes, a NIfTI-1 header takes "
+                    "348",
+                    path, got);
   if (size == 348 || swapped == 348) {
     pk->version = 1;
     pk->swap = size != 348;
@@ -236,23 +273,13 @@ static int precheck(rp_context *ctx, const char *path, const char *hname,
   struct stat st;
   rp_voxel_type type;
   uint64_t dims[3];
-  size_t voxels = 0, bytes = 0;
+  size_t voxels = 0;
   int rc, file_bytes;
   if ((rc = peek_header(ctx, path, hname, pk)) != 0)
     return rc;
-  if ((rc = check_dims(ctx, path, pk->dim, dims)) != 0)
+  if ((rc = check_size(ctx, path, pk->dim, pk->datatype, dims, &type,
+                       &file_bytes, &voxels)) != 0)
     return rc;
-  if (!nifti_type(pk->datatype, &type, &file_bytes))
-    return refuse_type(ctx, path, pk->datatype);
-  if ((rc = rp__volume_size(ctx, path, "field 'dim'", dims, type, &voxels,
-                            &bytes)) != 0)
-    return rc;
-  if (file_bytes == 8 && voxels > ctx->desc.max_volume_bytes / 8)
-    return rp__fail(ctx, RP_ERANGE,
-                    "%s: field 'dim': %zu float64 voxels exceed the limit of "
-                    "%llu bytes (rp_context_desc.max_volume_bytes)",
-                    path, voxels,
-                    (unsigned long long)ctx->desc.max_volume_bytes);
   /* Extensions lie between the header and vox_offset, and nifticlib
    * allocates what they claim up to there: the offset must be one the
    * file can hold (a gzip stream inflates at most about 1032 times). */
@@ -416,7 +443,7 @@ static int geometry(rp_context *ctx, const char *path, const nifti_image *nim,
                     rp_orientation *o, float spacing[3]) {
   char what[1100];
   int i, rc = 1;
-  memset(o, 0, sizeof *o);
+  rp__orientation_check(ctx, path, NULL, o); /* not known: the identity */
   if (nim->sform_code > 0) {
     snprintf(what, sizeof what, "%s: sform (srow_x/y/z)", path);
     rc = from_matrix(ctx, what, &nim->sto_xyz, o, spacing);
@@ -449,16 +476,13 @@ static int load_image(rp_context *ctx, const char *path,
   uint64_t d64[3];
   uint32_t dims[3];
   float spacing[3];
-  size_t voxels = 0, bytes = 0;
+  size_t voxels = 0;
   uint8_t *data = NULL;
   double slope = nim->scl_slope, inter = nim->scl_inter;
   int rc, file_bytes, scaled, i;
-  if ((rc = check_dims(ctx, path, nim->dim, d64)) != 0)
-    return rc;
-  if (!nifti_type(nim->datatype, &type, &file_bytes))
-    return refuse_type(ctx, path, nim->datatype);
-  if ((rc = rp__volume_size(ctx, path, "field 'dim'", d64, type, &voxels,
-                            &bytes)) != 0)
+  /* Again on what nifticlib made of the header: the voxels follow it. */
+  if ((rc = check_size(ctx, path, nim->dim, nim->datatype, d64, &type,
+                       &file_bytes, &voxels)) != 0)
     return rc;
   if ((rc = geometry(ctx, path, nim, &orient, spacing)) != 0)
     return rc;
@@ -492,14 +516,19 @@ static int load_image(rp_context *ctx, const char *path,
   return 0;
 }
 
+static pthread_once_t quiet_once = PTHREAD_ONCE_INIT;
+
+static void quiet_nifticlib(void) { nifti_set_debug_level(0); }
+
 int rp__nifti_load(rp_context *ctx, const char *path, rp_volume **out) {
   nifti_peek pk;
   nifti_image *nim;
   char *hname;
   int rc;
   /* nifticlib reports through stderr; every failure here says why
-   * itself. The level is a process-wide setting of the library's. */
-  nifti_set_debug_level(0);
+   * itself. The level is a process-wide setting of the library's, set
+   * once so that loads on several threads do not race on it. */
+  pthread_once(&quiet_once, quiet_nifticlib);
   hname = nifti_findhdrname(path);
   if (hname == NULL)
     return rp__fail(ctx, RP_ENOENT,

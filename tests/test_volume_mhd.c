@@ -20,19 +20,6 @@
 #define NZ 4
 #define NV (NX * NY * NZ)
 
-/* Voxel i of the test pattern in each type; negative where signed. */
-static double pattern(rp_voxel_type t, int i) {
-  switch (t) {
-  case RP_U8: return i * 10 + 5;
-  case RP_S8: return i * 5 - 60;
-  case RP_U16: return 1000 + i * 2345;
-  case RP_S16: return i * 137 - 1500;
-  case RP_U32: return 100000.0 + i * 70001.0;
-  case RP_S32: return i * 90001.0 - 1000000.0;
-  default: return -2.5 + i * 0.75;
-  }
-}
-
 static size_t type_bytes(rp_voxel_type t) {
   return t == RP_U8 || t == RP_S8 ? 1 : t == RP_U16 || t == RP_S16 ? 2 : 4;
 }
@@ -43,7 +30,7 @@ static size_t encode(rp_voxel_type t, int big, uint8_t *out) {
   int i;
   for (i = 0; i < NV; i++) {
     uint32_t bits;
-    double x = pattern(t, i);
+    double x = rp_test_pattern(t, i);
     if (t == RP_F32) {
       float f = (float)x;
       memcpy(&bits, &f, 4);
@@ -63,27 +50,7 @@ static size_t encode(rp_voxel_type t, int big, uint8_t *out) {
 static void check_pattern(const rp_volume *v, rp_voxel_type t,
                           const float spacing[3]) {
   static const uint32_t dims[3] = {NX, NY, NZ};
-  rp_volume_info info;
-  double lo = INFINITY, hi = -INFINITY;
-  int i;
-  rp_volume_get_info(v, &info);
-  assert_int_equal(info.type, t);
-  for (i = 0; i < 3; i++) {
-    assert_int_equal(info.dims[i], dims[i]);
-    if (info.spacing[i] != spacing[i])
-      fail_msg("spacing[%d] = %.9g, want %.9g", i, (double)info.spacing[i],
-               (double)spacing[i]);
-  }
-  for (i = 0; i < NV; i++) {
-    double want = t == RP_F32 ? (double)(float)pattern(t, i) : pattern(t, i);
-    if (rp_test_voxel(v, (size_t)i) != want)
-      fail_msg("voxel %d = %.9g, want %.9g", i, rp_test_voxel(v, (size_t)i),
-               want);
-    lo = want < lo ? want : lo;
-    hi = want > hi ? want : hi;
-  }
-  assert_true(info.min == lo);
-  assert_true(info.max == hi);
+  rp_test_check_pattern(v, t, dims, spacing);
 }
 
 static const float unit[3] = {1.0f, 1.0f, 1.0f};
@@ -154,8 +121,7 @@ static void test_nrrd_space(void **state) {
                                    "space: scanner-xyz\nspace directions: "
                                    "(0,2,0) (-1.5,0,0) (0,0,3)\n"));
   check_pattern(v, RP_U8, turned_spacing);
-  rp_volume_get_info(v, &info);
-  assert_false(info.orientation.known);
+  rp_test_expect_no_orientation(v);
   rp_volume_destroy(v);
   v = rp_test_load_ok(ctx, nrrd_u8("sp_none.nrrd", "space directions: "
                                    "(0,2,0) (-1.5,0,0) (0,0,3)\n"));
@@ -165,11 +131,7 @@ static void test_nrrd_space(void **state) {
   rp_volume_destroy(v);
   /* No space fields at all: unknown, the identity. */
   v = rp_test_load_ok(ctx, nrrd_u8("sp_plain.nrrd", ""));
-  rp_volume_get_info(v, &info);
-  assert_false(info.orientation.known);
-  assert_true(info.orientation.direction[0] == 1.0 &&
-              info.orientation.direction[4] == 1.0 &&
-              info.orientation.direction[8] == 1.0);
+  rp_test_expect_no_orientation(v);
   rp_volume_destroy(v);
   check_pattern(v = rp_test_load_ok(ctx, nrrd_u8("sp_dim.nrrd",
                                                  "space dimension: 3\n")),
@@ -341,7 +303,6 @@ static void test_mhd_orientation(void **state) {
   static const double offset_only[3] = {5, 6, 7};
   rp_context *ctx = rp_test_context();
   uint8_t payload[NV];
-  rp_volume_info info;
   rp_volume *v;
   (void)state;
   encode(RP_U8, 0, payload);
@@ -380,8 +341,7 @@ static void test_mhd_orientation(void **state) {
                                                "AnatomicalOrientation = ???\n",
                                                "LOCAL"),
                                       payload, NV));
-  rp_volume_get_info(v, &info);
-  assert_false(info.orientation.known);
+  rp_test_expect_no_orientation(v);
   rp_volume_destroy(v);
   rp_context_destroy(ctx);
 }

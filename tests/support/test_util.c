@@ -333,3 +333,52 @@ const char *rp_test_write_with(const char *name, const char *text,
   free(buf);
   return path;
 }
+
+double rp_test_pattern(rp_voxel_type t, int i) {
+  switch (t) {
+  case RP_U8: return i * 10 + 5;
+  case RP_S8: return i * 5 - 60;
+  case RP_U16: return 1000 + i * 2345;
+  case RP_S16: return i * 137 - 1500;
+  case RP_U32: return 100000.0 + i * 70001.0;
+  case RP_S32: return i * 90001.0 - 1000000.0;
+  default: return -2.5 + i * 0.75;
+  }
+}
+
+void rp_test_check_pattern(const rp_volume *v, rp_voxel_type t,
+                           const uint32_t dims[3], const float spacing[3]) {
+  rp_volume_info info;
+  double lo = INFINITY, hi = -INFINITY;
+  size_t n, i;
+  int a;
+  rp_volume_get_info(v, &info);
+  assert_int_equal(info.type, t);
+  for (a = 0; a < 3; a++) {
+    assert_int_equal(info.dims[a], dims[a]);
+    if (info.spacing[a] != spacing[a])
+      fail_msg("spacing[%d] = %.9g, want %.9g", a, (double)info.spacing[a],
+               (double)spacing[a]);
+  }
+  n = (size_t)dims[0] * dims[1] * dims[2];
+  for (i = 0; i < n; i++) {
+    double want = rp_test_pattern(t, (int)i);
+    if (rp_test_voxel(v, i) != want)
+      fail_msg("voxel %zu = %.9g, want %.9g", i, rp_test_voxel(v, i), want);
+    lo = want < lo ? want : lo;
+    hi = want > hi ? want : hi;
+  }
+  assert_true(info.min == lo);
+  assert_true(info.max == hi);
+}
+
+void rp_test_expect_no_orientation(const rp_volume *vol) {
+  rp_volume_info info;
+  int i;
+  rp_volume_get_info(vol, &info);
+  assert_false(info.orientation.known);
+  for (i = 0; i < 9; i++)
+    assert_true(info.orientation.direction[i] == (i % 4 == 0 ? 1.0 : 0.0));
+  for (i = 0; i < 3; i++)
+    assert_true(info.orientation.origin[i] == 0.0);
+}
