@@ -382,10 +382,10 @@ static int parse_directions(rp_context *ctx, const char *name,
                             float spacing[3], nrrd_space *sp) {
   char sv[64], vec[64], what[16];
   const char *p = value;
-  int axis, ncomp, rc, i;
+  int axis, ncomp = 0, rc, i;
   for (axis = 0; axis < 3; axis++) {
     const char *start = p;
-    double v[16], sum = 0.0;
+    double v[16] = {0}, sum = 0.0;
     size_t vn;
     snprintf(what, sizeof what, "axis %d", axis);
     if ((rc = parse_vector(ctx, name, field, value, &p, what, v, &ncomp)) !=

@@ -168,9 +168,9 @@ static int mhd_key(rp_context *ctx, const char *name, unsigned bit,
                    mhd_state *st) {
   char sv[64];
   char num[32];
-  double v[3];
+  double v[3] = {0, 0, 0};
   int64_t n;
-  int flag, rc, a;
+  int flag = 0, rc, a;
   switch (bit) {
   case K_OBJECT:
     if (!rp__text_eq_nocase(value, "Image"))

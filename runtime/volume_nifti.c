@@ -196,6 +196,7 @@ static int peek_header(rp_context *ctx, const char *path, const char *hname,
   float f;
   struct stat st;
   gzFile g;
+  memset(pk, 0, sizeof *pk);
   /* A FIFO would block the open: regular files only, as volume_io.c. */
   if (stat(hname, &st) != 0)
     return rp__fail(ctx, RP_ENOENT, "%s: header %s: no such file", path,
@@ -218,7 +219,6 @@ static int peek_header(rp_context *ctx, const char *path, const char *hname,
   memcpy(&size, h, 4);
   swapped = size;
   swap_n((uint8_t *)&swapped, 4);
-  memset(pk, 0, sizeof *pk);
   if ((size == 348 || swapped == 348) && got < 348)
     return rp__fail(ctx, RP_ETRUNC,
                     "%s: header truncated: %d bytes, a NIfTI-1 header takes "
@@ -272,7 +272,7 @@ static int precheck(rp_context *ctx, const char *path, const char *hname,
                     nifti_peek *pk) {
   struct stat st;
   rp_voxel_type type;
-  uint64_t dims[3];
+  uint64_t dims[3] = {0, 0, 0};
   size_t voxels = 0;
   int rc, file_bytes;
   if ((rc = peek_header(ctx, path, hname, pk)) != 0)
@@ -473,7 +473,7 @@ static int load_image(rp_context *ctx, const char *path,
                       const nifti_image *nim, rp_volume **out) {
   rp_orientation orient;
   rp_voxel_type type;
-  uint64_t d64[3];
+  uint64_t d64[3] = {0, 0, 0};
   uint32_t dims[3];
   float spacing[3];
   size_t voxels = 0;
@@ -493,8 +493,8 @@ static int load_image(rp_context *ctx, const char *path,
                     inter);
   rc = read_voxels(ctx, path, nim->iname, nim->iname_offset,
                    voxels * (size_t)file_bytes, &data);
-  if (rc != 0)
-    return rc;
+  if (rc != 0 || data == NULL) /* data is set exactly when rc is 0 */
+    return rc != 0 ? rc : RP_ENOMEM;
   if (nim->byteorder != nifti_short_order())
     swap_voxels(data, voxels, file_bytes);
   if (scaled || file_bytes == 8)
