@@ -505,6 +505,23 @@ static void test_mhd_parse_memory(void **state) {
   rp_context_destroy(ctx);
 }
 
+/* Built without nifticlib, a NIfTI file is refused saying what to
+ * install; with it, test_volume_nifti tests the loader. */
+static void test_nifti_absent(void **state) {
+#ifdef RP_TEST_NO_NIFTI
+  rp_context *ctx = rp_test_context();
+  uint8_t header[352];
+  (void)state;
+  memset(header, 0, sizeof header);
+  rp_test_load_fails(ctx, rp_test_write_file("absent.nii", header, 352),
+                     RP_EUNSUPPORTED, "absent.nii", "libnifti2-dev", NULL);
+  rp_context_destroy(ctx);
+#else
+  (void)state;
+  skip();
+#endif
+}
+
 int main(void) {
   const struct CMUnitTest tests[] = {
       cmocka_unit_test(test_nrrd_space),
@@ -514,6 +531,7 @@ int main(void) {
       cmocka_unit_test(test_mhd_orientation),
       cmocka_unit_test(test_mhd_malformed),
       cmocka_unit_test(test_mhd_parse_memory),
+      cmocka_unit_test(test_nifti_absent),
   };
   return cmocka_run_group_tests(tests, NULL, NULL);
 }
