@@ -34,9 +34,10 @@ static void usage_main(FILE *f) {
           "                  the frame-time goals over every controller,\n"
           "                  medians over repeated replays\n"
           "  version         print the library version\n\n"
-          "VOLUME is a file (.nrrd, .nhdr, sidecar .txt, NAME_XxYxZ_TYPE.raw)"
-          "\nor a generated volume gen:KIND[:N|:XxYxZ][:u8|u16][:SEED]: KIND"
-          "\nis ml, phantom or noise; a number right after KIND is the size"
+          "VOLUME is a file (.nrrd, .nhdr, .nii, .nii.gz, .hdr/.img, .mhd,"
+          "\n.mha, sidecar .txt, NAME_XxYxZ_TYPE.raw) or a generated volume"
+          "\ngen:KIND[:N|:XxYxZ][:u8|u16][:SEED]: KIND is ml, phantom or"
+          "\nnoise; a number right after KIND is the size"
           "\n(N^3), a later one the seed (default 128^3, u8, seed 1).\n"
           "Run 'raypace COMMAND --help' for a command's options.\n");
 }

@@ -6,13 +6,14 @@
 #ifndef RP_FUZZ_COMMON_H
 #define RP_FUZZ_COMMON_H
 
+#include <math.h>
 #include <stdint.h>
 #include <stdlib.h>
 #include <string.h>
 
 #include "internal.h"
 
-static rp_context *fuzz_context(void) {
+static inline rp_context *fuzz_context(void) {
   static rp_context *ctx;
   if (ctx == NULL) {
     rp_context_desc desc;
@@ -29,13 +30,32 @@ static rp_context *fuzz_context(void) {
 
 /* A parse result: 0, or a failure that must carry a message. Returns
  * whether to go on to decoding. */
-static int fuzz_parsed(rp_context *ctx, int rc) {
+static inline int fuzz_parsed(rp_context *ctx, int rc) {
   if (rc != 0 && (rc > 0 || rp_last_error(ctx)[0] == '\0'))
     abort();
   return rc == 0;
 }
 
-static void fuzz_decode_checked(rp_context *ctx, const char *name,
+/* Whether a volume's orientation breaks its promise: unit, orthogonal
+ * columns and a finite origin when known, the identity when not. */
+static inline int fuzz_orientation_bad(const rp_orientation *o) {
+  int i, j;
+  for (i = 0; i < 3; i++) {
+    const double *a = &o->direction[3 * i];
+    if (!isfinite(o->origin[i]) ||
+        fabs(a[0] * a[0] + a[1] * a[1] + a[2] * a[2] - 1.0) > 1e-6)
+      return 1;
+    for (j = 0; j < i; j++) {
+      const double *b = &o->direction[3 * j];
+      if (fabs(a[0] * b[0] + a[1] * b[1] + a[2] * b[2]) > 1e-3)
+        return 1;
+    }
+  }
+  return !o->known && (o->direction[0] != 1.0 || o->direction[4] != 1.0 ||
+                       o->direction[8] != 1.0);
+}
+
+static inline void fuzz_decode_checked(rp_context *ctx, const char *name,
                                 const rp__volume_header *hdr,
                                 const uint8_t *payload, size_t len) {
   static int sentinel;
@@ -53,9 +73,35 @@ static void fuzz_decode_checked(rp_context *ctx, const char *name,
   rp_volume_get_info(vol, &info);
   if (info.dims[0] != hdr->dims[0] || info.dims[1] != hdr->dims[1] ||
       info.dims[2] != hdr->dims[2] || info.type != hdr->type ||
-      !(info.min <= info.max))
+      !(info.min <= info.max) ||
+      info.orientation.known != hdr->orientation.known ||
+      fuzz_orientation_bad(&info.orientation))
     abort();
   rp_volume_destroy(vol);
+}
+
+/* A header parser that also says where an attached payload starts
+ * (rp__nrrd_parse, rp__mhd_parse). */
+typedef int (*fuzz_header_parser)(rp_context *ctx, const char *name,
+                                  const uint8_t *buf, size_t len,
+                                  rp__volume_header *hdr, size_t *header_len);
+
+/* One input of such a format: the header through `parse`, whatever
+ * follows it through the decoder, both held to the contract. */
+static inline void fuzz_header_then_payload(fuzz_header_parser parse,
+                                            const char *name,
+                                            const uint8_t *data,
+                                            size_t size) {
+  rp_context *ctx = fuzz_context();
+  rp__volume_header hdr;
+  size_t header_len = 0;
+  rp__clear_error(ctx);
+  if (!fuzz_parsed(ctx, parse(ctx, name, data, size, &hdr, &header_len)))
+    return;
+  if (header_len > size)
+    abort();
+  fuzz_decode_checked(ctx, name, &hdr, data + header_len,
+                      size - header_len);
 }
 
 #endif /* RP_FUZZ_COMMON_H */

@@ -8,17 +8,6 @@
 int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size);
 
 int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size) {
-  rp_context *ctx = fuzz_context();
-  rp__volume_header hdr;
-  size_t header_len = 0;
-
-  rp__clear_error(ctx);
-  if (!fuzz_parsed(ctx, rp__nrrd_parse(ctx, "fuzz.nrrd", data, size, &hdr,
-                                       &header_len)))
-    return 0;
-  if (header_len > size)
-    abort();
-  fuzz_decode_checked(ctx, "fuzz.nrrd", &hdr, data + header_len,
-                      size - header_len);
+  fuzz_header_then_payload(rp__nrrd_parse, "fuzz.nrrd", data, size);
   return 0;
 }

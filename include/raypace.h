@@ -160,8 +160,19 @@ RP_API int rp_volume_create(rp_context *ctx, const rp_volume_desc *desc,
                             rp_volume **out);
 
 /** Loads a volume from a file: NRRD (.nrrd/.nhdr; raw or gzip encoding),
- *  a raypace sidecar (.txt with "key: value" lines naming a raw file), or
- *  a .raw file whose name ends in _XxYxZ_TYPE (e.g. head_64x64x93_uint16).
+ *  NIfTI-1 and NIfTI-2 (.nii, .nii.gz, .hdr/.img pairs; \since 0.11;
+ *  RP_EUNSUPPORTED when built without nifticlib), MetaImage (.mhd with a
+ *  data file, .mha with the data attached; raw or zlib; \since 0.11), a
+ *  raypace sidecar (.txt with "key: value" lines naming a raw file), or a
+ *  .raw file whose name ends in _XxYxZ_TYPE (e.g. head_64x64x93_uint16).
+ *  The orientation (rp_volume_info.orientation, in LPS) is set when the
+ *  file gives it: NRRD "space" (RAS, LAS, LPS) with "space directions"
+ *  and "space origin"; NIfTI's sform, else its qform (RAS+ turned into
+ *  LPS); MetaImage's TransformMatrix and Offset, else its
+ *  AnatomicalOrientation. NIfTI's scl_slope/scl_inter are applied:
+ *  integer data with integer scaling that fits stays int16, anything else
+ *  becomes float32 (so does float64 data). Messages name the file, the
+ *  field and the value at fault.
  *  \returns 0, RP_ENOENT, RP_EIO, RP_EFORMAT, RP_ETRUNC, RP_ERANGE,
  *  RP_EUNSUPPORTED, RP_ENOTFINITE or RP_ENOMEM. \since 0.1 */
 RP_API int rp_volume_load(rp_context *ctx, const char *path,

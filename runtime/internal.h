@@ -198,6 +198,9 @@ typedef struct rp__volume_header {
   int skip_to_end;  /* NRRD "byte skip: -1": payload is the file's tail */
   uint64_t line_skip; /* NRRD "line skip": lines skipped before byte skip */
   char data_file[1024]; /* detached payload path ("" = attached) */
+  uint64_t payload_bytes; /* bytes the payload must hold exactly
+                             (MetaImage's CompressedDataSize); 0: any */
+  rp_orientation orientation; /* in LPS; known = 0: the file says nothing */
 } rp__volume_header;
 
 /* Parsers on memory, so that fuzz targets reach them without files.

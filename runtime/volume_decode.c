@@ -407,11 +407,24 @@ int rp__volume_decode_source(rp_context *ctx, const char *name,
   uint8_t *data = NULL;
   uint32_t dims[3];
   rp_volume *vol = NULL;
+  rp_orientation orient;
   size_t vs = rp__voxel_size(hdr->type);
   int rc;
 
+  /* Checked before the voxels are read: a header no parser produced (the
+   * fuzz targets hand such headers over) must not cost a decode first. */
+  if ((rc = rp__orientation_check(ctx, name, &hdr->orientation, &orient)) !=
+      0)
+    return rc;
   if ((rc = src_skip_lines(ctx, name, src, hdr->line_skip)) != 0)
     return rc;
+  if (hdr->payload_bytes != 0 && src->left != hdr->payload_bytes)
+    return rp__fail(ctx, src->left < hdr->payload_bytes ? RP_ETRUNC
+                                                        : RP_EFORMAT,
+                    "%s: CompressedDataSize %llu disagrees with the %llu "
+                    "bytes of data present",
+                    name, (unsigned long long)hdr->payload_bytes,
+                    (unsigned long long)src->left);
   rc = hdr->gzip ? decode_gzip(ctx, name, hdr, src, bytes, &data)
                  : decode_raw(ctx, name, hdr, src, bytes, &data);
   if (rc != 0 || data == NULL) /* data is set exactly when rc is 0 */
@@ -428,6 +441,7 @@ int rp__volume_decode_source(rp_context *ctx, const char *name,
     snprintf(msg, sizeof msg, "%s", rp_last_error(ctx));
     return rp__fail(ctx, rc, "%s: %s", name, msg);
   }
+  vol->orientation = orient;
   *out = vol;
   return 0;
 }

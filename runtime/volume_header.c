@@ -15,7 +15,7 @@
 
 #include "volume_io.h"
 
-#define MAX_LINE 4096
+#define MAX_LINE RP__MAX_LINE
 
 /* Fields whose repetition is an error, one bit each. */
 enum {
@@ -29,7 +29,10 @@ enum {
   F_DATA_FILE = 1 << 7,
   F_BYTE_SKIP = 1 << 8,
   F_LINE_SKIP = 1 << 9,
-  F_BYTES = 1 << 10
+  F_BYTES = 1 << 10,
+  F_SPACE = 1 << 11,
+  F_SPACE_DIM = 1 << 12,
+  F_ORIGIN = 1 << 13
 };
 
 typedef struct field_name {
@@ -61,7 +64,7 @@ static int is_digit(int c) { return c >= '0' && c <= '9'; }
 
 static int to_lower(int c) { return c >= 'A' && c <= 'Z' ? c - 'A' + 'a' : c; }
 
-static int eq_nocase(const char *a, const char *b) {
+int rp__text_eq_nocase(const char *a, const char *b) {
   while (*a != '\0' && to_lower((unsigned char)*a) ==
                            to_lower((unsigned char)*b)) {
     a++;
@@ -71,7 +74,7 @@ static int eq_nocase(const char *a, const char *b) {
 }
 
 /* Strips spaces at both ends, in place. */
-static char *trim(char *s) {
+char *rp__text_trim(char *s) {
   size_t n;
   while (is_space((unsigned char)*s))
     s++;
@@ -82,7 +85,7 @@ static char *trim(char *s) {
 }
 
 /* Splits off the next space-separated token, in place; NULL when none. */
-static char *next_token(char **cursor) {
+char *rp__text_token(char **cursor) {
   char *s = *cursor, *tok;
   while (is_space((unsigned char)*s))
     s++;
@@ -101,7 +104,7 @@ static char *next_token(char **cursor) {
 
 /* A short, printable copy of `s` for an error message, so that a binary
  * file cannot fill the message or the user's terminal with garbage. */
-static const char *shown(char buf[64], const char *s) {
+const char *rp__text_shown(char buf[64], const char *s) {
   size_t i;
   for (i = 0; s[i] != '\0' && i < 48; i++) {
     unsigned char c = (unsigned char)s[i];
@@ -116,7 +119,7 @@ static const char *shown(char buf[64], const char *s) {
 }
 
 /* A decimal integer filling the whole token, without sign. */
-static int parse_u64(const char *s, uint64_t *v) {
+int rp__text_u64(const char *s, uint64_t *v) {
   uint64_t x = 0;
   if (*s == '\0')
     return 0;
@@ -134,12 +137,12 @@ static int parse_u64(const char *s, uint64_t *v) {
 }
 
 /* A decimal integer with an optional sign, filling the whole token. */
-static int parse_i64(const char *s, int64_t *v) {
+int rp__text_i64(const char *s, int64_t *v) {
   uint64_t mag;
   int neg = *s == '-';
   if (*s == '-' || *s == '+')
     s++;
-  if (!parse_u64(s, &mag) || mag > (uint64_t)INT64_MAX)
+  if (!rp__text_u64(s, &mag) || mag > (uint64_t)INT64_MAX)
     return 0;
   *v = neg ? -(int64_t)mag : (int64_t)mag;
   return 1;
@@ -149,7 +152,7 @@ static int parse_i64(const char *s, int64_t *v) {
  * decimal point of the current locale, which a host application may have
  * changed, so the token's '.' is translated first; NaN and infinities are
  * accepted here and rejected by the callers with RP_ENOTFINITE. */
-static int parse_double(const char *s, double *v) {
+int rp__text_double(const char *s, double *v) {
   char tmp[64];
   const char *dp = localeconv()->decimal_point;
   size_t n = strlen(s);
@@ -183,16 +186,10 @@ const char *rp__volume_dims_text(char buf[96],
 
 /* ---- Lines of a memory buffer ------------------------------------------ */
 
-typedef struct line_reader {
-  const uint8_t *buf;
-  size_t len, pos;
-  unsigned number; /* of the last line returned, from 1 */
-} line_reader;
-
 /* Copies the next line into `out` as a C string, without its "\n" or
  * "\r\n". Returns 1 with a line, 0 at the end of the buffer, or an error:
  * lines longer than MAX_LINE and lines holding a NUL byte are malformed. */
-static int next_line(rp_context *ctx, const char *name, line_reader *lr,
+int rp__text_line(rp_context *ctx, const char *name, rp__line_reader *lr,
                      char out[MAX_LINE + 1]) {
   const uint8_t *start = lr->buf + lr->pos;
   const uint8_t *nl;
@@ -226,75 +223,75 @@ static int parse_type(rp_context *ctx, const char *name, const char *field,
                       const char *accepted, rp_voxel_type *type) {
   char sv[64];
   for (; names->name != NULL; names++) {
-    if (eq_nocase(value, names->name)) {
+    if (rp__text_eq_nocase(value, names->name)) {
       *type = names->type;
       return 0;
     }
   }
   return rp__fail(ctx, RP_EUNSUPPORTED,
                   "%s: %s '%s' is not supported (accepted: %s)", name, field,
-                  shown(sv, value), accepted);
+                  rp__text_shown(sv, value), accepted);
 }
 
 static int parse_endian(rp_context *ctx, const char *name, const char *field,
                         const char *value, int *big) {
   char sv[64];
-  if (eq_nocase(value, "little"))
+  if (rp__text_eq_nocase(value, "little"))
     *big = 0;
-  else if (eq_nocase(value, "big"))
+  else if (rp__text_eq_nocase(value, "big"))
     *big = 1;
   else
     return rp__fail(ctx, RP_EFORMAT,
                     "%s: %s '%s' is neither 'little' nor 'big'", name, field,
-                    shown(sv, value));
+                    rp__text_shown(sv, value));
   return 0;
 }
 
 /* Exactly three sizes, each at least 1. */
-static int parse_sizes(rp_context *ctx, const char *name, const char *field,
-                       char *value, uint64_t dims[3]) {
+int rp__header_sizes(rp_context *ctx, const char *name, const char *field,
+                     char *value, uint64_t dims[3]) {
   char sv[64], copy[MAX_LINE + 1];
   char *cursor = value, *tok;
   int n = 0;
   snprintf(copy, sizeof copy, "%s", value);
-  while ((tok = next_token(&cursor)) != NULL) {
-    if (n == 3 || !parse_u64(tok, &dims[n]))
+  while ((tok = rp__text_token(&cursor)) != NULL) {
+    if (n == 3 || !rp__text_u64(tok, &dims[n]))
       return rp__fail(ctx, RP_EFORMAT,
                       "%s: %s '%s' is not three whole numbers", name, field,
-                      shown(sv, copy));
+                      rp__text_shown(sv, copy));
     if (dims[n] == 0)
       return rp__fail(ctx, RP_ERANGE,
                       "%s: %s '%s': every size must be at least 1", name,
-                      field, shown(sv, copy));
+                      field, rp__text_shown(sv, copy));
     n++;
   }
   if (n != 3)
     return rp__fail(ctx, RP_EFORMAT,
                     "%s: %s '%s' is not three whole numbers", name, field,
-                    shown(sv, copy));
+                    rp__text_shown(sv, copy));
   return 0;
 }
 
 /* A voxel spacing must be a positive, finite float. `text` is what the
  * file says for `axis`: a number, or a vector whose length is v. */
-static int check_spacing(rp_context *ctx, const char *name, const char *field,
+int rp__header_spacing(rp_context *ctx, const char *name, const char *field,
                          int axis, const char *text, double v, float *out) {
   char sv[64];
   float f;
   if (!isfinite(v))
     return rp__fail(ctx, RP_ENOTFINITE,
                     "%s: field '%s': axis %d value '%s' is not finite", name,
-                    field, axis, shown(sv, text));
+                    field, axis, rp__text_shown(sv, text));
   if (!(v > 0.0) || v > FLT_MAX)
     return rp__fail(ctx, RP_ERANGE,
                     "%s: field '%s': axis %d value '%s' is not a positive "
                     "float",
-                    name, field, axis, shown(sv, text));
+                    name, field, axis, rp__text_shown(sv, text));
   f = (float)v;
   if (!(f > 0.0f))
     return rp__fail(ctx, RP_ERANGE,
                     "%s: field '%s': axis %d value '%s' is too small", name,
-                    field, axis, shown(sv, text));
+                    field, axis, rp__text_shown(sv, text));
   *out = f;
   return 0;
 }
@@ -306,83 +303,114 @@ static int parse_spacings(rp_context *ctx, const char *name,
   int n = 0, rc;
   double v;
   snprintf(copy, sizeof copy, "%s", value);
-  while ((tok = next_token(&cursor)) != NULL) {
-    if (n == 3 || !parse_double(tok, &v))
+  while ((tok = rp__text_token(&cursor)) != NULL) {
+    if (n == 3 || !rp__text_double(tok, &v))
       return rp__fail(ctx, RP_EFORMAT, "%s: %s '%s' is not three numbers",
-                      name, field, shown(sv, copy));
-    if ((rc = check_spacing(ctx, name, field, n, tok, v, &spacing[n])) !=
+                      name, field, rp__text_shown(sv, copy));
+    if ((rc = rp__header_spacing(ctx, name, field, n, tok, v, &spacing[n])) !=
         0)
       return rc;
     n++;
   }
   if (n != 3)
     return rp__fail(ctx, RP_EFORMAT, "%s: %s '%s' is not three numbers",
-                    name, field, shown(sv, copy));
+                    name, field, rp__text_shown(sv, copy));
   return 0;
 }
+
+/* One NRRD vector "(a,b,c)" at *p, up to 16 components, into v[]; *p
+ * moves past it. `what` says which vector, for messages ("axis 1"). */
+static int parse_vector(rp_context *ctx, const char *name, const char *field,
+                        const char *value, const char **p, const char *what,
+                        double v[16], int *ncomp) {
+  char sv[64], comp[64];
+  const char *q = *p, *close;
+  int n = 0;
+  while (is_space((unsigned char)*q))
+    q++;
+  if (*q != '(')
+    return rp__fail(ctx, RP_EFORMAT,
+                    "%s: %s '%s': %s is not a vector '(x,y,z)'", name, field,
+                    rp__text_shown(sv, value), what);
+  close = strchr(q, ')');
+  if (close == NULL)
+    return rp__fail(ctx, RP_EFORMAT, "%s: %s '%s': missing ')'", name,
+                    field, rp__text_shown(sv, value));
+  q++;
+  while (q <= close) {
+    const char *end = q;
+    size_t len;
+    while (end < close && *end != ',')
+      end++;
+    len = (size_t)(end - q);
+    if (len >= sizeof comp)
+      len = sizeof comp - 1; /* a cut number fails to parse below */
+    memcpy(comp, q, len);
+    comp[len] = '\0';
+    if (n == 16 || !rp__text_double(rp__text_trim(comp), &v[n]))
+      return rp__fail(ctx, RP_EFORMAT,
+                      "%s: %s '%s': %s is not a vector of numbers", name,
+                      field, rp__text_shown(sv, value), what);
+    if (!isfinite(v[n]))
+      return rp__fail(ctx, RP_ENOTFINITE, "%s: %s '%s': %s is not finite",
+                      name, field, rp__text_shown(sv, value), what);
+    n++;
+    q = end + 1;
+  }
+  *p = close + 1;
+  *ncomp = n;
+  return 0;
+}
+
+/* What an NRRD header says about space, gathered over its fields and
+ * turned into an orientation once all are read (their order is free). */
+typedef struct nrrd_space {
+  int named;         /* "space" or "space dimension" given */
+  int patient;       /* "space" names an anatomical frame */
+  double sign[3];    /* its axes in LPS: -1 where it points the other way */
+  int ncomp;         /* components of each "space directions" vector */
+  double dir[3][3];  /* those vectors, when they have three components */
+  int has_origin;
+  double origin[3];
+} nrrd_space;
 
 /* NRRD "space directions: (a,b,c) (d,e,f) (g,h,i)": one vector per axis in
  * world space, whose length is that axis's spacing. "none" marks a
  * non-spatial axis, which a 3D volume cannot have. */
 static int parse_directions(rp_context *ctx, const char *name,
                             const char *field, const char *value,
-                            float spacing[3]) {
-  char sv[64], comp[64], vec[64];
+                            float spacing[3], nrrd_space *sp) {
+  char sv[64], vec[64], what[16];
   const char *p = value;
-  int axis, ncomp_first = 0, rc;
+  int axis, ncomp = 0, rc, i;
   for (axis = 0; axis < 3; axis++) {
-    const char *close;
-    double sum = 0.0;
-    int ncomp = 0;
+    const char *start = p;
+    double v[16] = {0}, sum = 0.0;
     size_t vn;
-    while (is_space((unsigned char)*p))
-      p++;
-    if (*p != '(')
-      return rp__fail(ctx, RP_EFORMAT,
-                      "%s: %s '%s': axis %d is not a vector '(x,y,z)'", name,
-                      field, shown(sv, value), axis);
-    close = strchr(p, ')');
-    if (close == NULL)
-      return rp__fail(ctx, RP_EFORMAT, "%s: %s '%s': missing ')'", name,
-                      field, shown(sv, value));
-    /* This axis's vector, for a message about its length. */
-    vn = (size_t)(close - p) + 1;
-    if (vn >= sizeof vec)
-      vn = sizeof vec - 1;
-    memcpy(vec, p, vn);
-    vec[vn] = '\0';
-    p++;
-    while (p <= close) {
-      const char *end = p;
-      size_t n;
-      double v;
-      while (end < close && *end != ',')
-        end++;
-      n = (size_t)(end - p);
-      if (n >= sizeof comp)
-        n = sizeof comp - 1; /* a cut number fails to parse below */
-      memcpy(comp, p, n);
-      comp[n] = '\0';
-      if (!parse_double(trim(comp), &v) || ncomp == 16)
-        return rp__fail(ctx, RP_EFORMAT,
-                        "%s: %s '%s': axis %d is not a vector of numbers",
-                        name, field, shown(sv, value), axis);
-      if (!isfinite(v))
-        return rp__fail(ctx, RP_ENOTFINITE,
-                        "%s: %s '%s': axis %d is not finite", name, field,
-                        shown(sv, value), axis);
-      sum += v * v;
-      ncomp++;
-      p = end + 1;
-    }
-    if (axis == 0)
-      ncomp_first = ncomp;
-    else if (ncomp != ncomp_first)
+    snprintf(what, sizeof what, "axis %d", axis);
+    if ((rc = parse_vector(ctx, name, field, value, &p, what, v, &ncomp)) !=
+        0)
+      return rc;
+    if (axis > 0 && ncomp != sp->ncomp)
       return rp__fail(ctx, RP_EFORMAT,
                       "%s: %s '%s': vectors differ in length", name, field,
-                      shown(sv, value));
-    if ((rc = check_spacing(ctx, name, field, axis, vec, sqrt(sum),
-                            &spacing[axis])) != 0)
+                      rp__text_shown(sv, value));
+    sp->ncomp = ncomp;
+    for (i = 0; i < ncomp; i++) {
+      sum += v[i] * v[i];
+      if (ncomp == 3)
+        sp->dir[axis][i] = v[i];
+    }
+    /* This axis's vector, for a message about its length. */
+    while (is_space((unsigned char)*start))
+      start++;
+    vn = (size_t)(p - start);
+    if (vn >= sizeof vec)
+      vn = sizeof vec - 1;
+    memcpy(vec, start, vn);
+    vec[vn] = '\0';
+    if ((rc = rp__header_spacing(ctx, name, field, axis, vec, sqrt(sum),
+                                 &spacing[axis])) != 0)
       return rc;
   }
   while (is_space((unsigned char)*p))
@@ -390,11 +418,106 @@ static int parse_directions(rp_context *ctx, const char *name,
   if (*p != '\0')
     return rp__fail(ctx, RP_EFORMAT,
                     "%s: %s '%s' has more than three vectors", name, field,
-                    shown(sv, value));
+                    rp__text_shown(sv, value));
   return 0;
 }
 
-static int set_data_file(rp_context *ctx, const char *name, const char *field,
+/* NRRD "space": the anatomical frames map onto LPS by flipping axes;
+ * scanner and generic 3D frames are spatial but say nothing of the
+ * patient, so the volume keeps its spacing and no orientation. Frames
+ * with time are 4D. */
+static int parse_space(rp_context *ctx, const char *name, const char *value,
+                       nrrd_space *sp) {
+  static const struct {
+    const char *name, *abbrev;
+    double sx, sy;
+  } frames[] = {{"left-posterior-superior", "LPS", 1, 1},
+                {"right-anterior-superior", "RAS", -1, -1},
+                {"left-anterior-superior", "LAS", 1, -1}};
+  static const char *const plain[] = {"scanner-xyz", "3D-right-handed",
+                                      "3D-left-handed"};
+  char sv[64];
+  size_t i, n = strlen(value);
+  sp->named = 1;
+  for (i = 0; i < sizeof frames / sizeof frames[0]; i++) {
+    if (rp__text_eq_nocase(value, frames[i].name) ||
+        rp__text_eq_nocase(value, frames[i].abbrev)) {
+      sp->patient = 1;
+      sp->sign[0] = frames[i].sx;
+      sp->sign[1] = frames[i].sy;
+      sp->sign[2] = 1;
+      return 0;
+    }
+  }
+  for (i = 0; i < sizeof plain / sizeof plain[0]; i++)
+    if (rp__text_eq_nocase(value, plain[i]))
+      return 0;
+  if ((n > 5 && rp__text_eq_nocase(value + n - 5, "-time")) ||
+      rp__text_eq_nocase(value, "RAST") || rp__text_eq_nocase(value, "LAST") ||
+      rp__text_eq_nocase(value, "LPST"))
+    return rp__fail(ctx, RP_EUNSUPPORTED,
+                    "%s: space '%s' has a time axis: only 3D spaces are "
+                    "supported",
+                    name, rp__text_shown(sv, value));
+  return rp__fail(ctx, RP_EFORMAT,
+                  "%s: space '%s' is not an NRRD space (accepted: "
+                  "right-anterior-superior (RAS), left-anterior-superior "
+                  "(LAS), left-posterior-superior (LPS), scanner-xyz, "
+                  "3D-right-handed, 3D-left-handed)",
+                  name, rp__text_shown(sv, value));
+}
+
+static int parse_origin(rp_context *ctx, const char *name, const char *value,
+                        nrrd_space *sp) {
+  char sv[64];
+  const char *p = value;
+  double v[16];
+  int n = 0, rc;
+  if ((rc = parse_vector(ctx, name, "space origin", value, &p, "the origin",
+                         v, &n)) != 0)
+    return rc;
+  while (is_space((unsigned char)*p))
+    p++;
+  if (n != 3 || *p != '\0')
+    return rp__fail(ctx, RP_EFORMAT,
+                    "%s: space origin '%s' is not one vector (x,y,z)", name,
+                    rp__text_shown(sv, value));
+  memcpy(sp->origin, v, sizeof sp->origin);
+  sp->has_origin = 1;
+  return 0;
+}
+
+/* The orientation in LPS, once the whole header is read: known when the
+ * space is anatomical and the directions are 3-vectors. The origin
+ * defaults to zero, as NRRD readers take it. */
+static int nrrd_orientation(rp_context *ctx, const char *name,
+                            unsigned seen, const nrrd_space *sp,
+                            rp__volume_header *h) {
+  char what[1100];
+  rp_orientation o;
+  int a, i;
+  if (sp->named && (seen & F_DIRECTIONS) && sp->ncomp != 3)
+    return rp__fail(ctx, RP_EFORMAT,
+                    "%s: space directions: vectors of %d components in a 3D "
+                    "space",
+                    name, sp->ncomp);
+  if (!sp->patient || !(seen & F_DIRECTIONS))
+    return 0;
+  memset(&o, 0, sizeof o);
+  o.known = 1;
+  for (a = 0; a < 3; a++) {
+    const double *d = sp->dir[a];
+    double len = sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
+    for (i = 0; i < 3; i++) {
+      o.direction[3 * a + i] = sp->sign[i] * d[i] / len;
+      o.origin[i] = sp->has_origin ? sp->sign[i] * sp->origin[i] : 0.0;
+    }
+  }
+  snprintf(what, sizeof what, "%s: space directions", name);
+  return rp__orientation_check(ctx, what, &o, &h->orientation);
+}
+
+int rp__header_data_file(rp_context *ctx, const char *name, const char *field,
                          const char *value, rp__volume_header *hdr) {
   char sv[64];
   size_t n = strlen(value);
@@ -402,7 +525,7 @@ static int set_data_file(rp_context *ctx, const char *name, const char *field,
     return rp__fail(ctx, RP_EFORMAT, "%s: %s is empty", name, field);
   if (n >= sizeof hdr->data_file)
     return rp__fail(ctx, RP_EFORMAT, "%s: %s '%s' is too long", name, field,
-                    shown(sv, value));
+                    rp__text_shown(sv, value));
   memcpy(hdr->data_file, value, n + 1);
   return 0;
 }
@@ -463,18 +586,20 @@ static const field_name nrrd_fields[] = {
     {"data file", F_DATA_FILE}, {"datafile", F_DATA_FILE},
     {"byte skip", F_BYTE_SKIP}, {"byteskip", F_BYTE_SKIP},
     {"line skip", F_LINE_SKIP}, {"lineskip", F_LINE_SKIP},
-    {NULL, 0}};
+    {"space", F_SPACE},         {"space dimension", F_SPACE_DIM},
+    {"space origin", F_ORIGIN}, {NULL, 0}};
 
 static unsigned field_bit(const field_name *fields, const char *field) {
   for (; fields->name != NULL; fields++)
-    if (eq_nocase(field, fields->name))
+    if (rp__text_eq_nocase(field, fields->name))
       return fields->bit;
   return 0;
 }
 
 /* One NRRD field this loader uses. `value` is modified. */
 static int nrrd_field(rp_context *ctx, const char *name, unsigned bit,
-                      const char *field, char *value, rp__volume_header *hdr) {
+                      const char *field, char *value, rp__volume_header *hdr,
+                      nrrd_space *sp) {
   char sv[64];
   int64_t n;
   switch (bit) {
@@ -483,34 +608,49 @@ static int nrrd_field(rp_context *ctx, const char *name, unsigned bit,
                       "uchar, ushort, float, signed char, short, int, uint and "
                       "their aliases", &hdr->type);
   case F_DIMENSION:
-    if (!parse_i64(value, &n) || n < 1)
+    if (!rp__text_i64(value, &n) || n < 1)
       return rp__fail(ctx, RP_EFORMAT,
                       "%s: dimension '%s' is not a positive integer", name,
-                      shown(sv, value));
+                      rp__text_shown(sv, value));
     if (n != 3)
       return rp__fail(ctx, RP_EUNSUPPORTED,
                       "%s: dimension %lld is not supported (only 3)", name,
                       (long long)n);
     return 0;
   case F_SIZES:
-    return parse_sizes(ctx, name, "sizes", value, hdr->dims);
+    return rp__header_sizes(ctx, name, "sizes", value, hdr->dims);
   case F_ENDIAN:
     return parse_endian(ctx, name, "endian", value, &hdr->big_endian);
   case F_ENCODING:
-    if (eq_nocase(value, "raw"))
+    if (rp__text_eq_nocase(value, "raw"))
       hdr->gzip = 0;
-    else if (eq_nocase(value, "gzip") || eq_nocase(value, "gz"))
+    else if (rp__text_eq_nocase(value, "gzip") || rp__text_eq_nocase(value, "gz"))
       hdr->gzip = 1;
     else
       return rp__fail(ctx, RP_EUNSUPPORTED,
                       "%s: encoding '%s' is not supported (raw, gzip)", name,
-                      shown(sv, value));
+                      rp__text_shown(sv, value));
     return 0;
   case F_SPACINGS:
     return parse_spacings(ctx, name, "spacings", value, hdr->spacing);
   case F_DIRECTIONS:
     return parse_directions(ctx, name, "space directions", value,
-                            hdr->spacing);
+                            hdr->spacing, sp);
+  case F_SPACE:
+    return parse_space(ctx, name, value, sp);
+  case F_SPACE_DIM:
+    if (!rp__text_i64(value, &n) || n < 1)
+      return rp__fail(ctx, RP_EFORMAT,
+                      "%s: space dimension '%s' is not a positive integer",
+                      name, rp__text_shown(sv, value));
+    if (n != 3)
+      return rp__fail(ctx, RP_EUNSUPPORTED,
+                      "%s: space dimension %lld is not supported (only 3)",
+                      name, (long long)n);
+    sp->named = 1;
+    return 0;
+  case F_ORIGIN:
+    return parse_origin(ctx, name, value, sp);
   case F_DATA_FILE:
     /* "LIST" and "<format> <min> <max> <step>" name several files, one
      * slice each: this loader reads a single file. */
@@ -523,12 +663,12 @@ static int nrrd_field(rp_context *ctx, const char *name, unsigned bit,
       return rp__fail(ctx, RP_EUNSUPPORTED,
                       "%s: %s '%s' (a format for several files) is not "
                       "supported",
-                      name, field, shown(sv, value));
-    return set_data_file(ctx, name, field, value, hdr);
+                      name, field, rp__text_shown(sv, value));
+    return rp__header_data_file(ctx, name, field, value, hdr);
   case F_BYTE_SKIP:
-    if (!parse_i64(value, &n))
+    if (!rp__text_i64(value, &n))
       return rp__fail(ctx, RP_EFORMAT, "%s: byte skip '%s' is not an integer",
-                      name, shown(sv, value));
+                      name, rp__text_shown(sv, value));
     if (n < -1)
       return rp__fail(ctx, RP_ERANGE,
                       "%s: byte skip %lld must be -1 or more", name,
@@ -537,9 +677,9 @@ static int nrrd_field(rp_context *ctx, const char *name, unsigned bit,
     hdr->byte_skip = n == -1 ? 0 : (uint64_t)n;
     return 0;
   case F_LINE_SKIP:
-    if (!parse_i64(value, &n))
+    if (!rp__text_i64(value, &n))
       return rp__fail(ctx, RP_EFORMAT, "%s: line skip '%s' is not an integer",
-                      name, shown(sv, value));
+                      name, rp__text_shown(sv, value));
     if (n < 0)
       return rp__fail(ctx, RP_ERANGE, "%s: line skip %lld must be 0 or more",
                       name, (long long)n);
@@ -560,11 +700,11 @@ static int nrrd_magic(rp_context *ctx, const char *name, const char *line) {
     return rp__fail(ctx, RP_EUNSUPPORTED,
                     "%s: NRRD version '%s' is not supported (NRRD0001 to "
                     "NRRD0005)",
-                    name, shown(sv, line));
+                    name, rp__text_shown(sv, line));
   }
   return rp__fail(ctx, RP_EFORMAT,
                   "%s: magic '%s' is not NRRD000N (N from 1 to 5)", name,
-                  shown(sv, line));
+                  rp__text_shown(sv, line));
 }
 
 int rp__nrrd_parse(rp_context *ctx, const char *name, const uint8_t *buf,
@@ -577,8 +717,9 @@ int rp__nrrd_parse(rp_context *ctx, const char *name, const uint8_t *buf,
                   {F_SIZES, "sizes"},
                   {F_ENCODING, "encoding"}};
   char line[MAX_LINE + 1] = "", sv[64];
-  line_reader lr;
+  rp__line_reader lr;
   rp__volume_header h;
+  nrrd_space sp;
   unsigned seen = 0;
   size_t end = len, bytes = 0, i;
   int rc;
@@ -598,15 +739,16 @@ int rp__nrrd_parse(rp_context *ctx, const char *name, const uint8_t *buf,
   lr.len = len;
   lr.pos = 0;
   lr.number = 0;
-  if ((rc = next_line(ctx, name, &lr, line)) <= 0)
+  if ((rc = rp__text_line(ctx, name, &lr, line)) <= 0)
     return rc < 0 ? rc : rp__fail(ctx, RP_EFORMAT, "%s: no magic", name);
   if ((rc = nrrd_magic(ctx, name, line)) != 0)
     return rc;
   rp__volume_header_init(&h);
+  memset(&sp, 0, sizeof sp);
   for (;;) {
     char *colon, *field, *value;
     unsigned bit;
-    rc = next_line(ctx, name, &lr, line);
+    rc = rp__text_line(ctx, name, &lr, line);
     if (rc < 0)
       return rc;
     if (rc == 0)
@@ -621,20 +763,20 @@ int rp__nrrd_parse(rp_context *ctx, const char *name, const uint8_t *buf,
     if (colon == NULL)
       return rp__fail(ctx, RP_EFORMAT,
                       "%s: line %u '%s' is not 'field: value'", name,
-                      lr.number, shown(sv, line));
+                      lr.number, rp__text_shown(sv, line));
     if (colon[1] == '=')
       continue; /* "key:=value" pairs carry nothing we use */
     *colon = '\0';
-    field = trim(line);
-    value = trim(colon + 1);
+    field = rp__text_trim(line);
+    value = rp__text_trim(colon + 1);
     bit = field_bit(nrrd_fields, field);
     if (bit == 0)
       continue; /* NRRD allows fields we do not need */
     if (seen & bit)
       return rp__fail(ctx, RP_EFORMAT, "%s: field '%s' appears twice", name,
-                      shown(sv, field));
+                      rp__text_shown(sv, field));
     seen |= bit;
-    if ((rc = nrrd_field(ctx, name, bit, field, value, &h)) != 0)
+    if ((rc = nrrd_field(ctx, name, bit, field, value, &h, &sp)) != 0)
       return rc;
   }
   for (i = 0; i < sizeof required / sizeof required[0]; i++)
@@ -650,9 +792,16 @@ int rp__nrrd_parse(rp_context *ctx, const char *name, const uint8_t *buf,
                     "%s: fields 'spacings' and 'space directions' exclude "
                     "each other",
                     name);
+  if ((seen & F_SPACE) && (seen & F_SPACE_DIM))
+    return rp__fail(ctx, RP_EFORMAT,
+                    "%s: fields 'space' and 'space dimension' exclude each "
+                    "other",
+                    name);
   if (h.skip_to_end && h.gzip)
     return rp__fail(ctx, RP_EUNSUPPORTED,
                     "%s: byte skip -1 needs raw encoding, not gzip", name);
+  if ((rc = nrrd_orientation(ctx, name, seen, &sp, &h)) != 0)
+    return rc;
   if ((rc = rp__volume_header_check(ctx, name, &rp__nrrd_fields_named, &h,
                                     &bytes)) != 0)
     return rc;
@@ -684,7 +833,7 @@ int rp__sidecar_parse(rp_context *ctx, const char *name, const uint8_t *buf,
     const char *name;
   } required[] = {{F_DATA_FILE, "file"}, {F_SIZES, "dims"}, {F_TYPE, "type"}};
   char line[MAX_LINE + 1], sv[64], dt[96];
-  line_reader lr;
+  rp__line_reader lr;
   rp__volume_header h;
   unsigned seen = 0;
   uint64_t declared = 0;
@@ -703,31 +852,31 @@ int rp__sidecar_parse(rp_context *ctx, const char *name, const uint8_t *buf,
   lr.pos = 0;
   lr.number = 0;
   rp__volume_header_init(&h);
-  while ((rc = next_line(ctx, name, &lr, line)) > 0) {
-    char *colon, *key, *value = trim(line);
+  while ((rc = rp__text_line(ctx, name, &lr, line)) > 0) {
+    char *colon, *key, *value = rp__text_trim(line);
     unsigned bit;
     if (value[0] == '\0' || value[0] == '#')
       continue;
     colon = strchr(line, ':');
     if (colon == NULL)
       return rp__fail(ctx, RP_EFORMAT, "%s: line %u '%s' is not 'key: value'",
-                      name, lr.number, shown(sv, value));
+                      name, lr.number, rp__text_shown(sv, value));
     *colon = '\0';
-    key = trim(line);
-    value = trim(colon + 1);
+    key = rp__text_trim(line);
+    value = rp__text_trim(colon + 1);
     bit = field_bit(sidecar_keys, key);
     if (bit == 0)
       continue; /* descriptive keys: min, max, mean, source, ... */
     if (seen & bit)
       return rp__fail(ctx, RP_EFORMAT, "%s: key '%s' appears twice", name,
-                      shown(sv, key));
+                      rp__text_shown(sv, key));
     seen |= bit;
     switch (bit) {
     case F_DATA_FILE:
-      rc = set_data_file(ctx, name, "file", value, &h);
+      rc = rp__header_data_file(ctx, name, "file", value, &h);
       break;
     case F_SIZES:
-      rc = parse_sizes(ctx, name, "dims", value, h.dims);
+      rc = rp__header_sizes(ctx, name, "dims", value, h.dims);
       break;
     case F_TYPE:
       rc = parse_type(ctx, name, "type", value, plain_types,
@@ -740,11 +889,11 @@ int rp__sidecar_parse(rp_context *ctx, const char *name, const uint8_t *buf,
       rc = parse_spacings(ctx, name, "spacing", value, h.spacing);
       break;
     default: /* F_BYTES */
-      rc = parse_u64(value, &declared)
+      rc = rp__text_u64(value, &declared)
                ? 0
                : rp__fail(ctx, RP_EFORMAT,
                           "%s: bytes '%s' is not a whole number", name,
-                          shown(sv, value));
+                          rp__text_shown(sv, value));
       break;
     }
     if (rc != 0)
@@ -800,7 +949,7 @@ static int parse_dims_token(const char *s, size_t n, uint64_t dims[3]) {
       return 0;
     memcpy(tok, s + start, i - start);
     tok[i - start] = '\0';
-    if (!parse_u64(tok, &dims[axis]))
+    if (!rp__text_u64(tok, &dims[axis]))
       return 0;
     if (axis < 2) {
       if (i == n || (s[i] != 'x' && s[i] != 'X'))
@@ -821,7 +970,7 @@ int rp__raw_name_parse(rp_context *ctx, const char *path,
   int rc;
   base = base != NULL ? base + 1 : path;
   n = strlen(base);
-  if (n < 4 || !eq_nocase(base + n - 4, ".raw"))
+  if (n < 4 || !rp__text_eq_nocase(base + n - 4, ".raw"))
     return 1;
   stem = n - 4;
   type_sep = dims_sep = NULL;

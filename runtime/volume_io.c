@@ -4,8 +4,10 @@
  *
  * The formats are told apart in this order: a .raw file by its name (its
  * bytes can be anything, "NRRD" included); NRRD by its magic "NRRD" at
- * byte 0; a sidecar by at least two of the lines "file:", "dims:" and
- * "type:". Only regular files are opened: a FIFO would block. */
+ * byte 0; NIfTI by its name or magic (volume_nifti.c); MetaImage by its
+ * name or first key (volume_mhd.c); a sidecar by at least two of the
+ * lines "file:", "dims:" and "type:". Only regular files are opened: a
+ * FIFO would block. */
 #include <errno.h>
 #include <fcntl.h>
 #include <stdio.h>
@@ -188,6 +190,21 @@ static int load_nrrd(rp_context *ctx, const char *path, FILE *fp,
                      header_len, out);
 }
 
+/* MetaImage: LOCAL data follows the header; otherwise it names a file. */
+static int load_mhd(rp_context *ctx, const char *path, FILE *fp,
+                    uint64_t size, const uint8_t *head, size_t head_len,
+                    rp_volume **out) {
+  rp__volume_header hdr;
+  size_t header_len = 0;
+  int rc = rp__mhd_parse(ctx, path, head, head_len, &hdr, &header_len);
+  if (rc != 0)
+    return rc;
+  if (hdr.data_file[0] != '\0')
+    return decode_data_file(ctx, path, &rp__mhd_fields_named, &hdr, out);
+  return decode_file(ctx, path, &rp__mhd_fields_named, &hdr, fp, size,
+                     header_len, out);
+}
+
 int rp_volume_load(rp_context *ctx, const char *path, rp_volume **out) {
   rp__volume_header hdr;
   uint8_t *head = NULL;
@@ -228,6 +245,10 @@ int rp_volume_load(rp_context *ctx, const char *path, rp_volume **out) {
   }
   if (head_len >= 4 && memcmp(head, "NRRD", 4) == 0) {
     rc = load_nrrd(ctx, path, fp, size, head, head_len, out);
+  } else if (rp__looks_like_nifti(path, head, head_len)) {
+    rc = rp__nifti_load(ctx, path, out);
+  } else if (rp__looks_like_mhd(path, head, head_len)) {
+    rc = load_mhd(ctx, path, fp, size, head, head_len, out);
   } else if (rp__looks_like_sidecar(head, head_len)) {
     if (size > HEAD_MAX)
       rc = rp__fail(ctx, RP_EFORMAT,
@@ -238,8 +259,10 @@ int rp_volume_load(rp_context *ctx, const char *path, rp_volume **out) {
   } else {
     rc = rp__fail(ctx, RP_EFORMAT,
                   "%s: not a volume file; accepted: NRRD (starts with "
-                  "NRRD000N), a sidecar (lines 'file:', 'dims:', 'type:') "
-                  "or NAME_XxYxZ_TYPE.raw (TYPE uint8, int8, uint16, int16, uint32, int32, float32)",
+                  "NRRD000N), NIfTI (.nii, .nii.gz, .hdr/.img), MetaImage "
+                  "(.mhd, .mha), a sidecar (lines 'file:', 'dims:', "
+                  "'type:') or NAME_XxYxZ_TYPE.raw (TYPE uint8, int8, "
+                  "uint16, int16, uint32, int32, float32)",
                   path);
   }
 done:

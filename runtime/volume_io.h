@@ -23,6 +23,49 @@
 
 #include "internal.h"
 
+/* ---- volume_header.c: text helpers the header parsers share -------------- */
+
+/* Case-insensitive ASCII comparison, whatever the locale. */
+int rp__text_eq_nocase(const char *a, const char *b);
+/* Strips spaces at both ends, in place. */
+char *rp__text_trim(char *s);
+/* Splits off the next space-separated token, in place; NULL when none. */
+char *rp__text_token(char **cursor);
+/* A short, printable copy of `s` for an error message. */
+const char *rp__text_shown(char buf[64], const char *s);
+/* Numbers filling the whole token: unsigned, signed, floating point (with
+ * '.' whatever the locale; NaN and infinities accepted, callers refuse
+ * them). Each returns 1 on success, 0 otherwise. */
+int rp__text_u64(const char *s, uint64_t *v);
+int rp__text_i64(const char *s, int64_t *v);
+int rp__text_double(const char *s, double *v);
+
+/* Lines of a header in memory. */
+typedef struct rp__line_reader {
+  const uint8_t *buf;
+  size_t len, pos;
+  unsigned number; /* of the last line returned, from 1 */
+} rp__line_reader;
+
+/* Longest header line accepted. */
+#define RP__MAX_LINE 4096
+
+/* The next line, without "\n" or "\r\n", as a C string. Returns 1 with a
+ * line, 0 at the end, or an error (too long, or holding a NUL byte). */
+int rp__text_line(rp_context *ctx, const char *name, rp__line_reader *lr,
+                  char out[RP__MAX_LINE + 1]);
+/* A voxel spacing `v` read as `text` for `axis` of `field`: positive,
+ * finite and representable as a float; written to *out. */
+int rp__header_spacing(rp_context *ctx, const char *name, const char *field,
+                       int axis, const char *text, double v, float *out);
+/* Exactly three sizes, each at least 1, from `value` (modified). */
+int rp__header_sizes(rp_context *ctx, const char *name, const char *field,
+                     char *value, uint64_t dims[3]);
+/* Records a data file name (not empty, not too long). */
+int rp__header_data_file(rp_context *ctx, const char *name,
+                         const char *field, const char *value,
+                         rp__volume_header *hdr);
+
 /* ---- volume_header.c ---------------------------------------------------- */
 
 /* How each format names a header's sizes and spacing, so that a message
@@ -56,6 +99,27 @@ int rp__raw_name_parse(rp_context *ctx, const char *path,
  * lines "file:", "dims:" and "type:", so that a sidecar missing one of them
  * still reaches the parser and gets a message naming the missing key. */
 int rp__looks_like_sidecar(const uint8_t *buf, size_t len);
+
+/* ---- volume_mhd.c ------------------------------------------------------- */
+
+extern const rp__header_fields rp__mhd_fields_named;
+/* A MetaImage header (.mhd/.mha) in memory into hdr. *header_len receives
+ * the offset just past the ElementDataFile line, where LOCAL data starts. */
+int rp__mhd_parse(rp_context *ctx, const char *name, const uint8_t *buf,
+                  size_t len, rp__volume_header *hdr, size_t *header_len);
+/* Whether a file is MetaImage: its name ends in .mhd or .mha, or its first
+ * key is ObjectType or NDims. */
+int rp__looks_like_mhd(const char *path, const uint8_t *buf, size_t len);
+
+/* ---- volume_nifti.c ----------------------------------------------------- */
+
+/* Whether a file is NIfTI-1/2 (or an Analyze pair): its name ends in .nii,
+ * .nii.gz, .hdr or .img, or its first bytes hold a NIfTI magic. */
+int rp__looks_like_nifti(const char *path, const uint8_t *buf, size_t len);
+/* Loads a NIfTI file through nifticlib: header first, checked against the
+ * context's limits, then the voxels. RP_EUNSUPPORTED when raypace was
+ * built without nifticlib. */
+int rp__nifti_load(rp_context *ctx, const char *path, rp_volume **out);
 
 /* ---- volume_decode.c ---------------------------------------------------- */
 

@@ -90,21 +90,6 @@ static size_t deflate_bytes(const uint8_t *in, size_t n, uint8_t *out,
   return cap - zs.avail_out;
 }
 
-/* Writes text followed by `n` payload bytes into tmp/<name>. */
-static const char *write_with(const char *name, const char *text,
-                              const void *payload, size_t n) {
-  size_t t = strlen(text);
-  uint8_t *buf = malloc(t + n + 1);
-  const char *path;
-  assert_non_null(buf);
-  memcpy(buf, text, t);
-  if (n > 0)
-    memcpy(buf + t, payload, n);
-  path = rp_test_write_file(name, buf, t + n);
-  free(buf);
-  return path;
-}
-
 static const char *write_text(const char *name, const char *text) {
   return rp_test_write_file(name, text, strlen(text));
 }
@@ -127,28 +112,14 @@ static const char *nrrd_type(rp_voxel_type type) {
 }
 
 static rp_volume *load_ok(rp_context *ctx, const char *path) {
-  rp_volume *v = NULL;
-  int rc = rp_volume_load(ctx, path, &v);
-  if (rc != 0)
-    fail_msg("%s: %s: %s", path, rp_err_name(rc), rp_last_error(ctx));
-  assert_non_null(v);
-  return v;
+  return rp_test_load_ok(ctx, path);
 }
 
 /* The load fails with `code`, leaves *out alone, and the message names
  * `needle`. */
 static void load_fails(rp_context *ctx, const char *path, int code,
                        const char *needle) {
-  static int sentinel;
-  rp_volume *v = (rp_volume *)&sentinel;
-  int rc = rp_volume_load(ctx, path, &v);
-  if (rc != code)
-    fail_msg("%s: got %s, want %s (%s)", path, rp_err_name(rc),
-             rp_err_name(code), rp_last_error(ctx));
-  assert_ptr_equal(v, (rp_volume *)&sentinel);
-  if (strstr(rp_last_error(ctx), needle) == NULL)
-    fail_msg("%s: message '%s' does not mention '%s'", path,
-             rp_last_error(ctx), needle);
+  rp_test_load_fails(ctx, path, code, needle, NULL);
 }
 
 static void check_volume(const rp_volume *v, rp_voxel_type type,
@@ -198,14 +169,14 @@ static void test_nrrd_raw_attached(void **state) {
       size_t n = encode(all_types[t], big, payload);
       const char *hdr = nrrd_header(nrrd_type(all_types[t]),
                                     big ? "big" : "little", "raw", NULL);
-      load_and_check(ctx, write_with("raw_attached.nrrd", hdr, payload, n),
+      load_and_check(ctx, rp_test_write_with("raw_attached.nrrd", hdr, payload, n),
                      all_types[t], unit_spacing);
     }
   }
   /* uint8 needs no endian field. */
   encode(RP_U8, 0, payload);
   load_and_check(ctx,
-                 write_with("u8_noendian.nrrd",
+                 rp_test_write_with("u8_noendian.nrrd",
                             nrrd_header("uchar", NULL, "raw", NULL), payload,
                             NV),
                  RP_U8, unit_spacing);
@@ -225,7 +196,7 @@ static void test_nrrd_gzip_attached(void **state) {
         const char *hdr =
             nrrd_header(nrrd_type(all_types[t]), big ? "big" : "little",
                         zlib ? "gz" : "gzip", NULL);
-        load_and_check(ctx, write_with("gz_attached.nrrd", hdr, packed, z),
+        load_and_check(ctx, rp_test_write_with("gz_attached.nrrd", hdr, packed, z),
                        all_types[t], unit_spacing);
       }
     }
@@ -259,7 +230,7 @@ static void test_nrrd_gzip_large(void **state) {
   }
   z = deflate_bytes(bytes, L * 2, packed, cap, 0);
   assert_true(z > 3 * 65536);
-  v = load_ok(ctx, write_with("large.nrrd",
+  v = load_ok(ctx, rp_test_write_with("large.nrrd",
                               "NRRD0004\ntype: uint16\ndimension: 3\n"
                               "sizes: 64 64 64\nendian: big\n"
                               "encoding: gzip\n\n",
@@ -341,13 +312,13 @@ static void test_nrrd_skips(void **state) {
                  RP_U16, unit_spacing);
   /* Both, attached: bytes counted from the end of the header. */
   load_and_check(ctx,
-                 write_with("skip_att.nrrd",
+                 rp_test_write_with("skip_att.nrrd",
                             nrrd_header("ushort", "little", "raw",
                                         "byte skip: 13\n"),
                             file, 13 + n),
                  RP_U16, unit_spacing);
   load_and_check(ctx,
-                 write_with("skipend_att.nrrd",
+                 rp_test_write_with("skipend_att.nrrd",
                             nrrd_header("ushort", "little", "raw",
                                         "byte skip: -1\n"),
                             file, 13 + n),
@@ -390,13 +361,13 @@ static void test_nrrd_spacing(void **state) {
   (void)state;
   encode(RP_U8, 0, payload);
   load_and_check(ctx,
-                 write_with("spacings.nrrd",
+                 rp_test_write_with("spacings.nrrd",
                             nrrd_header("uchar", NULL, "raw",
                                         "spacings: 0.5 2 3.25\n"),
                             payload, NV),
                  RP_U8, want);
   load_and_check(ctx,
-                 write_with("directions.nrrd",
+                 rp_test_write_with("directions.nrrd",
                             nrrd_header("uchar", NULL, "raw",
                                         "space: right-anterior-superior\n"
                                         "space directions: (0.5,0,0) "
@@ -406,7 +377,7 @@ static void test_nrrd_spacing(void **state) {
                  RP_U8, want);
   /* Oblique axes: the spacing is each vector's length. */
   load_and_check(ctx,
-                 write_with("oblique.nrrd",
+                 rp_test_write_with("oblique.nrrd",
                             nrrd_header("uchar", NULL, "raw",
                                         "space directions: (3, 4, 0) "
                                         "(0,0,-2)  ( 0.1 ,0,0)\n"),
@@ -440,13 +411,13 @@ static void test_nrrd_tolerance(void **state) {
              "type:=short\r\nsizes:=1 1\r\n"
              "some future field: 1 2 3\r\nencoding: raw\r\n\r\n",
              (int)i + 1, u8_names[i]);
-    load_and_check(ctx, write_with("tolerant.nrrd", hdr, payload, NV),
+    load_and_check(ctx, rp_test_write_with("tolerant.nrrd", hdr, payload, NV),
                    RP_U8, unit_spacing);
   }
   encode(RP_U16, 0, payload);
   for (i = 0; i < 5; i++)
     load_and_check(ctx,
-                   write_with("alias16.nrrd",
+                   rp_test_write_with("alias16.nrrd",
                               nrrd_header(u16_names[i], "little", "raw",
                                           NULL),
                               payload, NV * 2),
@@ -674,7 +645,7 @@ static void test_gzip_big_skip(void **state) {
   plain[skip] = 42;
   z = deflate_bytes(plain, skip + 1, packed, cap, 0);
   rp__inflate_calls = 0;
-  v = load_ok(ctx, write_with("bigskip.nrrd",
+  v = load_ok(ctx, rp_test_write_with("bigskip.nrrd",
                               "NRRD0004\ntype: uchar\ndimension: 3\n"
                               "sizes: 1 1 1\nencoding: gzip\n"
                               "byte skip: 8388608\n\n",
@@ -929,7 +900,7 @@ static void signed_case(rp_context *ctx, rp_voxel_type type,
     hi = fmax(hi, signed_value(i, type));
   }
   snprintf(name, sizeof name, "signed_%s.nrrd", plain);
-  paths[0] = strdup(write_with(name, nrrd_header(nrrd_name, "big", "raw",
+  paths[0] = strdup(rp_test_write_with(name, nrrd_header(nrrd_name, "big", "raw",
                                                  NULL), be, NV * vs));
   snprintf(name, sizeof name, "signed_%s.raw", plain);
   rp_test_write_file(name, le, NV * vs);
@@ -988,7 +959,7 @@ static void test_malformed(void **state) {
   for (i = 0; i < sizeof bad_cases / sizeof bad_cases[0]; i++) {
     const bad_case *c = &bad_cases[i];
     size_t n = c->delta == NO_DATA ? 0 : (size_t)(NV + c->delta);
-    load_fails(ctx, write_with(c->file, c->text, payload, n), c->code,
+    load_fails(ctx, rp_test_write_with(c->file, c->text, payload, n), c->code,
                c->needle);
   }
   rp_context_destroy(ctx);
@@ -1089,13 +1060,13 @@ static void test_not_finite_data(void **state) {
     for (b = 0; b < 4; b++) /* voxel (1, 0, 1), little endian */
       payload[4 * 7 + b] = (uint8_t)(bits >> (8 * b));
     load_fails(ctx,
-               write_with("nan.nrrd",
+               rp_test_write_with("nan.nrrd",
                           nrrd_header("float", "little", "raw", NULL),
                           payload, NV * 4),
                RP_ENOTFINITE, "nan.nrrd");
     z = deflate_bytes(payload, NV * 4, packed, sizeof packed, 0);
     load_fails(ctx,
-               write_with("nan_gz.nrrd",
+               rp_test_write_with("nan_gz.nrrd",
                           nrrd_header("float", "little", "gzip", NULL),
                           packed, z),
                RP_ENOTFINITE, "not finite");
@@ -1115,33 +1086,33 @@ static void test_bad_gzip(void **state) {
   if (z < 18)
     abort();
   /* Cut short: inside the deflate data, and just before the trailer. */
-  load_fails(ctx, write_with("gz_cut.nrrd", hdr, packed, z / 2), RP_ETRUNC,
+  load_fails(ctx, rp_test_write_with("gz_cut.nrrd", hdr, packed, z / 2), RP_ETRUNC,
              "gz_cut.nrrd");
-  load_fails(ctx, write_with("gz_cut8.nrrd", hdr, packed, z - 8), RP_ETRUNC,
+  load_fails(ctx, rp_test_write_with("gz_cut8.nrrd", hdr, packed, z - 8), RP_ETRUNC,
              "gz_cut8.nrrd");
-  load_fails(ctx, write_with("gz_cut1.nrrd", hdr, packed, z - 1), RP_ETRUNC,
+  load_fails(ctx, rp_test_write_with("gz_cut1.nrrd", hdr, packed, z - 1), RP_ETRUNC,
              "gz_cut1.nrrd");
   /* A wrong CRC and a wrong magic are corruption. */
   memcpy(copy, packed, z);
   copy[z - 8] ^= 0x55;
-  load_fails(ctx, write_with("gz_crc.nrrd", hdr, copy, z), RP_EFORMAT,
+  load_fails(ctx, rp_test_write_with("gz_crc.nrrd", hdr, copy, z), RP_EFORMAT,
              "corrupt");
   memcpy(copy, packed, z);
   copy[0] ^= 0xff;
-  load_fails(ctx, write_with("gz_magic.nrrd", hdr, copy, z), RP_EFORMAT,
+  load_fails(ctx, rp_test_write_with("gz_magic.nrrd", hdr, copy, z), RP_EFORMAT,
              "corrupt");
   /* Trailing bytes after the stream. */
   memcpy(copy, packed, z);
   memcpy(copy + z, "tail", 4);
-  load_fails(ctx, write_with("gz_tail.nrrd", hdr, copy, z + 4), RP_EFORMAT,
+  load_fails(ctx, rp_test_write_with("gz_tail.nrrd", hdr, copy, z + 4), RP_EFORMAT,
              "follow");
   /* A complete stream with too few or too many bytes. */
   z = deflate_bytes(payload, n - 2, packed, sizeof packed, 0);
-  load_fails(ctx, write_with("gz_less.nrrd", hdr, packed, z), RP_ETRUNC,
+  load_fails(ctx, rp_test_write_with("gz_less.nrrd", hdr, packed, z), RP_ETRUNC,
              "gz_less.nrrd");
   memset(payload + n, 0, 16);
   z = deflate_bytes(payload, n + 2, packed, sizeof packed, 0);
-  load_fails(ctx, write_with("gz_more.nrrd", hdr, packed, z), RP_EFORMAT,
+  load_fails(ctx, rp_test_write_with("gz_more.nrrd", hdr, packed, z), RP_EFORMAT,
              "more than");
   rp_context_destroy(ctx);
 }
@@ -1213,11 +1184,11 @@ static void test_huge_claims(void **state) {
   z = deflate_bytes(payload, NV, packed, sizeof packed, 0);
   base = c.bytes;
   c.peak = base;
-  load_fails(ctx, write_with("huge_raw.nrrd", raw_hdr, payload, NV),
+  load_fails(ctx, rp_test_write_with("huge_raw.nrrd", raw_hdr, payload, NV),
              RP_ETRUNC, "huge_raw.nrrd");
   assert_true(c.peak - base < ((size_t)1 << 20));
   c.peak = base;
-  load_fails(ctx, write_with("huge_gz.nrrd", gz_hdr, packed, z), RP_ETRUNC,
+  load_fails(ctx, rp_test_write_with("huge_gz.nrrd", gz_hdr, packed, z), RP_ETRUNC,
              "huge_gz.nrrd");
   assert_true(c.peak - base < ((size_t)1 << 20));
   /* 300 kB of zeros in a few hundred bytes of gzip, claiming 100 MB: the
@@ -1231,7 +1202,7 @@ static void test_huge_claims(void **state) {
     z = deflate_bytes(zeros, n, zz, n, 0);
     c.peak = base;
     load_fails(ctx,
-               write_with("huge_zeros.nrrd",
+               rp_test_write_with("huge_zeros.nrrd",
                           "NRRD0004\ntype: uchar\ndimension: 3\n"
                           "sizes: 1000 1000 100\nencoding: gzip\n\n",
                           zz, z),
@@ -1246,7 +1217,7 @@ static void test_huge_claims(void **state) {
   /* max_volume_bytes bounds what a loader accepts. */
   ctx = counting_context(&c, 23);
   load_fails(ctx,
-             write_with("limit.nrrd", nrrd_header("uchar", NULL, "raw", NULL),
+             rp_test_write_with("limit.nrrd", nrrd_header("uchar", NULL, "raw", NULL),
                         payload, NV),
              RP_ERANGE, "limit.nrrd: field 'sizes'");
   rp_test_write_file("limit.raw", payload, NV);
@@ -1290,10 +1261,10 @@ static void test_out_of_memory(void **state) {
   (void)state;
   n = encode(RP_U16, 1, payload);
   z = deflate_bytes(payload, n, packed, sizeof packed, 0);
-  oom_loop(write_with("oom_gz.nrrd",
+  oom_loop(rp_test_write_with("oom_gz.nrrd",
                       nrrd_header("ushort", "big", "gzip", NULL), packed,
                       z));
-  oom_loop(write_with("oom_raw.nrrd",
+  oom_loop(rp_test_write_with("oom_raw.nrrd",
                       nrrd_header("ushort", "big", "raw", NULL), payload,
                       n));
   /* A byte skip larger than the output: the skip window of its own. */
@@ -1305,7 +1276,7 @@ static void test_out_of_memory(void **state) {
     assert_non_null(zz);
     memcpy(plain + skip, payload, n);
     z = deflate_bytes(plain, skip + n, zz, skip + n, 0);
-    oom_loop(write_with("oom_skip.nrrd",
+    oom_loop(rp_test_write_with("oom_skip.nrrd",
                         nrrd_header("ushort", "big", "gzip",
                                     "byte skip: 100000\n"),
                         zz, z));

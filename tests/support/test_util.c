@@ -252,3 +252,133 @@ rp_volume *rp_test_float_blob(rp_context *ctx) {
   static const float spacing[3] = {1.0f, 1.3f, 0.8f};
   return float_volume(ctx, dims, spacing, one_blob);
 }
+
+rp_volume *rp_test_load_ok(rp_context *ctx, const char *path) {
+  rp_volume *v = NULL;
+  int rc = rp_volume_load(ctx, path, &v);
+  if (rc != 0)
+    fail_msg("%s: %s: %s", path, rp_err_name(rc), rp_last_error(ctx));
+  assert_non_null(v);
+  return v;
+}
+
+void rp_test_load_fails(rp_context *ctx, const char *path, int code, ...) {
+  static int sentinel;
+  rp_volume *v = (rp_volume *)&sentinel;
+  const char *needle;
+  va_list ap;
+  int rc = rp_volume_load(ctx, path, &v);
+  if (rc != code)
+    fail_msg("%s: got %s, want %s (%s)", path, rp_err_name(rc),
+             rp_err_name(code), rp_last_error(ctx));
+  assert_ptr_equal(v, (rp_volume *)&sentinel);
+  va_start(ap, code);
+  while ((needle = va_arg(ap, const char *)) != NULL) {
+    if (strstr(rp_last_error(ctx), needle) == NULL) {
+      va_end(ap);
+      fail_msg("%s: message '%s' does not mention '%s'", path,
+               rp_last_error(ctx), needle);
+    }
+  }
+  va_end(ap);
+}
+
+double rp_test_voxel(const rp_volume *vol, size_t i) {
+  rp_volume_info info;
+  const uint8_t *p = rp_volume_data(vol);
+  double x;
+  rp_volume_get_info(vol, &info);
+  if (info.stored_type == RP_U8) {
+    x = p[i];
+  } else if (info.stored_type == RP_U16) {
+    uint16_t u;
+    memcpy(&u, p + 2 * i, 2);
+    x = u;
+  } else {
+    float f;
+    assert_int_equal(info.stored_type, RP_F32);
+    memcpy(&f, p + 4 * i, 4);
+    x = f;
+  }
+  return x + info.stored_offset;
+}
+
+void rp_test_expect_orientation(const rp_volume *vol,
+                                const double direction[9],
+                                const double origin[3], double tol) {
+  rp_volume_info info;
+  int i;
+  rp_volume_get_info(vol, &info);
+  assert_true(info.orientation.known);
+  for (i = 0; i < 9; i++)
+    if (!(fabs(info.orientation.direction[i] - direction[i]) <= tol))
+      fail_msg("direction[%d] (axis %d, component %d) = %.9g, want %.9g", i,
+               i / 3, i % 3, info.orientation.direction[i], direction[i]);
+  for (i = 0; i < 3; i++)
+    if (!(fabs(info.orientation.origin[i] - origin[i]) <= tol))
+      fail_msg("origin[%d] = %.9g, want %.9g", i, info.orientation.origin[i],
+               origin[i]);
+}
+
+const char *rp_test_write_with(const char *name, const char *text,
+                               const void *payload, size_t n) {
+  size_t t = strlen(text);
+  uint8_t *buf = malloc(t + n + 1);
+  const char *path;
+  assert_non_null(buf);
+  memcpy(buf, text, t);
+  if (n > 0)
+    memcpy(buf + t, payload, n);
+  path = rp_test_write_file(name, buf, t + n);
+  free(buf);
+  return path;
+}
+
+double rp_test_pattern(rp_voxel_type t, int i) {
+  switch (t) {
+  case RP_U8: return i * 10 + 5;
+  case RP_S8: return i * 5 - 60;
+  case RP_U16: return 1000 + i * 2345;
+  case RP_S16: return i * 137 - 1500;
+  case RP_U32: return 100000.0 + i * 70001.0;
+  case RP_S32: return i * 90001.0 - 1000000.0;
+  default: return -2.5 + i * 0.75;
+  }
+}
+
+void rp_test_check_pattern(const rp_volume *v, rp_voxel_type t,
+                           const uint32_t dims[3], const float spacing[3]) {
+  rp_volume_info info;
+  double lo = INFINITY, hi = -INFINITY;
+  size_t n, i;
+  int a;
+  rp_volume_get_info(v, &info);
+  assert_int_equal(info.type, t);
+  for (a = 0; a < 3; a++) {
+    assert_int_equal(info.dims[a], dims[a]);
+    if (info.spacing[a] != spacing[a])
+      fail_msg("spacing[%d] = %.9g, want %.9g", a, (double)info.spacing[a],
+               (double)spacing[a]);
+  }
+  n = (size_t)dims[0] * dims[1] * dims[2];
+  for (i = 0; i < n; i++) {
+    double want = rp_test_pattern(t, (int)i);
+    if (rp_test_voxel(v, i) != want)
+      fail_msg("voxel %zu = %.9g, want %.9g", i, rp_test_voxel(v, i), want);
+    lo = want < lo ? want : lo;
+    hi = want > hi ? want : hi;
+  }
+  assert_true(info.min == lo);
+  assert_true(info.max == hi);
+}
+
+void rp_test_expect_no_orientation(const rp_volume *vol) {
+  rp_volume_info info;
+  int i;
+  rp_volume_get_info(vol, &info);
+  assert_false(info.orientation.known);
+  for (i = 0; i < 9; i++)
+    assert_true(info.orientation.direction[i] == (i % 4 == 0 ? 1.0 : 0.0));
+  for (i = 0; i < 3; i++)
+    assert_true(info.orientation.origin[i] == 0.0);
+}

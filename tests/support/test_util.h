@@ -101,4 +101,34 @@ void rp_test_scene_drop(rp_test_scene *s);
  * sets f's header and chains f onto d->next. */
 void rp_test_faults(rp_device_desc *d, rp_fault_desc *f);
 
+/* ---- Volume files ------------------------------------------------------ */
+
+/* Writes `text` then `n` payload bytes into tmp/<name>; the path as
+ * rp_test_write_file gives it. */
+const char *rp_test_write_with(const char *name, const char *text,
+                               const void *payload, size_t n);
+/* Voxel i of a test pattern in each type, negative where signed, every
+ * value exact in the type (float32 included). */
+double rp_test_pattern(rp_voxel_type t, int i);
+/* Asserts that `v` holds rp_test_pattern(t, i) at every voxel i, with
+ * these dims and spacing, type t, and the pattern's range. */
+void rp_test_check_pattern(const rp_volume *v, rp_voxel_type t,
+                           const uint32_t dims[3], const float spacing[3]);
+/* Loads `path`, failing the test with the loader's message otherwise. */
+rp_volume *rp_test_load_ok(rp_context *ctx, const char *path);
+/* The load fails with `code`, leaves *out alone, and the message names
+ * every one of the NULL-ended strings after `code` (the file, the field,
+ * the value). */
+void rp_test_load_fails(rp_context *ctx, const char *path, int code, ...);
+/* Voxel i of `vol` in data units (the stored value plus its offset). */
+double rp_test_voxel(const rp_volume *vol, size_t i);
+/* Asserts the volume's orientation is known and matches `direction`
+ * (columns: axis j's unit vector at 3 j) and `origin` within `tol`. */
+void rp_test_expect_orientation(const rp_volume *vol,
+                                const double direction[9],
+                                const double origin[3], double tol);
+/* Asserts the volume's orientation is not known: the identity, origin
+ * zero. */
+void rp_test_expect_no_orientation(const rp_volume *vol);
+
 #endif
