@@ -531,6 +531,9 @@ int replay_player_open(replay *r, player *p, int quiet_nodev) {
   d.height = r->o.height;
   d.space = r->space;
   d.ert_seed = r->o.seed;
+  /* Jittered, with one seed for every frame: a frame replayed (--split)
+   * then takes the samples it took the first time. */
+  d.jitter = RP_JITTER_FIXED;
   d.miss_rate = r->o.miss_rate;
   d.headroom = r->o.headroom;
   if (r->o.ndevices > 0) {

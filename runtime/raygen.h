@@ -66,6 +66,14 @@ void rp__raygen_ray(const rp__raygen *rg, uint32_t x, uint32_t y,
 void rp__raygen_ray_at(const rp__raygen *rg, double px, double py,
                        rp__ray *ray);
 
+/* Jitters the ray's lattice (rp_jitter): its first sample moves from s
+ * to s + offset * step, offset in [0, 1) from rp_jitter_offset. A ray
+ * whose first sample then lies past t1 takes none and counts as a miss.
+ * The passes that follow the lattice (the raycast, the cost model's
+ * sample counts) call it; the depth pass and the ERT pre-pass work on
+ * block geometry and their own coarse lattice, and do not. */
+void rp__ray_jitter(rp__ray *ray, double offset, double step);
+
 /* Number of lattice samples s + i*step (i = 0, 1, ...) that are <= t1,
  * each position computed as s + i*step exactly as the renderer does.
  * Requires s <= t1 and step > 0. Saturates at 2^53 (beyond which i*step

@@ -5,9 +5,11 @@
  * kernels reproduce (the spaces are defined in raygen.h):
  *
  * Lattice. A ray that meets the box on [t0, t1] samples at depths
- * s + i*step, s = max(t0, 0), for i = 0, 1, ... while s + i*step <= t1.
- * Each depth is computed from i, never accumulated, so that a kernel
- * lands on the same positions whatever order it visits them in.
+ * s + i*step, s = max(t0, 0) + j*step, for i = 0, 1, ... while
+ * s + i*step <= t1, where j in [0, 1) is the pixel's jitter
+ * (rp_jitter_offset; 0 with RP_JITTER_OFF). Each depth is computed from
+ * i, never accumulated, so that a kernel lands on the same positions
+ * whatever order it visits them in.
  *
  * Skipping (RP_EFFECT_SKIP). A lattice sample at voxel-space p belongs to
  * block floor((p + 0.5) / 16) per axis, clamped to the grid: the block of
@@ -80,6 +82,8 @@ typedef struct render_ctx {
   int shading, ert;
   double ert_threshold; /* the float from the desc, widened exactly */
   const rp_volume *ao;  /* the AO volume as 8-bit voxels; NULL: no AO */
+  int jitter;
+  uint32_t jitter_seed;
 } render_ctx;
 
 /* What one ray produced. */
@@ -222,6 +226,10 @@ rp_render_desc rp__render_desc_defaults(const rp_render_desc *in) {
     d.ert_threshold = RP__DEFAULT_ERT;
   if (d.image_scale == 0.0f)
     d.image_scale = 1.0f;
+  if (d.jitter == RP_JITTER_DEFAULT || d.jitter == RP_JITTER_FIXED)
+    d.jitter = RP_JITTER_ON;
+  if (d.jitter_seed == 0)
+    d.jitter_seed = RP_JITTER_SEED;
   return d;
 }
 
@@ -259,6 +267,11 @@ int rp__check_render_desc(rp_context *ctx, const char *fn,
   if (!(desc->image_scale > 0.0f && desc->image_scale <= 1.0f))
     return rp__fail(ctx, RP_EINVAL, "%s: desc->image_scale is %g; must be "
                     "in (0, 1] (0: 1)", fn, (double)desc->image_scale);
+  if (desc->jitter != RP_JITTER_ON && desc->jitter != RP_JITTER_OFF)
+    return rp__fail(ctx, RP_EINVAL, "%s: desc->jitter is %d; must be "
+                    "RP_JITTER_DEFAULT (0), RP_JITTER_ON (1), "
+                    "RP_JITTER_OFF (2) or RP_JITTER_FIXED (3)", fn,
+                    (int)desc->jitter);
   if (desc->effects & ~(uint32_t)RP__KNOWN_EFFECTS)
     return rp__fail(ctx, RP_EINVAL, "%s: desc->effects has unknown bits "
                     "0x%x", fn,
@@ -318,6 +331,9 @@ static void render_tile(const render_ctx *rc, const rp__raygen *rg,
       uint8_t *px = rgba + ((size_t)y * rg->width + x) * 4;
       int c;
       rp__raygen_ray(rg, x, y, &ray);
+      if (rc->jitter)
+        rp__ray_jitter(&ray, rp_jitter_offset(x, y, rc->jitter_seed),
+                       rc->step);
       cast(rc, &ray, &res);
       for (c = 0; c < 4; c++)
         px[c] = to_u8(res.rgba[c]);
@@ -363,6 +379,8 @@ void rp__reference_render(const rp_volume *vol, const rp_tf *tf,
   rc.ert = (d->effects & RP_EFFECT_ERT) != 0;
   rc.ert_threshold = d->ert_threshold;
   rc.ao = (d->effects & RP_EFFECT_AO) ? ao : NULL;
+  rc.jitter = d->jitter != RP_JITTER_OFF;
+  rc.jitter_seed = d->jitter_seed;
   rp_tile_grid(rg->width, rg->height, &tiles_x, NULL);
   /* Region corners lie on the tile grid or the image edge, so the tiles
    * it touches are exactly its own. */

@@ -124,10 +124,14 @@ static void image_free(image *im) {
   free(im->tiles);
 }
 
+/* Jitter off: the closed forms below count the samples of the lattice
+ * that starts where each ray enters the box (test_jitter.c holds the
+ * jittered lattice to its own). */
 static void render(rp_context *ctx, const rp_volume *vol, const rp_tf *tf,
                    const rp_occupancy *occ, const rp_camera *cam,
                    float step, uint32_t effects, image *im) {
-  rp_render_desc d = {im->w, im->h, step, effects, 0.0f, 0.0f};
+  rp_render_desc d = {im->w, im->h, step, effects, 0.0f, 0.0f,
+                      RP_JITTER_OFF, 0};
   int err = rp_render_reference(ctx, vol, tf, occ, NULL, cam, &d, im->rgba,
                                 im->tiles);
   if (err != 0)
@@ -807,7 +811,7 @@ static void test_ert_bound(void **state) {
     for (k = 0; k < 3; k++) {
       rp_render_desc d = {cut.w, cut.h, 1.0f,
                           RP_EFFECT_SHADING | RP_EFFECT_ERT, thresholds[k],
-                          0.0f};
+                          0.0f, RP_JITTER_OFF, 0}; /* as render() */
       double thr = thresholds[k] != 0.0f ? thresholds[k] : 0.99f;
       double bound = (1.0 - thr) * 255.0 + 1.0;
       size_t i;
@@ -1153,7 +1157,7 @@ static void test_bad_arguments(void **state) {
   occ_pair o = make_occ(ctx, vol, tf), o2 = make_occ(ctx, vol, tf2);
   occ_pair o3 = make_occ(ctx, other, tf);
   rp_camera good = orbit(vol, RP_PERSPECTIVE, 10, 10, 2), cam;
-  rp_render_desc ok = {4, 4, 0.0f, 0, 0.0f, 0.0f}, d;
+  rp_render_desc ok = {4, 4, 0.0f, 0, 0.0f, 0.0f, RP_JITTER_DEFAULT, 0}, d;
   uint8_t rgba[4 * 4 * 4];
   uint32_t tx, ty;
   (void)state;

@@ -177,6 +177,7 @@ void rp_cl_raycast(rp_cl_frame fp, uint x0, uint y0, uint x1, uint y1,
 
   if (any(inside)) {
     rp_cl_packet k = rp_cl_make_packet(&fp, px + 0.5f, py + 0.5f, inside);
+    rp_cl_jitter(&fp, &k, px, py);
     /* Lane j takes samples i0_j .. i1_j of its lattice s + i * step. */
     vfloat i0 = 0.0f, i1 = rp_cl_lattice_last(&k, fp.step);
 #ifdef RP_BRICKED

@@ -148,9 +148,10 @@ const int MARCH_CAP = 12;
 Result cast_ray(uvec2 pix, uvec2 rpix) {
   Result res = Result(vec4(0.0), 0u, 0.0);
   Ray ray = make_ray(float(pix.x) + 0.5, float(pix.y) + 0.5);
+  float step = P.up.w;
+  jitter_ray(ray, pix, step);
   if (!ray.hit)
     return res;
-  float step = P.up.w;
   int first = 0, last = lattice_last(ray.s, ray.t1, step);
   if (RP_SKIP) {
     /* The first and last lattice samples in an occupied block. The depth
