@@ -215,6 +215,9 @@ static void test_passes_per_event(void **state) {
   assert_int_equal(a.s.last.status, 0);
   expect_reference(a.ctx, vol2, bone, &cam, a.s.last.jitter_seed,
                    a.s.image);
+  /* Jittered by default, a seed of its own per frame. */
+  assert_int_equal(a.s.last.jitter_seed,
+                   rp_jitter_frame_seed(0u, a.s.last.frame));
 
   d = frame(&a); /* nothing changed: nothing recomputed, depth reused */
   expect_passes(d, 0, 0, 0);

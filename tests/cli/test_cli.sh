@@ -55,6 +55,30 @@ check "render ortho" "$rp" render gen:ml:20 --ortho --camera 0,90,2 \
   --size 9x7 --no-ert --no-skip -o "$dir/b.png"
 has "render text" "wrote $dir/b.png"
 
+# Ray-start jitter: a seed gives the same image every time, another seed
+# or --no-jitter another image (a PNG holds the pixels and nothing that
+# varies from run to run).
+jr() { # jr OUT ARGS...: the reference's render of a small phantom
+  out=$1; shift
+  "$rp" render gen:phantom:32 --size 24x24 --backend reference \
+    --step 2 -o "$dir/$out" "$@"
+}
+check "jitter seed 5" jr j5.png --seed 5
+check "jitter seed 5 again" jr j5b.png --seed 5
+check "jitter seed 6" jr j6.png --seed 6
+check "no jitter" jr j0.png --no-jitter
+check "no jitter, a seed" jr j0b.png --no-jitter --seed 9
+if cmp -s "$dir/j5.png" "$dir/j5b.png" &&
+   ! cmp -s "$dir/j5.png" "$dir/j6.png" &&
+   ! cmp -s "$dir/j5.png" "$dir/j0.png" &&
+   cmp -s "$dir/j0.png" "$dir/j0b.png"; then pass=$((pass + 1)); else
+  echo "FAIL: jitter images (same seed equal, others differ)"
+  fails=$((fails + 1)); fi
+refuse "seed 0" "bad value '0' for --seed" "$rp" render gen:ml:8 --seed 0 \
+  -o "$dir/c.png"
+refuse "seed -1" "bad value '-1' for --seed" "$rp" render gen:ml:8 \
+  --seed -1 -o "$dir/c.png"
+
 refuse "missing file" "no such file" "$rp" info "$dir/does-not-exist.nrrd"
 refuse "bad preset" "known: transparent" "$rp" render gen:ml:8 --tf nope \
   -o "$dir/c.png"
