@@ -36,10 +36,17 @@
 
 #define RP__DEFAULT_STEP 1.0f
 #define RP__DEFAULT_ERT 0.99f
-/* Below this gradient magnitude (relative to the data range per world
- * unit) the normal is noise, so the sample is lit as if facing the light
- * rather than by a random direction. */
-#define RP__FLAT_GRADIENT 1e-6
+/* The gradient magnitude, as a share of the data range per voxel of the
+ * finest spacing, from which a sample is lit by its normal alone. Below
+ * it the normal's direction is increasingly noise (the crest of a thin
+ * shell or vessel wall, a plateau of quantised values: a gradient of a
+ * level or two of 255 that points anywhere), so the light blends towards
+ * "facing the light" in proportion: ndotl' = 1 - m (1 - ndotl), m =
+ * min(1, |g| / threshold). A hard cut (0.10 had one at 1e-6 of the range)
+ * shaded such samples by a random direction, and where the lattice met
+ * the crest of the demo phantom's shell that drew a regular grid of dark
+ * dots (docs/sampling.md). */
+#define RP__SURFACE_GRADIENT 0.02
 
 double rp__sample_trilinear(const rp_volume *vol, const double p[3]) {
   uint32_t lo[3], hi[3];
@@ -84,6 +91,7 @@ typedef struct render_ctx {
   const rp_volume *ao;  /* the AO volume as 8-bit voxels; NULL: no AO */
   int jitter;
   uint32_t jitter_seed;
+  double min_spacing; /* the volume's finest spacing, world units */
 } render_ctx;
 
 /* What one ray produced. */
@@ -113,12 +121,13 @@ static int occupied(const render_ctx *rc, const rp__ray *ray, uint64_t i) {
  * is central differences of the interpolated field one voxel either side
  * along each axis, per world unit: g_a = (f(p + e_a) - f(p - e_a)) / 2 /
  * spacing_a. The light comes from the eye, L = -dir, and lights both
- * faces: ndotl = |g . L| / |g| (1 for a flat field). Then
+ * faces: ndotl = |g . L| / |g|, blended towards 1 where |g| is below
+ * RP__SURFACE_GRADIENT (1 for a flat field). Then
  * rgb = clamp(rgb (0.3 + 0.7 ndotl) + 0.2 ndotl^20, 0, 1). */
 static void shade(const render_ctx *rc, const rp__ray *ray, const double p[3],
                   double rgb[3]) {
   const rp_volume *vol = rc->vol;
-  double g[3], len, ndotl, range = vol->max - vol->min, gain, spec;
+  double g[3], len, ndotl, range = vol->max - vol->min, gain, spec, m;
   int a;
   for (a = 0; a < 3; a++) {
     double q[3] = {p[0], p[1], p[2]}, fp, fm;
@@ -130,7 +139,8 @@ static void shade(const render_ctx *rc, const rp__ray *ray, const double p[3],
     g[a] = (fp - fm) * 0.5 / vol->spacing[a];
   }
   len = sqrt(g[0] * g[0] + g[1] * g[1] + g[2] * g[2]);
-  if (!(range > 0.0) || len / range < RP__FLAT_GRADIENT) {
+  m = len * rc->min_spacing / (range * RP__SURFACE_GRADIENT);
+  if (!(range > 0.0) || !(m > 0.0)) {
     ndotl = 1.0;
   } else {
     /* L = -dir. Two-sided: an iso-surface seen from behind is lit too. */
@@ -138,6 +148,8 @@ static void shade(const render_ctx *rc, const rp__ray *ray, const double p[3],
                    g[2] * ray->dir[2]) / len);
     if (ndotl > 1.0)
       ndotl = 1.0;
+    if (m < 1.0)
+      ndotl = 1.0 - m * (1.0 - ndotl);
   }
   gain = 0.3 + 0.7 * ndotl;
   spec = 0.2 * pow(ndotl, 20.0);
@@ -381,6 +393,7 @@ void rp__reference_render(const rp_volume *vol, const rp_tf *tf,
   rc.ao = (d->effects & RP_EFFECT_AO) ? ao : NULL;
   rc.jitter = d->jitter != RP_JITTER_OFF;
   rc.jitter_seed = d->jitter_seed;
+  rc.min_spacing = rg->min_spacing;
   rp_tile_grid(rg->width, rg->height, &tiles_x, NULL);
   /* Region corners lie on the tile grid or the image edge, so the tiles
    * it touches are exactly its own. */
