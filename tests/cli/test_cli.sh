@@ -118,6 +118,21 @@ if [ "$(head -1 "$dir/q.csv")" = \
      "space,rho,step,scale,rays_x,rays_y,ms,mse,psnr,ssim" ] &&
    [ "$(wc -l <"$dir/q.csv")" -eq 13 ]; then pass=$((pass + 1)); else
   echo "FAIL: bench csv"; cat "$dir/q.csv"; fails=$((fails + 1)); fi
+# --sampling: plain, jittered and the mean of jittered frames at steps 2
+# and 1 (--quick). The mean of 8 jittered frames is nearer the reference
+# than one at each step: its noise averages out.
+check "bench sampling" "$rp" bench quality gen:phantom:32 --quick \
+  --sampling --size 48x48 --shading --backend reference --csv "$dir/s.csv"
+has "bench sampling table" "jittered-mean"
+if [ "$(head -1 "$dir/s.csv")" = "sampling,step,ms,mse,psnr,ssim" ] &&
+   [ "$(wc -l <"$dir/s.csv")" -eq 7 ] &&
+   awk -F, 'NR > 1 { mse[$1 "@" $2] = $4 }
+     END { exit !(mse["jittered-mean@2"] < mse["jittered@2"] &&
+                  mse["jittered-mean@1"] < mse["jittered@1"]) }' \
+     "$dir/s.csv"; then pass=$((pass + 1)); else
+  echo "FAIL: bench sampling csv"; cat "$dir/s.csv"; fails=$((fails + 1)); fi
+refuse "bench bad frames" "bad value '0' for --frames" "$rp" bench quality \
+  gen:ml:8 --quick --sampling --frames 0
 check "bench help" "$rp" bench quality --help; has "bench help" "--ref-step"
 refuse "bench bad runs" "bad value '0' for --runs" "$rp" bench quality \
   gen:ml:8 --quick --runs 0
