@@ -371,12 +371,13 @@ typedef struct rp_render_desc {
  *  (h >> 8) * 2^-24 of the 32-bit hash h = m(seed ^ m(x ^ m(y +
  *  0x632be5ab))), with m the integer mix of the ERT stream
  *  (backends/README.md). Exact in float; every backend computes the same
- *  bits. \since 0.11 */
+ *  bits. \threadsafety any thread. \since 0.11 */
 RP_API float rp_jitter_offset(uint32_t x, uint32_t y, uint32_t seed);
 
 /** The seed frame `frame` of a sequence renders with when its jitter seed
  *  is `seed` (0: RP_JITTER_SEED): a hash of both, never 0, so that
- *  consecutive frames have unrelated jitter. \since 0.11 */
+ *  consecutive frames have unrelated jitter. \threadsafety any thread.
+ *  \since 0.11 */
 RP_API uint32_t rp_jitter_frame_seed(uint32_t seed, uint64_t frame);
 
 /** Size of the image actually raycast at desc->image_scale:

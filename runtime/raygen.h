@@ -42,7 +42,8 @@ typedef struct rp__raygen {
 } rp__raygen;
 
 /* One ray. t0..t1 is where it is inside the box; s = max(t0, 0) is where
- * sampling starts (an eye inside the volume starts at the eye). */
+ * sampling starts (an eye inside the volume starts at the eye), moved on
+ * by the pixel's jitter in the raycast (rp__ray_jitter). */
 typedef struct rp__ray {
   double org[3], dir[3]; /* world space; dir has unit length */
   double p0[3], dp[3];   /* voxel space: p(t) = p0 + t * dp */
