@@ -117,7 +117,7 @@ static int frame_cost(rp_context *ctx, const rp_volume *vol, const rp_tf *tf,
   rp_ao_plan *plan = NULL;
   rp_ao *ao = NULL;
   rp_camera cam = {0};
-  rp_render_desc d = {512, 512, 1.0f, 0, 0, 0};
+  rp_render_desc d = {512, 512, 1.0f, 0, 0, 0, RP_JITTER_DEFAULT, 0};
   uint8_t *rgba = malloc(512 * 512 * 4);
   double t[2][FRAME_RUNS];
   rp_caps caps;

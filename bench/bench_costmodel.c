@@ -36,14 +36,14 @@
 #define MAX_FIELDS 64
 
 enum {
-  C_CONTROLLER, C_WIDTH, C_HEIGHT, C_EFFECTS, C_RAYS, C_RAYS_HIT,
+  C_CONTROLLER, C_WIDTH, C_HEIGHT, C_EFFECTS, C_JITTER, C_RAYS, C_RAYS_HIT,
   C_RAYS_ENDED, C_DEPTH_SUM, C_DEPTH_MAX, C_ERT_CUT, C_LIT_SPAN, C_LIT_ENDS,
   C_VIEW_X, C_VIEW_Y, C_VIEW_Z, C_PPV, C_DIAGONAL, C_STEP, C_SCALE,
   C_SAMPLES, C_RAYCAST_MS, C_FRAME_MS, C_COUNT
 };
 
 static const char *const columns[C_COUNT] = {
-    "controller", "width", "height", "effects", "rays", "rays_hit",
+    "controller", "width", "height", "effects", "jitter", "rays", "rays_hit",
     "rays_ended", "depth_sum", "depth_max", "ert_cut", "lit_span",
     "lit_ends", "view_x", "view_y", "view_z", "pixels_per_voxel",
     "diagonal", "step", "scale", "samples", "raycast_ms", "frame_ms"};
@@ -119,6 +119,7 @@ static int fits(int c, double v) {
   case C_WIDTH: case C_HEIGHT: case C_EFFECTS: case C_RAYS:
   case C_RAYS_HIT: case C_RAYS_ENDED:
     return v >= 0 && v <= 4294967295.0 && v == floor(v);
+  case C_JITTER: return v == 0 || v == 1;
   case C_SAMPLES: return v >= 0 && v <= 9007199254740992.0 && v == floor(v);
   case C_VIEW_X: case C_VIEW_Y: case C_VIEW_Z: return 1;
   case C_FRAME_MS: return v > 0;
@@ -200,6 +201,7 @@ static int read_trace(const char *path, stream *s, int *ns) {
     r->probe.width = (uint32_t)v[C_WIDTH];
     r->probe.height = (uint32_t)v[C_HEIGHT];
     r->probe.effects = (uint32_t)v[C_EFFECTS];
+    r->probe.jitter = (uint32_t)v[C_JITTER];
     r->probe.rays = (uint32_t)v[C_RAYS];
     r->probe.rays_hit = (uint32_t)v[C_RAYS_HIT];
     r->probe.rays_ended = (uint32_t)v[C_RAYS_ENDED];

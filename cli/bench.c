@@ -21,6 +21,7 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "bench_quality.h"
 #include "cli_util.h"
 #include "commands.h"
 #include "raypace.h"
@@ -41,13 +42,6 @@ static const double budget_fractions[BUDGETS] = {0.25, 0.5, 0.75};
 static const rp_space spaces[SPACES] = {RP_SPACE_RAY, RP_SPACE_IMAGE,
                                         RP_SPACE_HYBRID};
 
-typedef struct quality_opts {
-  const char *volume, *tf, *backend, *ref_backend, *csv, *plot;
-  float orbit[3], ref_step, base_step;
-  uint32_t width, height, device;
-  int runs, shading, json, quick;
-} quality_opts;
-
 typedef struct sweep_point {
   rp_space space;
   double rho;
@@ -63,17 +57,6 @@ typedef struct budget_point {
   double rho;
   rp_image_metrics m;
 } budget_point;
-
-typedef struct bench {
-  rp_context *ctx;
-  rp_volume *vol;
-  rp_tf *tf;
-  rp_occupancy *occ;
-  rp_camera cam;
-  rp_render_desc rd; /* output size and effects; step and scale vary */
-  uint8_t *scaled, *out;
-  double *times;
-} bench;
 
 static void usage_quality(FILE *f) {
   fprintf(f,
@@ -93,7 +76,8 @@ static void usage_quality(FILE *f) {
           "\n"
           "  --runs N              timed frames per setting, median reported"
           "\n                        (default 5)\n"
-          "  --ref-step D          reference step in voxels (default 0.1)\n"
+          "  --ref-step D          reference step in voxels (default 0.1;\n"
+          "                        0.05 with --sampling)\n"
           "  --base-step D         step at rho = 1 (default 1)\n"
           "  --shading             gradient shading\n"
           "  --csv FILE            write the sweep as CSV\n"
@@ -101,7 +85,13 @@ static void usage_quality(FILE *f) {
           "\n                        (needs gnuplot)\n"
           "  --json                one JSON object on stdout\n"
           "  --quick               128x128, 4 densities, 1 run: a smoke test"
-          "\n");
+          "\n"
+          "  --sampling            instead of the sweep: plain against\n"
+          "                        jittered ray starts at steps 2, 1, 0.5\n"
+          "                        and 0.25 (and the mean of --frames\n"
+          "                        jittered frames); the reference is\n"
+          "                        never jittered\n"
+          "  --frames N            jittered frames averaged (default 8)\n");
 }
 
 static int parse_quality(int argc, char **argv, quality_opts *o) {
@@ -120,9 +110,11 @@ static int parse_quality(int argc, char **argv, quality_opts *o) {
       {"plot", required_argument, 0, 'P'},
       {"json", no_argument, 0, 'j'},
       {"quick", no_argument, 0, 'q'},
+      {"sampling", no_argument, 0, 'J'},
+      {"frames", required_argument, 0, 'F'},
       {"help", no_argument, 0, 'h'},
       {0, 0, 0, 0}};
-  int c, li = 0, have_size = 0, have_runs = 0;
+  int c, li = 0, have_size = 0, have_runs = 0, have_ref_step = 0;
   memset(o, 0, sizeof *o);
   o->tf = "minmax-bone";
   o->orbit[0] = 30, o->orbit[1] = 20, o->orbit[2] = 2.5f;
@@ -130,6 +122,7 @@ static int parse_quality(int argc, char **argv, quality_opts *o) {
   o->runs = 5;
   o->ref_step = 0.1f;
   o->base_step = 1.0f;
+  o->frames = 8;
   optind = 1;
   while ((c = getopt_long(argc, argv, "h", opts, &li)) != -1) {
     int bad = 0;
@@ -150,13 +143,19 @@ static int parse_quality(int argc, char **argv, quality_opts *o) {
       have_runs = 1;
       break;
     }
-    case 'r': bad = cli_parse_positive(optarg, &o->ref_step); break;
+    case 'r':
+      bad = cli_parse_positive(optarg, &o->ref_step);
+      have_ref_step = 1;
+      break;
     case 'b': bad = cli_parse_positive(optarg, &o->base_step); break;
     case 'S': o->shading = 1; break;
     case 'C': o->csv = optarg; break;
     case 'P': o->plot = optarg; break;
     case 'j': o->json = 1; break;
     case 'q': o->quick = 1; break;
+    case 'J': o->sampling = 1; break;
+    case 'F': bad = cli_parse_u32(optarg, 256, &o->frames) || o->frames < 1;
+      break;
     case 'h': usage_quality(stdout); return 1;
     default: usage_quality(stderr); return 2;
     }
@@ -170,6 +169,8 @@ static int parse_quality(int argc, char **argv, quality_opts *o) {
     usage_quality(stderr);
     return 2;
   }
+  if (o->sampling && !have_ref_step)
+    o->ref_step = 0.05f;
   if (o->quick) {
     if (!have_size)
       o->width = o->height = 128;
@@ -188,11 +189,8 @@ static int upload(bench *b, rp_device *dev) {
   return 0;
 }
 
-/* Renders `runs` + 1 frames at (step, scale), the first untimed, each
- * upscaled into b->out; *ms is the median time of the timed ones (runs 0:
- * the one frame's time, cold). */
-static int measure(bench *b, rp_device *dev, float step, float scale,
-                   int runs, uint32_t *sw, uint32_t *sh, double *ms) {
+int bench_measure(bench *b, rp_device *dev, float step, float scale,
+                  int runs, uint32_t *sw, uint32_t *sh, double *ms) {
   rp_render_desc rd = b->rd;
   int i, err, frames = runs > 0 ? runs + 1 : 1;
   rd.step = step;
@@ -300,29 +298,35 @@ static int write_csv(FILE *f, const char *path, const sweep_point *p,
 
 /* PSNR over time, one line per space, through gnuplot: pngcairo where it
  * is built in, else the plain png terminal. */
-static int write_plot(const quality_opts *o, const char *device,
-                      const sweep_point *p, int per_space) {
-  cli_plot plot;
+int bench_plot_open(cli_plot *plot, const char *path, const char *title) {
   FILE *g;
-  int s, i;
-  if (cli_plot_open(&plot, "raypace bench") != 0)
+  if (cli_plot_open(plot, "raypace bench") != 0)
     return 1;
-  g = plot.g;
+  g = plot->g;
   fprintf(g, "if (strstrt(GPVAL_TERMINALS, 'pngcairo') > 0) "
              "{ set terminal pngcairo size 960,640 } "
              "else { set terminal png size 960,640 }\n"
              "set termoption noenhanced\nset output ");
-  cli_gnuplot_string(g, o->plot);
+  cli_gnuplot_string(g, path);
   fprintf(g, "\nset title ");
-  {
-    char title[512];
-    snprintf(title, sizeof title,
-             "%s, %ux%u, %s: PSNR against a step %g reference", o->volume,
-             o->width, o->height, device, o->ref_step);
-    cli_gnuplot_string(g, title);
-  }
+  cli_gnuplot_string(g, title);
   fprintf(g, "\nset xlabel 'frame time, median (ms)'\n"
              "set ylabel 'PSNR (dB)'\nset grid\nset key bottom right\n");
+  return 0;
+}
+
+static int write_plot(const quality_opts *o, const char *device,
+                      const sweep_point *p, int per_space) {
+  cli_plot plot;
+  FILE *g;
+  char title[512];
+  int s, i;
+  snprintf(title, sizeof title,
+           "%s, %ux%u, %s: PSNR against a step %g reference", o->volume,
+           o->width, o->height, device, o->ref_step);
+  if (bench_plot_open(&plot, o->plot, title) != 0)
+    return 1;
+  g = plot.g;
   for (s = 0; s < SPACES; s++) {
     fprintf(g, "$%s << EOD\n", rp_space_name(spaces[s]));
     for (i = 0; i < per_space; i++) {
@@ -341,7 +345,7 @@ static int write_plot(const quality_opts *o, const char *device,
   return cli_plot_close(&plot, "raypace bench");
 }
 
-static void json_metrics(cJSON *o, const rp_image_metrics *m) {
+void bench_json_metrics(cJSON *o, const rp_image_metrics *m) {
   cJSON_AddNumberToObject(o, "mse", m->mse);
   /* JSON has no infinity: identical images give psnr null. */
   if (isfinite(m->psnr))
@@ -389,7 +393,7 @@ static int print_json(const quality_opts *o, const rp_caps *caps,
     cJSON_AddNumberToObject(e, "rays_x", p[i].sw);
     cJSON_AddNumberToObject(e, "rays_y", p[i].sh);
     cJSON_AddNumberToObject(e, "ms", p[i].ms);
-    json_metrics(e, &p[i].m);
+    bench_json_metrics(e, &p[i].m);
     cJSON_AddItemToArray(sw, e);
   }
   bu = cJSON_AddArrayToObject(root, "budgets");
@@ -402,7 +406,7 @@ static int print_json(const quality_opts *o, const rp_caps *caps,
       cJSON_AddBoolToObject(e, "reached", b[i][s].reached);
       if (b[i][s].reached) {
         cJSON_AddNumberToObject(e, "rho", b[i][s].rho);
-        json_metrics(e, &b[i][s].m);
+        bench_json_metrics(e, &b[i][s].m);
       }
       cJSON_AddItemToArray(bu, e);
     }
@@ -436,7 +440,7 @@ static int sweep(bench *b, rp_device *dev, const quality_opts *o,
       p->space = spaces[s];
       p->rho = grid[i];
       rp_space_map(&sd, p->rho, &p->step, &p->scale);
-      if (measure(b, dev, p->step, p->scale, o->runs, &p->sw, &p->sh,
+      if (bench_measure(b, dev, p->step, p->scale, o->runs, &p->sw, &p->sh,
                   &p->ms) != 0)
         return 1;
       if ((err = rp_image_compare(b->ctx, b->out, ref, o->width, o->height,
@@ -518,7 +522,8 @@ static int bench_quality(int argc, char **argv) {
                     "installed (Debian: gnuplot-nox)\n");
     return 1;
   }
-  if (o.csv != NULL && (csv = fopen(o.csv, "w")) == NULL) {
+  /* --sampling writes its own CSV (bench_sampling.c). */
+  if (o.csv != NULL && !o.sampling && (csv = fopen(o.csv, "w")) == NULL) {
     fprintf(stderr, "raypace bench: --csv: cannot write %s\n", o.csv);
     return 1;
   }
@@ -564,10 +569,19 @@ static int bench_quality(int argc, char **argv) {
     fprintf(stderr, "raypace bench: out of memory\n");
     goto out;
   }
-  if (measure(&b, ref_dev != NULL ? ref_dev : dev, o.ref_step, 1.0f, 0,
-              &sw, &sh, &ref_ms) != 0)
+  /* The reference is never jittered: at its fine step the lattice's
+   * rings are below a byte, and its image is then one image, not one of
+   * many. The sweep renders as the product does, jittered. */
+  b.rd.jitter = RP_JITTER_OFF;
+  if (bench_measure(&b, ref_dev != NULL ? ref_dev : dev, o.ref_step, 1.0f,
+                    0, &sw, &sh, &ref_ms) != 0)
     goto out;
+  b.rd.jitter = RP_JITTER_DEFAULT;
   memcpy(ref, b.out, (size_t)o.width * o.height * 4);
+  if (o.sampling) {
+    rc = bench_sampling(&b, dev, &o, &caps, ref_caps.backend, ref_ms, ref);
+    goto out;
+  }
   if (!o.json) {
     printf("%s, %ux%u, tf %s%s, on %s '%s', median of %d\n", o.volume,
            o.width, o.height, o.tf, o.shading ? ", shading" : "",

@@ -87,6 +87,11 @@ static void usage_render(FILE *f) {
           "  --no-skip             no empty-space skipping\n"
           "  --ert-threshold A     stop rays at this opacity (default 0.99)"
           "\n"
+          "  --no-jitter           no per-pixel jitter of the ray starts\n"
+          "                        (every ray's samples on one lattice from\n"
+          "                        the box entry: rings on surfaces)\n"
+          "  --seed N              jitter seed, 1 to 4294967295 (default:\n"
+          "                        the library's)\n"
           "  --background R,G,B    PNG background in [0,1] (default 0,0,0)\n"
           "  --backend NAME        opencl, vulkan, reference (the scalar\n"
           "                        oracle), test (the reference's image, a\n"
@@ -343,7 +348,8 @@ typedef struct render_opts {
   float orbit[3], background[3], fov, step, ert_threshold, scale;
   uint32_t device;
   uint32_t width, height;
-  int ortho, shading, ert, skip, json, ao;
+  int ortho, shading, ert, skip, json, ao, no_jitter;
+  uint32_t seed;
   int device_given, overlay;
   rp_ao_scheme ao_scheme;
   uint32_t warmup;
@@ -372,6 +378,8 @@ static int parse_render(int argc, char **argv, render_opts *o) {
       {"no-ert", no_argument, 0, 'E'},
       {"no-skip", no_argument, 0, 'K'},
       {"ert-threshold", required_argument, 0, 'a'},
+      {"no-jitter", no_argument, 0, 'J'},
+      {"seed", required_argument, 0, 'N'},
       {"background", required_argument, 0, 'b'},
       {"backend", required_argument, 0, 'B'},
       {"device", required_argument, 0, 'D'},
@@ -427,6 +435,10 @@ static int parse_render(int argc, char **argv, render_opts *o) {
     case 'E': o->ert = 0; break;
     case 'K': o->skip = 0; break;
     case 'a': bad = cli_parse_positive(optarg, &o->ert_threshold); break;
+    case 'J': o->no_jitter = 1; break;
+    case 'N':
+      bad = cli_parse_u32(optarg, UINT32_MAX, &o->seed) || o->seed == 0;
+      break;
     case 'b': bad = cli_parse_floats(optarg, o->background, 3); break;
     case 'B':
       o->backend = optarg;
@@ -507,6 +519,8 @@ static void render_setup(const render_opts *o, const rp_volume *vol,
   rd->step = o->step;
   rd->ert_threshold = o->ert_threshold;
   rd->image_scale = o->scale;
+  rd->jitter = o->no_jitter ? RP_JITTER_OFF : RP_JITTER_ON;
+  rd->jitter_seed = o->seed;
   rd->effects = (o->shading ? RP_EFFECT_SHADING : 0) |
                 (o->ert ? RP_EFFECT_ERT : 0) |
                 (o->skip ? RP_EFFECT_SKIP : 0) | (o->ao ? RP_EFFECT_AO : 0);

@@ -357,7 +357,7 @@ static int list_all(void) {
  * `frame` counts the settle frames; -1 before them (warm-up,
  * calibration). */
 static const char trace_header[] =
-    "controller,frame,width,height,effects,rays,rays_hit,rays_ended,"
+    "controller,frame,width,height,effects,jitter,rays,rays_hit,rays_ended,"
     "depth_sum,depth_max,ert_cut,lit_span,lit_ends,view_x,view_y,view_z,"
     "pixels_per_voxel,diagonal,step,scale,samples,raycast_ms,frame_ms\n";
 
@@ -365,11 +365,12 @@ static void trace_row(replay *r, const player *p, const rp_frame *fr) {
   const rp_frame_probe *pr = fr->probe;
   const rp_frame_stats *st = fr->stats;
   fprintf(r->trace,
-          "%s,%lld,%u,%u,%u,%u,%u,%u,%.17g,%.17g,%.17g,%.17g,%.17g,%.17g,"
+          "%s,%lld,%u,%u,%u,%u,%u,%u,%u,%.17g,%.17g,%.17g,%.17g,%.17g,%.17g,"
           "%.17g,%.17g,%.17g,%.17g,%.9g,%.9g,%llu,%.17g,%.17g\n",
           rp_controller_name(p->kind),
           p->tracing ? (long long)p->step_no : -1LL, pr->width, pr->height,
-          pr->effects, pr->rays, pr->rays_hit, pr->rays_ended, pr->depth_sum,
+          pr->effects, pr->jitter, pr->rays, pr->rays_hit, pr->rays_ended,
+          pr->depth_sum,
           pr->depth_max, pr->ert_cut, pr->lit_span, pr->lit_ends,
           pr->view[0], pr->view[1], pr->view[2], pr->pixels_per_voxel,
           pr->diagonal, (double)st->step, (double)st->scale,
@@ -531,6 +532,9 @@ int replay_player_open(replay *r, player *p, int quiet_nodev) {
   d.height = r->o.height;
   d.space = r->space;
   d.ert_seed = r->o.seed;
+  /* Jittered, with one seed for every frame: a frame replayed (--split)
+   * then takes the samples it took the first time. */
+  d.jitter = RP_JITTER_FIXED;
   d.miss_rate = r->o.miss_rate;
   d.headroom = r->o.headroom;
   if (r->o.ndevices > 0) {

@@ -421,6 +421,22 @@ enum {
   RP_EFFECT_AO = 1u << 3       /* ambient occlusion fetch (M7) */
 };
 
+/** Ray-start jitter (rp_render_desc.jitter, DESIGN section 14). Each
+ *  ray's samples lie at s + (j + i) * step, i = 0, 1, ..., with s where
+ *  it enters the volume (or the eye, inside it) and j in [0, 1) a hash
+ *  of its pixel and a seed (rp_jitter_offset): every backend takes the
+ *  same samples, and the rings a common lattice leaves on surfaces
+ *  become fine noise that averages out over seeds. \since 0.11 */
+typedef enum rp_jitter {
+  RP_JITTER_DEFAULT = 0, /* on */
+  RP_JITTER_ON = 1,
+  RP_JITTER_OFF = 2,     /* j = 0: the lattice of 0.10 and before */
+  /* On, with the same seed in every frame of a runtime (a render desc
+   * takes it as RP_JITTER_ON): a frame then costs the same whenever it
+   * is rendered, which replaying a frame to measure it needs. */
+  RP_JITTER_FIXED = 3
+} rp_jitter;
+
 typedef struct rp_render_desc {
   uint32_t width, height;  /* output pixels; required */
   float step;              /* Delta in voxels (finest spacing); 0: 1.0 */
@@ -430,7 +446,28 @@ typedef struct rp_render_desc {
                               (0, 1]; 0: 1. Rays form a scaled image of
                               rp_scaled_size() pixels over the same
                               frustum; the output is upscaled from it. */
+  rp_jitter jitter;        /* 0: on. \since 0.11 */
+  uint32_t jitter_seed;    /* the hash's seed; 0: RP_JITTER_SEED.
+                              \since 0.11 */
 } rp_render_desc;
+
+/** The jitter seed a zero rp_render_desc.jitter_seed stands for.
+ *  \since 0.11 */
+#define RP_JITTER_SEED 0x2545f491u
+
+/** The jitter of the ray through pixel (x, y) of the (scaled) image under
+ *  `seed` (used as given, 0 included), as a fraction of a step in [0, 1):
+ *  (h >> 8) * 2^-24 of the 32-bit hash h = m(seed ^ m(x ^ m(y +
+ *  0x632be5ab))), with m the integer mix of the ERT stream
+ *  (backends/README.md). Exact in float; every backend computes the same
+ *  bits. \threadsafety any thread. \since 0.11 */
+RP_API float rp_jitter_offset(uint32_t x, uint32_t y, uint32_t seed);
+
+/** The seed frame `frame` of a sequence renders with when its jitter seed
+ *  is `seed` (0: RP_JITTER_SEED): a hash of both, never 0, so that
+ *  consecutive frames have unrelated jitter. \threadsafety any thread.
+ *  \since 0.11 */
+RP_API uint32_t rp_jitter_frame_seed(uint32_t seed, uint64_t frame);
 
 /** Size of the image actually raycast at desc->image_scale:
  *  max(1, floor(width * scale + 0.5)) and the same for height. */

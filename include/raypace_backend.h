@@ -23,8 +23,9 @@ extern "C" {
 #endif
 
 /* Bumped whenever rp_backend_ops, rp_backend_bootstrap or rp_frame_params
- * change layout. 7: rp_backend_ops.clock_ns. */
-#define RP_BACKEND_ABI 7
+ * change layout. 7: rp_backend_ops.clock_ns. 8: rp_frame_params.jitter
+ * and jitter_seed. */
+#define RP_BACKEND_ABI 8
 
 /* Coarse ERT pre-pass geometry (DESIGN section 3). */
 #define RP_ERT_RAY_STRIDE 4    /* one pre-pass ray per 4x4 pixels */
@@ -78,6 +79,13 @@ typedef struct rp_frame_params {
    * same bit for bit either way. */
   float slab_cut;
   uint32_t slab_flags;
+  /* Ray-start jitter (rp_jitter): when `jitter` is 1, the raycast's ray
+   * through pixel (x, y) of the scaled image samples at s + (j + i) *
+   * step with j = rp_jitter_offset(x, y, jitter_seed), computed as
+   * (s + j * step) + i * step; 0: j = 0. The depth pass and the ERT
+   * pre-pass do not depend on them. \since 0.11 */
+  uint32_t jitter;
+  uint32_t jitter_seed;
 } rp_frame_params;
 
 #define RP_SLAB_FIRST 1u

@@ -220,6 +220,11 @@ typedef struct rp_frame_probe {
                               every n-th ray per axis that fits 1024 */
   uint32_t rays_hit;       /* probe rays with a non-empty sampled span */
   uint32_t rays_ended;     /* of those, rays the ERT pre-pass ends */
+  uint32_t jitter;         /* 1: the frame jitters its ray starts
+                              (rp_jitter): a ray ERT does not end takes
+                              half a sample less on average than on a
+                              lattice that starts at its span. \since
+                              0.11 */
   double depth_sum;        /* sum over probe rays of the sampled span L,
                               voxels: from D_front to D'_ERT (ERT on) or
                               D_back */
@@ -231,7 +236,8 @@ typedef struct rp_frame_probe {
    * and reads AO for. lit_span: sum
    * over probe rays of L times the share of voxels that show in the
    * blocks along L (rp_occupancy); lit_ends: of the samples the lattice
-   * adds to L / h (1/2 a ray, 1 a ray ERT ends), those that show, the
+   * adds to L / h (1/2 a ray, 0 with jitter; 1 a ray ERT ends), those
+   * that show, the
    * sample ERT ends a ray on always. At step h the shaded share is
    * (lit_span / h + lit_ends) / (depth_sum / h + those samples). */
   double lit_span, lit_ends;

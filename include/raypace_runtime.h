@@ -146,6 +146,9 @@ typedef struct rp_frame_stats {
   double delta;            /* measured / predicted - 1 (NaN if none) */
   double rho;              /* sampling density rendered */
   float step, scale;       /* its step (voxels) and image scale */
+  uint32_t jitter_seed;    /* the ray-start jitter's seed it rendered
+                              with (rp_render_desc.jitter_seed); 0: jitter
+                              off. \since 0.11 */
   uint32_t passes;         /* render passes (2 when two-pass re-rendered) */
   uint32_t effects;        /* RP_EFFECT_* rendered */
   uint32_t effects_wanted; /* the scene's (rp_runtime_set_effects). The
@@ -283,6 +286,13 @@ typedef struct rp_runtime_desc {
                              with its defaults */
   rp_cost_model_desc model; /* zero: defaults */
   uint32_t ert_seed;      /* ERT pre-pass random stream */
+  /* Ray-start jitter (rp_render_desc.jitter); 0: on. Frame n renders
+   * with seed rp_jitter_frame_seed(jitter_seed, n), so that the jitter's
+   * noise differs from frame to frame and averages out over frames; the
+   * seed each frame used is in rp_frame_stats.jitter_seed;
+   * RP_JITTER_FIXED: jitter_seed itself in every frame. \since 0.11 */
+  rp_jitter jitter;
+  uint32_t jitter_seed;   /* 0: RP_JITTER_SEED. \since 0.11 */
   rp_ao_desc ao;          /* ambient occlusion (RP_EFFECT_AO); zero:
                              defaults */
   rp_ao_schedule ao_schedule; /* how AO is spread over the devices; its

@@ -485,6 +485,8 @@ static int same_depth_frame(const rp_frame_params *a,
   x.ert_seed = y.ert_seed = 0;
   x.frame = y.frame = 0;
   x.ert_threshold = y.ert_threshold = 0;
+  x.jitter = y.jitter = 0;
+  x.jitter_seed = y.jitter_seed = 0;
   x.effects &= RP_EFFECT_SKIP;
   y.effects &= RP_EFFECT_SKIP;
   return memcmp(&x, &y, sizeof x) == 0;

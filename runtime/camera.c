@@ -276,6 +276,30 @@ static void clip(const rp__raygen *rg, rp__ray *ray) {
   ray->hit = 1;
 }
 
+float rp_jitter_offset(uint32_t x, uint32_t y, uint32_t seed) {
+  uint32_t h = rp__ert_mix(seed ^ rp__ert_mix(x ^ rp__ert_mix(y +
+                                                            0x632be5abu)));
+  /* 24 bits, so that the float is exact and below 1. */
+  return (float)(h >> 8) * (1.0f / 16777216.0f);
+}
+
+uint32_t rp_jitter_frame_seed(uint32_t seed, uint64_t frame) {
+  uint32_t base = seed != 0 ? seed : RP_JITTER_SEED;
+  uint32_t h = rp__ert_mix(base ^ rp__ert_mix((uint32_t)frame ^
+                                              rp__ert_mix((uint32_t)(
+                                                  frame >> 32) +
+                                                          0x85157af5u)));
+  return h != 0 ? h : RP_JITTER_SEED;
+}
+
+void rp__ray_jitter(rp__ray *ray, double offset, double step) {
+  if (!ray->hit)
+    return;
+  ray->s += offset * step;
+  if (!(ray->s <= ray->t1))
+    ray->hit = 0;
+}
+
 void rp__raygen_ray(const rp__raygen *rg, uint32_t x, uint32_t y,
                     rp__ray *ray) {
   rp__raygen_ray_at(rg, (double)x + 0.5, (double)y + 0.5, ray);
@@ -361,5 +385,7 @@ int rp__frame_params(rp_context *ctx, const rp_volume *shape,
   p->value_min = (float)tf_span[0];
   p->value_max = (float)tf_span[1];
   p->lut_size = lut_size;
+  p->jitter = d->jitter != RP_JITTER_OFF;
+  p->jitter_seed = p->jitter ? d->jitter_seed : 0u;
   return 0;
 }

@@ -606,6 +606,13 @@ static int render_pass(rp__engine *e, double rho, double *pass_ms) {
   d.step = st->step;
   d.image_scale = st->scale;
   d.effects = s->render_effects;
+  /* A new jitter every frame: its noise averages out over frames. */
+  d.jitter = e->desc.jitter;
+  d.jitter_seed = e->desc.jitter == RP_JITTER_FIXED
+                      ? e->desc.jitter_seed
+                      : rp_jitter_frame_seed(e->desc.jitter_seed,
+                                             (uint64_t)e->frame_no);
+  st->jitter_seed = d.jitter == RP_JITTER_OFF ? 0u : d.jitter_seed;
   rp_scaled_size(&d, &sw, &sh);
   rp_tile_grid(sw, sh, &tx, &ty);
   if ((err = reserve(e, (void **)&e->scaled, &e->scaled_cap,

@@ -15,7 +15,11 @@
  * At image scale s the raycast casts rp_scaled_size() rays over the same
  * frustum: the same distribution of spans, sampled more or less densely:
  *   S'(step, s) = rays(s) / probe_rays * sum_i (L_i / step + e_i),
- * e_i = 1 for rays ERT ends and 1/2 for the others.
+ * e_i = 1 for rays ERT ends and 1/2 for the others. With the ray starts
+ * jittered (rp_jitter) the lattice's phase on L is uniform, so a ray that
+ * runs through L takes L / step samples on average: e_i = 0 for the rays
+ * ERT does not end. One that ERT ends still takes the sample that
+ * crosses the threshold (a ray ended at once takes one): e_i = 1.
  * One probe serves every (step, s) the tuner tries.
  *
  * sigma, the cost of one volume fetch, is learned per device by KRLS
@@ -215,6 +219,7 @@ typedef struct probe_job {
   double corr[RP_OPACITY_BINS]; /* bin opacities at the coarse step */
   const uint32_t *blocks;
   int skip, ert;
+  double end_extra; /* 1/2 unjittered, else 0: the e_i of a ray not ended */
   float threshold;
   uint32_t seed, frame, gw;
   uint32_t sub; /* trace every sub-th pre-pass ray along each axis */
@@ -302,7 +307,7 @@ static void probe_rows(uint32_t begin, uint32_t end, void *user) {
       if (j->visible != NULL) {
         double v = visible_share(j, &ray, front, stop);
         r.lit_span += (stop - front) * v;
-        r.lit_ends += ended ? 1.0 : 0.5 * v;
+        r.lit_ends += ended ? 1.0 : j->end_extra * v;
       }
       r.span += stop - front;
       *span = (float)(stop - front);
@@ -402,6 +407,7 @@ int rp__frame_probe_compute(rp_context *ctx, const rp_volume *vol,
   job.skip = (d.effects & RP_EFFECT_SKIP) != 0;
   job.ert = (d.effects & RP_EFFECT_ERT) != 0;
   job.threshold = d.ert_threshold;
+  job.end_extra = d.jitter == RP_JITTER_OFF ? 0.5 : 0.0;
   job.seed = seed;
   job.frame = frame;
   job.gw = gw;
@@ -436,6 +442,7 @@ int rp__frame_probe_compute(rp_context *ctx, const rp_volume *vol,
   out->width = d.width;
   out->height = d.height;
   out->effects = d.effects;
+  out->jitter = d.jitter != RP_JITTER_OFF;
   out->rays = probe_rays(gw, gh, job.sub);
   out->map_width = job.map_w;
   out->map_height = (gh + job.sub - 1) / job.sub;
@@ -676,10 +683,12 @@ static void features(const rp_frame_probe *p, float step, float scale,
 }
 
 /* The probe rays' samples at `step`: sum_i (L_i / step + e_i), e_i = 1
- * for rays ERT ends and 1/2 for the others (header). */
+ * for rays ERT ends and 1/2 for the others, 0 for those with jitter
+ * (header). */
 static double probe_samples(const rp_frame_probe *p, float step) {
+  double rest = p->jitter ? 0.0 : 0.5;
   return p->depth_sum / (double)step +
-         0.5 * (double)(p->rays_hit - p->rays_ended) +
+         rest * (double)(p->rays_hit - p->rays_ended) +
          (double)p->rays_ended;
 }
 

@@ -42,7 +42,8 @@ typedef struct rp__raygen {
 } rp__raygen;
 
 /* One ray. t0..t1 is where it is inside the box; s = max(t0, 0) is where
- * sampling starts (an eye inside the volume starts at the eye). */
+ * sampling starts (an eye inside the volume starts at the eye), moved on
+ * by the pixel's jitter in the raycast (rp__ray_jitter). */
 typedef struct rp__ray {
   double org[3], dir[3]; /* world space; dir has unit length */
   double p0[3], dp[3];   /* voxel space: p(t) = p0 + t * dp */
@@ -65,6 +66,14 @@ void rp__raygen_ray(const rp__raygen *rg, uint32_t x, uint32_t y,
  * covers [x, x+1) x [y, y+1): rp__raygen_ray is (x + 0.5, y + 0.5). */
 void rp__raygen_ray_at(const rp__raygen *rg, double px, double py,
                        rp__ray *ray);
+
+/* Jitters the ray's lattice (rp_jitter): its first sample moves from s
+ * to s + offset * step, offset in [0, 1) from rp_jitter_offset. A ray
+ * whose first sample then lies past t1 takes none and counts as a miss.
+ * The passes that follow the lattice (the raycast, the cost model's
+ * sample counts) call it; the depth pass and the ERT pre-pass work on
+ * block geometry and their own coarse lattice, and do not. */
+void rp__ray_jitter(rp__ray *ray, double offset, double step);
 
 /* Number of lattice samples s + i*step (i = 0, 1, ...) that are <= t1,
  * each position computed as s + i*step exactly as the renderer does.

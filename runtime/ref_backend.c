@@ -148,6 +148,8 @@ static int ref_raycast(void *p, const rp_frame_params *fp,
   d.step = fp->step;
   d.ert_threshold = fp->ert_threshold;
   d.effects = fp->effects;
+  d.jitter = fp->jitter ? RP_JITTER_ON : RP_JITTER_OFF;
+  d.jitter_seed = fp->jitter_seed;
   r->tf.reference_step = fp->ref_step;
   /* The LUT came without its range: the frame's span is it. */
   r->tf.range = RP_TF_RANGE_DATA;

@@ -5,9 +5,11 @@
  * kernels reproduce (the spaces are defined in raygen.h):
  *
  * Lattice. A ray that meets the box on [t0, t1] samples at depths
- * s + i*step, s = max(t0, 0), for i = 0, 1, ... while s + i*step <= t1.
- * Each depth is computed from i, never accumulated, so that a kernel
- * lands on the same positions whatever order it visits them in.
+ * s + i*step, s = max(t0, 0) + j*step, for i = 0, 1, ... while
+ * s + i*step <= t1, where j in [0, 1) is the pixel's jitter
+ * (rp_jitter_offset; 0 with RP_JITTER_OFF). Each depth is computed from
+ * i, never accumulated, so that a kernel lands on the same positions
+ * whatever order it visits them in.
  *
  * Skipping (RP_EFFECT_SKIP). A lattice sample at voxel-space p belongs to
  * block floor((p + 0.5) / 16) per axis, clamped to the grid: the block of
@@ -35,10 +37,18 @@
 
 #define RP__DEFAULT_STEP 1.0f
 #define RP__DEFAULT_ERT 0.99f
-/* Below this gradient magnitude (relative to the data range per world
- * unit) the normal is noise, so the sample is lit as if facing the light
- * rather than by a random direction. */
-#define RP__FLAT_GRADIENT 1e-6
+/* The gradient magnitude, as a share of the range the TF spans (the data
+ * range for a [min, max] TF, the window for one in data units) per voxel of the
+ * finest spacing, from which a sample is lit by its normal alone. Below
+ * it the normal's direction is increasingly noise (the crest of a thin
+ * shell or vessel wall, a plateau of quantised values: a gradient of a
+ * level or two of 255 that points anywhere), so the light blends towards
+ * "facing the light" in proportion: ndotl' = 1 - m (1 - ndotl), m =
+ * min(1, |g| / threshold). A hard cut (0.10 had one at 1e-6 of the range)
+ * shaded such samples by a random direction, and where the lattice met
+ * the crest of the demo phantom's shell that drew a regular grid of dark
+ * dots (docs/sampling.md). */
+#define RP__SURFACE_GRADIENT 0.02
 
 double rp__sample_trilinear(const rp_volume *vol, const double p[3]) {
   uint32_t lo[3], hi[3];
@@ -82,6 +92,9 @@ typedef struct render_ctx {
   int shading, ert;
   double ert_threshold; /* the float from the desc, widened exactly */
   const rp_volume *ao;  /* the AO volume as 8-bit voxels; NULL: no AO */
+  int jitter;
+  uint32_t jitter_seed;
+  double min_spacing; /* the volume's finest spacing, world units */
 } render_ctx;
 
 /* What one ray produced. */
@@ -111,12 +124,13 @@ static int occupied(const render_ctx *rc, const rp__ray *ray, uint64_t i) {
  * is central differences of the interpolated field one voxel either side
  * along each axis, per world unit: g_a = (f(p + e_a) - f(p - e_a)) / 2 /
  * spacing_a. The light comes from the eye, L = -dir, and lights both
- * faces: ndotl = |g . L| / |g| (1 for a flat field). Then
+ * faces: ndotl = |g . L| / |g|, blended towards 1 where |g| is below
+ * RP__SURFACE_GRADIENT (1 for a flat field). Then
  * rgb = clamp(rgb (0.3 + 0.7 ndotl) + 0.2 ndotl^20, 0, 1). */
 static void shade(const render_ctx *rc, const rp__ray *ray, const double p[3],
                   double rgb[3]) {
   const rp_volume *vol = rc->vol;
-  double g[3], len, ndotl, range = rc->span[1] - rc->span[0], gain, spec;
+  double g[3], len, ndotl, range = rc->span[1] - rc->span[0], gain, spec, m;
   int a;
   for (a = 0; a < 3; a++) {
     double q[3] = {p[0], p[1], p[2]}, fp, fm;
@@ -128,7 +142,8 @@ static void shade(const render_ctx *rc, const rp__ray *ray, const double p[3],
     g[a] = (fp - fm) * 0.5 / vol->spacing[a];
   }
   len = sqrt(g[0] * g[0] + g[1] * g[1] + g[2] * g[2]);
-  if (!(range > 0.0) || len / range < RP__FLAT_GRADIENT) {
+  m = len * rc->min_spacing / (range * RP__SURFACE_GRADIENT);
+  if (!(range > 0.0) || !(m > 0.0)) {
     ndotl = 1.0;
   } else {
     /* L = -dir. Two-sided: an iso-surface seen from behind is lit too. */
@@ -136,6 +151,8 @@ static void shade(const render_ctx *rc, const rp__ray *ray, const double p[3],
                    g[2] * ray->dir[2]) / len);
     if (ndotl > 1.0)
       ndotl = 1.0;
+    if (m < 1.0)
+      ndotl = 1.0 - m * (1.0 - ndotl);
   }
   gain = 0.3 + 0.7 * ndotl;
   spec = 0.2 * pow(ndotl, 20.0);
@@ -224,6 +241,10 @@ rp_render_desc rp__render_desc_defaults(const rp_render_desc *in) {
     d.ert_threshold = RP__DEFAULT_ERT;
   if (d.image_scale == 0.0f)
     d.image_scale = 1.0f;
+  if (d.jitter == RP_JITTER_DEFAULT || d.jitter == RP_JITTER_FIXED)
+    d.jitter = RP_JITTER_ON;
+  if (d.jitter_seed == 0)
+    d.jitter_seed = RP_JITTER_SEED;
   return d;
 }
 
@@ -261,6 +282,11 @@ int rp__check_render_desc(rp_context *ctx, const char *fn,
   if (!(desc->image_scale > 0.0f && desc->image_scale <= 1.0f))
     return rp__fail(ctx, RP_EINVAL, "%s: desc->image_scale is %g; must be "
                     "in (0, 1] (0: 1)", fn, (double)desc->image_scale);
+  if (desc->jitter != RP_JITTER_ON && desc->jitter != RP_JITTER_OFF)
+    return rp__fail(ctx, RP_EINVAL, "%s: desc->jitter is %d; must be "
+                    "RP_JITTER_DEFAULT (0), RP_JITTER_ON (1), "
+                    "RP_JITTER_OFF (2) or RP_JITTER_FIXED (3)", fn,
+                    (int)desc->jitter);
   if (desc->effects & ~(uint32_t)RP__KNOWN_EFFECTS)
     return rp__fail(ctx, RP_EINVAL, "%s: desc->effects has unknown bits "
                     "0x%x", fn,
@@ -320,6 +346,9 @@ static void render_tile(const render_ctx *rc, const rp__raygen *rg,
       uint8_t *px = rgba + ((size_t)y * rg->width + x) * 4;
       int c;
       rp__raygen_ray(rg, x, y, &ray);
+      if (rc->jitter)
+        rp__ray_jitter(&ray, rp_jitter_offset(x, y, rc->jitter_seed),
+                       rc->step);
       cast(rc, &ray, &res);
       for (c = 0; c < 4; c++)
         px[c] = to_u8(res.rgba[c]);
@@ -366,6 +395,9 @@ void rp__reference_render(const rp_volume *vol, const rp_tf *tf,
   rc.ert = (d->effects & RP_EFFECT_ERT) != 0;
   rc.ert_threshold = d->ert_threshold;
   rc.ao = (d->effects & RP_EFFECT_AO) ? ao : NULL;
+  rc.jitter = d->jitter != RP_JITTER_OFF;
+  rc.jitter_seed = d->jitter_seed;
+  rc.min_spacing = rg->min_spacing;
   rp_tile_grid(rg->width, rg->height, &tiles_x, NULL);
   /* Region corners lie on the tile grid or the image edge, so the tiles
    * it touches are exactly its own. */

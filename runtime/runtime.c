@@ -428,6 +428,11 @@ static int check_desc(rp_context *ctx, const rp_runtime_desc *d) {
   if (d->effects & ~(uint32_t)RP__KNOWN_EFFECTS)
     return rp__fail(ctx, RP_EINVAL, "%s: desc->effects has unknown bits "
                     "0x%x", fn, d->effects);
+  if ((int)d->jitter < RP_JITTER_DEFAULT || d->jitter > RP_JITTER_FIXED)
+    return rp__fail(ctx, RP_EINVAL, "%s: desc->jitter is %d; must be "
+                    "RP_JITTER_DEFAULT (0), RP_JITTER_ON (1), "
+                    "RP_JITTER_OFF (2) or RP_JITTER_FIXED (3)", fn,
+                    (int)d->jitter);
   if (d->device_count > RP_RUNTIME_MAX_DEVICES)
     return rp__fail(ctx, RP_ERANGE, "%s: %u devices; at most %d", fn,
                     d->device_count, RP_RUNTIME_MAX_DEVICES);
@@ -507,6 +512,10 @@ static void resolve_desc(const rp_runtime_desc *in, rp_runtime_desc *d) {
     d->ao_frame_share = 0.25;
   if (d->ao_schedule.block == 0)
     d->ao_schedule.block = RP_AO_FRAME_BLOCK;
+  if (d->jitter == RP_JITTER_DEFAULT)
+    d->jitter = RP_JITTER_ON;
+  if (d->jitter_seed == 0)
+    d->jitter_seed = RP_JITTER_SEED;
 }
 
 /* The locks; on failure nothing is left made. */

@@ -197,7 +197,8 @@ static void test_bricking_is_seamless(void **state) {
   const uint8_t *va, *vb;
   double progress[2] = {0.0, 0.0};
   rp_camera cam = {0};
-  rp_render_desc d = {96, 96, 0.5f, RP_EFFECT_AO | RP_EFFECT_SHADING, 0, 0};
+  rp_render_desc d = {96, 96, 0.5f, RP_EFFECT_AO | RP_EFFECT_SHADING, 0, 0,
+                      RP_JITTER_DEFAULT, 0};
   uint8_t *ia = malloc(96 * 96 * 4), *ib = malloc(96 * 96 * 4);
   uint8_t *plain = malloc(96 * 96 * 4);
   size_t p, darker = 0;
@@ -366,7 +367,8 @@ static void test_reference_device(void **state) {
                                     {3, 5, 7, 4, 6, 8},
                                     {10, 0, 11, 27, 9, 19}};
   rp_camera cam = {0};
-  rp_render_desc d = {64, 48, 0.75f, RP_EFFECT_AO | RP_EFFECT_SKIP, 0, 0};
+  rp_render_desc d = {64, 48, 0.75f, RP_EFFECT_AO | RP_EFFECT_SKIP, 0, 0,
+                      RP_JITTER_DEFAULT, 0};
   uint8_t *got = malloc(64 * 48 * 4), *want = malloc(64 * 48 * 4);
   int b;
   assert_true(got && want);

@@ -201,6 +201,9 @@ static void test_probe_box_closed_form(void **state) {
   box_scene(&s, "ramp");
   d.width = d.height = 64;
   d.effects = 0;
+  /* Jitter off: the lattice starts at each ray's box entry, the closed
+   * form below. The jittered lattice's count follows at the end. */
+  d.jitter = RP_JITTER_OFF;
   assert_int_equal(rp_frame_probe_compute(s.ctx, s.vol, s.tf, s.occ, &s.cam,
                                           &d, 1, 0, &p), 0);
   /* Probe ray (cx, cy) passes through x = 4 cx + 2 - 32: inside the box
@@ -234,6 +237,17 @@ static void test_probe_box_closed_form(void **state) {
   d.image_scale = 0.5f;
   measured = reference_samples(&s, &d);
   assert_true(fabs(e.samples - (double)measured) <= measured / 20.0);
+  /* Jittered, the 40 voxels of depth take 40 samples on every ray (41
+   * only where a pixel's offset is exactly 0), and S' drops the half
+   * sample per ray: 16 x 1920, the count itself. */
+  d.jitter = RP_JITTER_DEFAULT;
+  d.image_scale = 0.0f;
+  assert_int_equal(rp_frame_probe_compute(s.ctx, s.vol, s.tf, s.occ, &s.cam,
+                                          &d, 1, 0, &p), 0);
+  assert_int_equal(p.jitter, 1);
+  assert_int_equal(rp_cost_predict(m, &p, 1.0f, 1.0f, &e), 0);
+  assert_float_equal(e.samples, 16.0 * 1920.0, 1e-9);
+  assert_int_equal(reference_samples(&s, &d), 32 * 24 * 40);
   rp_cost_model_destroy(m);
   scene_free(&s);
 }
@@ -254,6 +268,7 @@ static void test_probe_subgrid(void **state) {
   (void)state;
   box_scene(&s, "ramp");
   d.width = d.height = 512;
+  d.jitter = RP_JITTER_OFF; /* the closed form's lattice */
   assert_int_equal(rp_frame_probe_compute(s.ctx, s.vol, s.tf, s.occ, &s.cam,
                                           &d, 1, 0, &p), 0);
   assert_int_equal(p.rays, 32 * 32);
@@ -315,6 +330,7 @@ static void test_probe_nearly_transparent(void **state) {
   (void)state;
   box_scene(&s, "nearly-transparent");
   d.width = d.height = 64;
+  d.jitter = RP_JITTER_OFF; /* the closed form's lattice */
   d.effects = RP_EFFECT_ERT | RP_EFFECT_SKIP;
   d.ert_threshold = 0.6f;
   assert_int_equal(rp_frame_probe_compute(s.ctx, s.vol, s.tf, s.occ, &s.cam,

@@ -124,10 +124,14 @@ static void image_free(image *im) {
   free(im->tiles);
 }
 
+/* Jitter off: the closed forms below count the samples of the lattice
+ * that starts where each ray enters the box (test_jitter.c holds the
+ * jittered lattice to its own). */
 static void render(rp_context *ctx, const rp_volume *vol, const rp_tf *tf,
                    const rp_occupancy *occ, const rp_camera *cam,
                    float step, uint32_t effects, image *im) {
-  rp_render_desc d = {im->w, im->h, step, effects, 0.0f, 0.0f};
+  rp_render_desc d = {im->w, im->h, step, effects, 0.0f, 0.0f,
+                      RP_JITTER_OFF, 0};
   int err = rp_render_reference(ctx, vol, tf, occ, NULL, cam, &d, im->rgba,
                                 im->tiles);
   if (err != 0)
@@ -535,14 +539,22 @@ static double xzramp(double i, double j, double k) {
   return 2.0 * i + 4.0 * k;
 }
 
+/* xzramp with voxel (0, 0, 0) at -400: a range of 586. */
+static double xzramp_outlier(double i, double j, double k) {
+  return i + j + k == 0.0 ? -400.0 : xzramp(i, j, k);
+}
+
 /* A volume that rises along z, a TF of constant colour and alpha: the
  * gradient is +z everywhere, so for view direction d the headlight gives
  * ndotl = |d_z| and each sample's colour c (0.3 + 0.7 ndotl) +
  * 0.2 ndotl^20, the same along the ray. C = shaded * A per pixel. A
- * constant volume has no gradient: ndotl = 1. */
+ * constant volume has no gradient: ndotl = 1. Eight voxels along z, so
+ * that even at the z faces, where clamping quarters the central
+ * difference, the gradient (1/28 of the range per voxel) is above the 2 %
+ * below which normals blend towards the light (tested at the end). */
 static void test_shading_closed_form(void **state) {
   rp_context *ctx = rp_test_context();
-  const uint32_t dims[3] = {16, 16, 16};
+  const uint32_t dims[3] = {16, 16, 8};
   const float sp[3] = {1.0f, 1.0f, 0.5f};
   rp_volume *ramp = func_volume(ctx, dims, sp, zramp);
   rp_volume *flat = const_volume(ctx, 16, 16, 16, NULL);
@@ -623,6 +635,36 @@ static void test_shading_closed_form(void **state) {
         }
       }
     }
+    rp_tf_destroy(op);
+    rp_volume_destroy(xz);
+  }
+  /* The same gradient, (2, 0, 8) per world unit, 4.12 per voxel of the
+   * finest spacing (0.5), in a volume whose range one corner voxel
+   * stretches to 586: 0.70 % of it per voxel, below the 2 % of a
+   * surface, so the light blends towards facing it by m = 0.70 / 2:
+   * ndotl' = 1 - m (1 - ndotl). The sample sits at the centre, far from
+   * the corner. */
+  {
+    const uint32_t d2[3] = {32, 32, 32};
+    rp_volume *xz = func_volume(ctx, d2, sp, xzramp_outlier);
+    rp_tf *op = const_tf(ctx, col[0], col[1], col[2], 1.0f);
+    const double dir[3] = {0.6, 0, -0.8}, g[3] = {2.0, 0.0, 8.0};
+    double ndotl = fabs(g[0] * dir[0] + g[2] * dir[2]) / sqrt(68.0);
+    double m = sqrt(68.0) * 0.5 / 586.0 / 0.02;
+    rp_camera cam;
+    ndotl = 1.0 - m * (1.0 - ndotl);
+    memset(&cam, 0, sizeof cam);
+    cam.projection = RP_ORTHOGRAPHIC;
+    cam.ortho_height = 6.0f;
+    for (c = 0; c < 3; c++)
+      cam.center[c] = (float)dir[c];
+    render(ctx, xz, op, NULL, &cam, 1.0f, RP_EFFECT_SHADING | RP_EFFECT_ERT,
+           &im);
+    for (i = 0; i < (size_t)im.w * im.h; i++)
+      for (c = 0; c < 3; c++) {
+        double want = col[c] * (0.3 + 0.7 * ndotl) + 0.2 * pow(ndotl, 20);
+        assert_true(byte_close(im.rgba[i * 4 + c], want > 1 ? 1 : want, 1));
+      }
     rp_tf_destroy(op);
     rp_volume_destroy(xz);
   }
@@ -807,7 +849,7 @@ static void test_ert_bound(void **state) {
     for (k = 0; k < 3; k++) {
       rp_render_desc d = {cut.w, cut.h, 1.0f,
                           RP_EFFECT_SHADING | RP_EFFECT_ERT, thresholds[k],
-                          0.0f};
+                          0.0f, RP_JITTER_OFF, 0}; /* as render() */
       double thr = thresholds[k] != 0.0f ? thresholds[k] : 0.99f;
       double bound = (1.0 - thr) * 255.0 + 1.0;
       size_t i;
@@ -1153,7 +1195,7 @@ static void test_bad_arguments(void **state) {
   occ_pair o = make_occ(ctx, vol, tf), o2 = make_occ(ctx, vol, tf2);
   occ_pair o3 = make_occ(ctx, other, tf);
   rp_camera good = orbit(vol, RP_PERSPECTIVE, 10, 10, 2), cam;
-  rp_render_desc ok = {4, 4, 0.0f, 0, 0.0f, 0.0f}, d;
+  rp_render_desc ok = {4, 4, 0.0f, 0, 0.0f, 0.0f, RP_JITTER_DEFAULT, 0}, d;
   uint8_t rgba[4 * 4 * 4];
   uint32_t tx, ty;
   (void)state;

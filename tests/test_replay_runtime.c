@@ -163,6 +163,7 @@ static void play_embedded(rp_context *ctx, decision *out) {
   d.space.space = RP_SPACE_HYBRID;
   d.space.base_step = 1.0f;
   d.ert_seed = 1;
+  d.jitter = RP_JITTER_FIXED; /* as replay's runtimes (cli/replay.c) */
   assert_int_equal(rp_runtime_create(ctx, &d, &a.rt), 0);
   assert_int_equal(rp_runtime_set_volume(a.rt, mine), 0);
   /* Warm-up: the first frame's TF, camera and effects, then every other

@@ -86,14 +86,15 @@ static rp_tf *post_scene(rp_runtime *rt, rp_context *ctx, rp_volume *vol,
  * without AO). */
 static void expect_reference_ao(rp_context *ctx, const rp_volume *vol,
                                 const rp_tf *tf, const rp_ao *ao,
-                                const rp_camera *cam, const uint8_t *got) {
-  rp_test_expect_reference(ctx, vol, tf, ao, cam, W, H, EFFECTS, got);
+                                const rp_camera *cam, uint32_t seed,
+                                const uint8_t *got) {
+  rp_test_expect_reference(ctx, vol, tf, ao, cam, W, H, EFFECTS, seed, got);
 }
 
 static void expect_reference(rp_context *ctx, const rp_volume *vol,
                              const rp_tf *tf, const rp_camera *cam,
-                             const uint8_t *got) {
-  expect_reference_ao(ctx, vol, tf, NULL, cam, got);
+                             uint32_t seed, const uint8_t *got) {
+  expect_reference_ao(ctx, vol, tf, NULL, cam, seed, got);
 }
 
 /* ---- App loop, on-request pacing --------------------------------------- */
@@ -212,7 +213,11 @@ static void test_passes_per_event(void **state) {
   expect_passes(d, 1, 1, 1);
   assert_int_equal(d.device_depth, 1);
   assert_int_equal(a.s.last.status, 0);
-  expect_reference(a.ctx, vol2, bone, &cam, a.s.image);
+  expect_reference(a.ctx, vol2, bone, &cam, a.s.last.jitter_seed,
+                   a.s.image);
+  /* Jittered by default, a seed of its own per frame. */
+  assert_int_equal(a.s.last.jitter_seed,
+                   rp_jitter_frame_seed(0u, a.s.last.frame));
 
   d = frame(&a); /* nothing changed: nothing recomputed, depth reused */
   expect_passes(d, 0, 0, 0);
@@ -222,21 +227,24 @@ static void test_passes_per_event(void **state) {
   d = frame(&a);
   expect_passes(d, 0, 1, 1); /* the probe reads H-alpha and occupancy */
   assert_int_equal(d.device_depth, 1); /* D_front follows occupancy */
-  expect_reference(a.ctx, vol2, soft, &cam, a.s.image);
+  expect_reference(a.ctx, vol2, soft, &cam, a.s.last.jitter_seed,
+                   a.s.image);
 
   cam = orbit(vol2, 75.0f); /* camera only */
   assert_int_equal(rp_runtime_set_camera(a.rt, &cam), 0);
   d = frame(&a);
   expect_passes(d, 0, 0, 1);
   assert_int_equal(d.device_depth, 1);
-  expect_reference(a.ctx, vol2, soft, &cam, a.s.image);
+  expect_reference(a.ctx, vol2, soft, &cam, a.s.last.jitter_seed,
+                   a.s.image);
 
   cam = orbit(vol2, 120.0f); /* both */
   assert_int_equal(rp_runtime_set_camera(a.rt, &cam), 0);
   assert_int_equal(rp_runtime_set_tf(a.rt, bone), 0);
   d = frame(&a);
   expect_passes(d, 0, 1, 1);
-  expect_reference(a.ctx, vol2, bone, &cam, a.s.image);
+  expect_reference(a.ctx, vol2, bone, &cam, a.s.last.jitter_seed,
+                   a.s.image);
 
   /* A burst of 1000 events of each kind between two frames: one
    * recompute each, and the frame shows the last of each. */
@@ -249,7 +257,8 @@ static void test_passes_per_event(void **state) {
   expect_passes(d, 0, 1, 1);
   assert_int_equal(d.events, 2000);
   assert_int_equal(d.device_depth, 1);
-  expect_reference(a.ctx, vol2, soft, &cam, a.s.image);
+  expect_reference(a.ctx, vol2, soft, &cam, a.s.last.jitter_seed,
+                   a.s.image);
 
   /* The target changes no derived data. Every effect does the probe:
    * shading sets its fetches per sample (k), so a probe left from
@@ -269,14 +278,16 @@ static void test_passes_per_event(void **state) {
   assert_int_equal(rp_runtime_set_effects(a.rt, EFFECTS), 0);
   d = frame(&a);
   expect_passes(d, 0, 0, 1);
-  expect_reference(a.ctx, vol2, soft, &cam, a.s.image);
+  expect_reference(a.ctx, vol2, soft, &cam, a.s.last.jitter_seed,
+                   a.s.image);
 
   /* A new volume: everything once. */
   vol = make_volume(a.ctx, 32, 1);
   assert_int_equal(rp_runtime_set_volume(a.rt, vol), 0);
   d = frame(&a);
   expect_passes(d, 1, 1, 1);
-  expect_reference(a.ctx, vol2, soft, &cam, a.s.image);
+  expect_reference(a.ctx, vol2, soft, &cam, a.s.last.jitter_seed,
+                   a.s.image);
   assert_int_equal(a.s.failed, 0);
 
   app_close(&a);
@@ -418,7 +429,8 @@ static void test_ao_only_when_on(void **state) {
   assert_int_equal(rp_ao_compute_reference(a.ctx, copy, tf, NULL, NULL, NULL,
                                            &ao),
                    0);
-  expect_reference_ao(a.ctx, copy, tf, ao, &cam, a.s.image);
+  expect_reference_ao(a.ctx, copy, tf, ao, &cam, a.s.last.jitter_seed,
+                   a.s.image);
   rp_ao_destroy(ao);
   (void)frame(&a);
   rp_runtime_get_counters(a.rt, &c);
@@ -442,7 +454,8 @@ static void test_ao_only_when_on(void **state) {
   assert_int_equal(c.ao_computes, 2);
   assert_int_equal(c.ao_bytes, 0);
   assert_int_equal(a.s.last.status, 0);
-  expect_reference(a.ctx, copy, tf, &cam, a.s.image);
+  expect_reference(a.ctx, copy, tf, &cam, a.s.last.jitter_seed,
+                   a.s.image);
   app_close(&a);
   rp_tf_destroy(tf);
   rp_tf_destroy(tf2);
@@ -476,7 +489,8 @@ static void test_ao_in_steps(void **state) {
   assert_false(a.s.last.effects & RP_EFFECT_AO);
   assert_true(a.s.last.ao_ms > 0.0);
   assert_true(a.s.last.ao_progress > 0.0 && a.s.last.ao_progress < 1.0);
-  expect_reference(a.ctx, copy, tf, &cam, a.s.image);
+  expect_reference(a.ctx, copy, tf, &cam, a.s.last.jitter_seed,
+                   a.s.image);
   /* A TF change mid-run: the run restarts for the new TF. */
   assert_int_equal(rp_tf_create_preset(a.ctx, "minmax-bone", &tf2), 0);
   assert_int_equal(rp_runtime_set_tf(a.rt, tf2), 0);
@@ -488,7 +502,8 @@ static void test_ao_in_steps(void **state) {
   assert_int_equal(rp_ao_compute_reference(a.ctx, copy, tf2, NULL, NULL,
                                            NULL, &ao),
                    0);
-  expect_reference_ao(a.ctx, copy, tf2, ao, &cam, a.s.image);
+  expect_reference_ao(a.ctx, copy, tf2, ao, &cam, a.s.last.jitter_seed,
+                   a.s.image);
   rp_ao_destroy(ao);
   app_close(&a);
   rp_tf_destroy(tf);
@@ -527,7 +542,8 @@ static void test_several_devices(void **state) {
     (void)frame(&a);
     assert_int_equal(a.s.last.status, 0);
     assert_true(a.s.has_image);
-    expect_reference(a.ctx, vol2, tf, &cam, a.s.image);
+    expect_reference(a.ctx, vol2, tf, &cam, a.s.last.jitter_seed,
+                   a.s.image);
     assert_int_equal(a.s.last.device_count, 3);
     if (a.s.last.devices_lost > 0) {
       assert_int_equal(lost_at, -1);
@@ -937,7 +953,7 @@ static void test_camera_thread_1khz(void **state) {
   /* Frames rendered while the thread posted: fewer than the events,
    * every one coalesced. */
   assert_true(s.frames >= 1 && (uint64_t)s.frames < total);
-  expect_reference(ctx, vol2, tf, &p.last, s.image);
+  expect_reference(ctx, vol2, tf, &p.last, last.jitter_seed, s.image);
   uv_mutex_destroy(&s.lock);
   rp_tf_destroy(tf);
   rp_volume_destroy(vol2);

@@ -77,8 +77,9 @@ static void base_desc(rp_runtime_desc *d, seen *s, rp_pacing pacing) {
 
 static void expect_reference_ao(rp_context *ctx, const rp_volume *vol,
                                 const rp_tf *tf, const rp_ao *ao,
-                                const rp_camera *cam, const uint8_t *got) {
-  rp_test_expect_reference(ctx, vol, tf, ao, cam, W, H, EFFECTS, got);
+                                const rp_camera *cam, uint32_t seed,
+                                const uint8_t *got) {
+  rp_test_expect_reference(ctx, vol, tf, ao, cam, W, H, EFFECTS, seed, got);
 }
 
 /* The events of frame i of a short script: a volume and TF at 0, the
@@ -141,7 +142,7 @@ static void test_step(void **state) {
     assert_int_equal(s->last.counters.probes, (uint64_t)i + 1);
     assert_true(s->last.dispatch_ms == 0.0);
     expect_reference_ao(ctx, oracle, tfs[i >= 3], NULL, &cam,
-                        s->image[i]);
+                        s->last.jitter_seed, s->image[i]);
   }
   /* No step inside a step. */
   s->step_in_callback = 1;
@@ -292,7 +293,8 @@ static void test_ao_switch_back(void **state) {
   assert_int_equal(rp_ao_compute_reference(ctx, oracle, tfs[0], NULL, NULL,
                                            NULL, &ao),
                    0);
-  expect_reference_ao(ctx, oracle, tfs[0], ao, &cam, s->latest);
+  expect_reference_ao(ctx, oracle, tfs[0], ao, &cam, s->last.jitter_seed,
+                      s->latest);
   rp_ao_destroy(ao);
   assert_int_equal(rp_runtime_destroy(rt), 0);
   rp_tf_destroy(tfs[0]);

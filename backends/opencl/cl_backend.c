@@ -49,8 +49,8 @@
 #define RP_CL_VOLUME_PAD 16
 
 /* The kernel's rp_cl_frame mirrors rp_frame_params field by field. */
-_Static_assert(sizeof(rp_frame_params) == 51 * 4,
-               "rp_frame_params must stay 51 packed 4-byte fields");
+_Static_assert(sizeof(rp_frame_params) == 53 * 4,
+               "rp_frame_params must stay 53 packed 4-byte fields");
 _Static_assert(sizeof(rp_tile_stats) == 12,
                "rp_tile_stats must match the kernel's rp_cl_tile");
 _Static_assert(sizeof(rp_cl_ao_args) == 24 * 4,

@@ -1050,6 +1050,8 @@ static void set_params(rp_vk_impl *impl, const rp_frame_params *p) {
   u->misc[2] = gh;
   u->seed[0] = p->ert_seed;
   u->seed[1] = p->frame;
+  u->seed[2] = p->jitter_seed;
+  u->seed[3] = p->jitter;
   for (a = 0; a < 3; a++)
     u->brick[a] = p->brick_grid[a];
   u->brick[3] = p->brick_shift;
@@ -1093,6 +1095,8 @@ static int depth_current(const rp_vk_impl *impl, const rp_frame_params *p) {
     return 0;
   a.ert_seed = b.ert_seed = 0;
   a.frame = b.frame = 0;
+  a.jitter = b.jitter = 0;
+  a.jitter_seed = b.jitter_seed = 0;
   a.ert_threshold = b.ert_threshold = 0.0f;
   a.step = b.step = 0.0f;
   a.ref_step = b.ref_step = 0.0f;

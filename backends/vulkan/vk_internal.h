@@ -85,7 +85,7 @@ typedef struct rp_vk_params {
   uint32_t idims[4];  /* w: lut_size */
   uint32_t blocks[4]; /* w: width */
   uint32_t misc[4];   /* height, ERT grid w, ERT grid h, unused */
-  uint32_t seed[4];   /* ert_seed, frame */
+  uint32_t seed[4];   /* ert_seed, frame, jitter_seed, jitter */
   uint32_t rect[4];   /* region x0, y0, width, height */
   float box_lo[4];    /* xyz the occupied blocks' box, voxel space */
   float box_hi[4];

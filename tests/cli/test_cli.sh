@@ -55,6 +55,30 @@ check "render ortho" "$rp" render gen:ml:20 --ortho --camera 0,90,2 \
   --size 9x7 --no-ert --no-skip -o "$dir/b.png"
 has "render text" "wrote $dir/b.png"
 
+# Ray-start jitter: a seed gives the same image every time, another seed
+# or --no-jitter another image (a PNG holds the pixels and nothing that
+# varies from run to run).
+jr() { # jr OUT ARGS...: the reference's render of a small phantom
+  out=$1; shift
+  "$rp" render gen:phantom:32 --size 24x24 --backend reference \
+    --step 2 -o "$dir/$out" "$@"
+}
+check "jitter seed 5" jr j5.png --seed 5
+check "jitter seed 5 again" jr j5b.png --seed 5
+check "jitter seed 6" jr j6.png --seed 6
+check "no jitter" jr j0.png --no-jitter
+check "no jitter, a seed" jr j0b.png --no-jitter --seed 9
+if cmp -s "$dir/j5.png" "$dir/j5b.png" &&
+   ! cmp -s "$dir/j5.png" "$dir/j6.png" &&
+   ! cmp -s "$dir/j5.png" "$dir/j0.png" &&
+   cmp -s "$dir/j0.png" "$dir/j0b.png"; then pass=$((pass + 1)); else
+  echo "FAIL: jitter images (same seed equal, others differ)"
+  fails=$((fails + 1)); fi
+refuse "seed 0" "bad value '0' for --seed" "$rp" render gen:ml:8 --seed 0 \
+  -o "$dir/c.png"
+refuse "seed -1" "bad value '-1' for --seed" "$rp" render gen:ml:8 \
+  --seed -1 -o "$dir/c.png"
+
 refuse "missing file" "no such file" "$rp" info "$dir/does-not-exist.nrrd"
 refuse "bad preset" "known: transparent" "$rp" render gen:ml:8 --tf nope \
   -o "$dir/c.png"
@@ -94,6 +118,21 @@ if [ "$(head -1 "$dir/q.csv")" = \
      "space,rho,step,scale,rays_x,rays_y,ms,mse,psnr,ssim" ] &&
    [ "$(wc -l <"$dir/q.csv")" -eq 13 ]; then pass=$((pass + 1)); else
   echo "FAIL: bench csv"; cat "$dir/q.csv"; fails=$((fails + 1)); fi
+# --sampling: plain, jittered and the mean of jittered frames at steps 2
+# and 1 (--quick). The mean of 8 jittered frames is nearer the reference
+# than one at each step: its noise averages out.
+check "bench sampling" "$rp" bench quality gen:phantom:32 --quick \
+  --sampling --size 48x48 --shading --backend reference --csv "$dir/s.csv"
+has "bench sampling table" "jittered-mean"
+if [ "$(head -1 "$dir/s.csv")" = "sampling,step,ms,mse,psnr,ssim" ] &&
+   [ "$(wc -l <"$dir/s.csv")" -eq 7 ] &&
+   awk -F, 'NR > 1 { mse[$1 "@" $2] = $4 }
+     END { exit !(mse["jittered-mean@2"] < mse["jittered@2"] &&
+                  mse["jittered-mean@1"] < mse["jittered@1"]) }' \
+     "$dir/s.csv"; then pass=$((pass + 1)); else
+  echo "FAIL: bench sampling csv"; cat "$dir/s.csv"; fails=$((fails + 1)); fi
+refuse "bench bad frames" "bad value '0' for --frames" "$rp" bench quality \
+  gen:ml:8 --quick --sampling --frames 0
 check "bench help" "$rp" bench quality --help; has "bench help" "--ref-step"
 refuse "bench bad runs" "bad value '0' for --runs" "$rp" bench quality \
   gen:ml:8 --quick --runs 0

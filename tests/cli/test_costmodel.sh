@@ -59,7 +59,7 @@ if "$bench" --trace "$dir/bad.csv" >"$dir/out" 2>&1 ||
 if "$bench" --trace "$dir/bad.csv" >"$dir/out" 2>&1 ||
    ! grep -q "'frame_ms' = 'nan' is out of range" "$dir/out"; then fail "nan"; fi
 { head -1 "$dir/t.csv"; sed -n 2p "$dir/t.csv" |
-  awk -F, 'BEGIN { OFS = "," } { $21 = $21 + 0.5; print }'; } >"$dir/bad.csv"
+  awk -F, 'BEGIN { OFS = "," } { $22 = $22 + 0.5; print }'; } >"$dir/bad.csv"
 if "$bench" --trace "$dir/bad.csv" >"$dir/out" 2>&1 ||
    ! grep -q "'samples' = '.*' is out of range" "$dir/out"; then
   fail "fractional samples"; fi

@@ -171,6 +171,8 @@ void odd_viewports_and_scales(void **state);
 void views_and_steps(void **state);
 void scenes_from_three_cameras(void **state);
 void thin_volumes(void **state);
+/* jitter.c */
+void jitter_seeds(void **state);
 /* passes.c */
 void depth_pass(void **state);
 void ert_prepass(void **state);

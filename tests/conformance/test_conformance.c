@@ -395,6 +395,7 @@ int main(void) {
       cmocka_unit_test(views_and_steps),
       cmocka_unit_test(scenes_from_three_cameras),
       cmocka_unit_test(thin_volumes),
+      cmocka_unit_test(jitter_seeds),
       cmocka_unit_test(matrix_phantom_u8),
       cmocka_unit_test(matrix_marschner_lobb_u16),
       cmocka_unit_test(matrix_noise),

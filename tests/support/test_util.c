@@ -141,7 +141,8 @@ rp_tf *rp_test_preset(rp_context *ctx, const char *name) {
 void rp_test_expect_reference(rp_context *ctx, const rp_volume *vol,
                               const rp_tf *tf, const rp_ao *ao,
                               const rp_camera *cam, uint32_t w, uint32_t h,
-                              uint32_t effects, const uint8_t *got) {
+                              uint32_t effects, uint32_t jitter_seed,
+                              const uint8_t *got) {
   rp_histograms *hist = NULL;
   rp_occupancy *occ = NULL;
   rp_render_desc rd = {0};
@@ -152,6 +153,8 @@ void rp_test_expect_reference(rp_context *ctx, const rp_volume *vol,
   rd.width = w;
   rd.height = h;
   rd.effects = effects | (ao != NULL ? RP_EFFECT_AO : 0u);
+  rd.jitter = jitter_seed != 0 ? RP_JITTER_ON : RP_JITTER_OFF;
+  rd.jitter_seed = jitter_seed;
   assert_int_equal(
       rp_render_reference(ctx, vol, tf, occ, ao, cam, &rd, want, NULL), 0);
   assert_memory_equal(got, want, (size_t)w * h * 4);

@@ -75,12 +75,15 @@ void rp_test_check_fetches(const char *what, const rp_tile_stats *got,
 
 /* Asserts that `got` (w x h RGBA8) is, bit for bit, the reference
  * raycaster's image of `vol` under `tf` from `cam` with `effects` at full
- * quality, with `ao` (RP_EFFECT_AO added) or without (NULL): the oracle
- * outside the runtime that runtime tests hold frames to. */
+ * quality, with `ao` (RP_EFFECT_AO added) or without (NULL), its rays
+ * jittered with `jitter_seed` (the frame's rp_frame_stats.jitter_seed; 0:
+ * jitter off): the oracle outside the runtime that runtime tests hold
+ * frames to. */
 void rp_test_expect_reference(rp_context *ctx, const rp_volume *vol,
                               const rp_tf *tf, const rp_ao *ao,
                               const rp_camera *cam, uint32_t w, uint32_t h,
-                              uint32_t effects, const uint8_t *got);
+                              uint32_t effects, uint32_t jitter_seed,
+                              const uint8_t *got);
 
 /* The per_visible of rp_test_check_fetches for an effects set. */
 unsigned rp_test_visible_fetches(uint32_t effects);

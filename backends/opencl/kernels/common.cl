@@ -91,7 +91,7 @@ typedef union rp_cl_float_lanes {
 #error "RP_CL_W must be 8 or 16"
 #endif
 
-/* The layout of rp_frame_params (include/raypace_backend.h): 39 four-byte
+/* The layout of rp_frame_params (include/raypace_backend.h): 53 four-byte
  * fields, no padding, passed by value as the first kernel argument. */
 typedef struct rp_cl_frame {
   float eye[3], f[3], r[3], u[3];
@@ -115,7 +115,19 @@ typedef struct rp_cl_frame {
   uint brick_grid[3];
   float slab_cut;
   uint slab_flags;
+  uint jitter, jitter_seed;
 } rp_cl_frame;
+
+/* Integer finaliser that spreads seeds over all 32 bits (the ERT stream's
+ * and the jitter's, backends/README.md). */
+vuint rp_cl_mix(vuint x) {
+  x ^= x >> 16;
+  x *= 0x7feb352du;
+  x ^= x >> 15;
+  x *= 0x846ca68bu;
+  x ^= x >> 16;
+  return x;
+}
 
 /* A packet of rays in voxel space, structure of arrays: p(t) = p0 +
  * t * dp, inside the box on [s, t1] where hit. Lanes that miss (or are
@@ -201,6 +213,22 @@ rp_cl_packet rp_cl_make_packet(const rp_cl_frame *fp, vfloat px, vfloat py,
   k.s = select((vfloat)(0.0f), fmax(t0, 0.0f), ok);
   k.t1 = select((vfloat)(0.0f), t1, ok);
   return k;
+}
+
+/* Ray-start jitter (rp_jitter_offset): each lane's first sample moves
+ * from s to s + j * step, j the hash of its pixel (x, y), integral in px
+ * and py, exact in float; a lane whose first sample then lies past t1
+ * takes none. */
+void rp_cl_jitter(const rp_cl_frame *fp, rp_cl_packet *k, vfloat px,
+                  vfloat py) {
+  vuint h;
+  if (!fp->jitter)
+    return;
+  h = rp_cl_mix((vuint)(fp->jitter_seed) ^
+                rp_cl_mix(to_vuint(px) ^
+                          rp_cl_mix(to_vuint(py) + 0x632be5abu)));
+  k->s += to_vfloat(h >> 8) * (1.0f / 16777216.0f) * fp->step;
+  k->hit &= k->s <= k->t1;
 }
 
 /* Each lane's span [*lo, *hi] inside the box of the occupied blocks

@@ -14,16 +14,6 @@
 #define RP_CL_ERT_STRIDE 4
 #define RP_CL_ERT_STEP 8.0f
 
-/* Integer finaliser that spreads seeds over all 32 bits. */
-vuint rp_cl_mix(vuint x) {
-  x ^= x >> 16;
-  x *= 0x7feb352du;
-  x ^= x >> 15;
-  x *= 0x846ca68bu;
-  x ^= x >> 16;
-  return x;
-}
-
 vuint rp_cl_taus(vuint z, uint s1, uint s2, uint s3, uint m) {
   vuint b = ((z << s1) ^ z) >> s2;
   return ((z & m) << s3) ^ b;

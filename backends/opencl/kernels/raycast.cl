@@ -82,18 +82,19 @@ vint rp_cl_occupied(const rp_cl_frame *fp, __global const uchar *grid,
 
 #ifdef RP_SHADING
 /* Headlight (L = -dir, two-sided) on straight colour; (gx, gy, gz) is the
- * gradient per world unit. A gradient below 1e-6 of the data range is
- * noise, lit as if it faced the light. */
+ * gradient per world unit. Below 2 % of the data range per voxel of the
+ * finest spacing its direction is increasingly noise, and the light
+ * blends towards "facing the light": n' = 1 - m (1 - n), m = min(1,
+ * |g| * surface) with surface = min_spacing / (0.02 range), 0 for a
+ * data range of 0 (the reference's RP__SURFACE_GRADIENT). */
 void rp_cl_shade(vfloat *r, vfloat *g, vfloat *b, vfloat gx, vfloat gy,
-                 vfloat gz, const rp_cl_packet *k, float range) {
+                 vfloat gz, const rp_cl_packet *k, float surface) {
   vfloat len = sqrt(gx * gx + gy * gy + gz * gz);
   vfloat n = fmin(1.0f, fabs(gx * k->dirx + gy * k->diry + gz * k->dirz) /
                             len);
+  vfloat m = fmin(1.0f, len * surface);
   vfloat n2, n4, n16, gain, spec;
-  if (range > 0.0f)
-    n = select(n, (vfloat)(1.0f), !(len / range >= 1e-6f));
-  else
-    n = 1.0f;
+  n = select(1.0f - m * (1.0f - n), (vfloat)(1.0f), !(m > 0.0f));
   n2 = n * n;
   n4 = n2 * n2;
   n16 = n4 * n4;
@@ -177,6 +178,7 @@ void rp_cl_raycast(rp_cl_frame fp, uint x0, uint y0, uint x1, uint y1,
 
   if (any(inside)) {
     rp_cl_packet k = rp_cl_make_packet(&fp, px + 0.5f, py + 0.5f, inside);
+    rp_cl_jitter(&fp, &k, px, py);
     /* Lane j takes samples i0_j .. i1_j of its lattice s + i * step. */
     vfloat i0 = 0.0f, i1 = rp_cl_lattice_last(&k, fp.step);
 #ifdef RP_BRICKED
@@ -194,6 +196,7 @@ void rp_cl_raycast(rp_cl_frame fp, uint x0, uint y0, uint x1, uint y1,
     float ratio = fp.step / fp.ref_step;
 #ifdef RP_SHADING
     float range = fp.value_max - fp.value_min;
+    float surface = range > 0.0f ? fp.min_spacing / (0.02f * range) : 0.0f;
     float gsx = 0.5f * fp.inv_spacing[0], gsy = 0.5f * fp.inv_spacing[1];
     float gsz = 0.5f * fp.inv_spacing[2];
 #endif
@@ -308,7 +311,7 @@ void rp_cl_raycast(rp_cl_frame fp, uint x0, uint y0, uint x1, uint y1,
                      RP_CL_FETCH(qx, qy - 1.0f, qz, lit)) * gsy;
         vfloat gz = (RP_CL_FETCH(qx, qy, qz + 1.0f, lit) -
                      RP_CL_FETCH(qx, qy, qz - 1.0f, lit)) * gsz;
-        rp_cl_shade(&r, &gr, &b, gx, gy, gz, &k, range);
+        rp_cl_shade(&r, &gr, &b, gx, gy, gz, &k, surface);
       }
 #endif
 #ifdef RP_AO

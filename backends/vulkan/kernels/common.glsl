@@ -61,7 +61,7 @@ struct Params {
   uvec4 idims;   /* xyz dims, w lut_size */
   uvec4 blocks;  /* xyz block grid, w scaled image width */
   uvec4 misc;    /* x height, y ERT grid width, z ERT grid height */
-  uvec4 seed;    /* x ert_seed, y frame */
+  uvec4 seed;    /* x ert_seed, y frame, z jitter_seed, w jitter */
   uvec4 rect;    /* the region: x0, y0, width, height (scaled pixels) */
   vec4 box_lo;   /* xyz: the box of the occupied blocks, voxel space */
   vec4 box_hi;
@@ -161,6 +161,28 @@ Ray make_ray(float px, float py) {
   ray.s = max(t0, 0.0);
   ray.t1 = t1;
   return ray;
+}
+
+/* Integer finaliser that spreads seeds over all 32 bits (the ERT stream's
+ * and the jitter's, backends/README.md). */
+uint mix32(uint x) {
+  x ^= x >> 16;
+  x *= 0x7feb352du;
+  x ^= x >> 15;
+  x *= 0x846ca68bu;
+  x ^= x >> 16;
+  return x;
+}
+
+/* Ray-start jitter (rp_jitter_offset): the first sample of the ray
+ * through pixel `pix` moves from s to s + j * step, j exact in float; a
+ * ray whose first sample then lies past t1 takes none. */
+void jitter_ray(inout Ray ray, uvec2 pix, float step) {
+  if (P.seed.w == 0u)
+    return;
+  uint h = mix32(P.seed.z ^ mix32(pix.x ^ mix32(pix.y + 0x632be5abu)));
+  ray.s += float(h >> 8) * (1.0 / 16777216.0) * step;
+  ray.hit = ray.hit && ray.s <= ray.t1;
 }
 
 /* Block coordinates of voxel-space point p, clamped to the grid. */

@@ -15,15 +15,6 @@ layout(set = 0, binding = 8, std430) writeonly buffer Ert {
   float d_ert[];
 };
 
-uint mix32(uint x) {
-  x ^= x >> 16;
-  x *= 0x7feb352du;
-  x ^= x >> 15;
-  x *= 0x846ca68bu;
-  x ^= x >> 16;
-  return x;
-}
-
 uint taus(uint z, int s1, int s2, int s3, uint m) {
   uint b = ((z << s1) ^ z) >> s2;
   return ((z & m) << s3) ^ b;

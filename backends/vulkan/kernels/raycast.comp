@@ -85,7 +85,9 @@ float sample_ao(vec3 p) {
 }
 
 /* Headlight shading: central differences one voxel either side, per world
- * unit; two-sided, flat gradients lit as facing the light. Six fetches. */
+ * unit; two-sided. Below 2 % of the data range per voxel of the finest
+ * spacing the normal blends towards facing the light (the reference's
+ * RP__SURFACE_GRADIENT): its direction is noise there. Six fetches. */
 vec3 shade(vec3 rgb, vec3 p, vec3 dir) {
   vec3 g;
   for (int a = 0; a < 3; a++) {
@@ -95,8 +97,11 @@ vec3 shade(vec3 rgb, vec3 p, vec3 dir) {
            P.inv_sp[a];
   }
   float len = length(g), ndotl = 1.0;
-  if (P.vrange.z > 0.0 && len / P.vrange.z >= 1e-6)
-    ndotl = min(1.0, abs(dot(g, dir)) / len);
+  float m = P.vrange.z > 0.0 ? min(1.0, len * P.dims.w /
+                                            (0.02 * P.vrange.z))
+                             : 0.0;
+  if (m > 0.0)
+    ndotl = 1.0 - m * (1.0 - min(1.0, abs(dot(g, dir)) / len));
   float n2 = ndotl * ndotl, n4 = n2 * n2, n16 = n4 * n4 * n4 * n4;
   return clamp(rgb * (0.3 + 0.7 * ndotl) + 0.2 * (n16 * n4), 0.0, 1.0);
 }
@@ -148,9 +153,10 @@ const int MARCH_CAP = 12;
 Result cast_ray(uvec2 pix, uvec2 rpix) {
   Result res = Result(vec4(0.0), 0u, 0.0);
   Ray ray = make_ray(float(pix.x) + 0.5, float(pix.y) + 0.5);
+  float step = P.up.w;
+  jitter_ray(ray, pix, step);
   if (!ray.hit)
     return res;
-  float step = P.up.w;
   int first = 0, last = lattice_last(ray.s, ray.t1, step);
   if (RP_SKIP) {
     /* The first and last lattice samples in an occupied block. The depth
