@@ -366,7 +366,7 @@ static int parse_render(int argc, char **argv, render_opts *o) {
       {"window", required_argument, 0, 'W'},
       {"level", required_argument, 0, 'l'},
       {"view", required_argument, 0, 'v'},
-      {"no-shading", no_argument, 0, 'N'},
+      {"no-shading", no_argument, 0, 'n'},
       {"camera", required_argument, 0, 'c'},
       {"ortho", no_argument, 0, 'O'},
       {"fov", required_argument, 0, 'f'},
@@ -411,7 +411,7 @@ static int parse_render(int argc, char **argv, render_opts *o) {
       o->view = optarg;
       bad = rp_view_from_name(optarg) == 0;
       break;
-    case 'N': o->shading = 0; break;
+    case 'n': o->shading = 0; break;
     case 'c':
       bad = cli_parse_floats(optarg, o->orbit, 3);
       o->orbit_given = 1;

@@ -38,8 +38,8 @@
 #define RP__DEFAULT_STEP 1.0f
 #define RP__DEFAULT_ERT 0.99f
 /* The gradient magnitude, as a share of the range the TF spans (the data
- * range for a [min, max] TF, the window for one in data units) per voxel of the
- * finest spacing, from which a sample is lit by its normal alone. Below
+ * range for a [min, max] TF, the window for one in data units) per voxel
+ * of the finest spacing, from which a sample is lit by its normal alone. Below
  * it the normal's direction is increasingly noise (the crest of a thin
  * shell or vessel wall, a plateau of quantised values: a gradient of a
  * level or two of 255 that points anywhere), so the light blends towards

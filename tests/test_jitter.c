@@ -104,7 +104,7 @@ typedef struct slab {
 static slab slab_open(float alpha) {
   rp_volume_desc vd = {{11, 16, 16}, RP_U8, {1, 1, 1}, NULL, {0}};
   rp_tf_point p = {0.5f, 1.0f, 1.0f, 1.0f, alpha};
-  rp_tf_desc td = {&p, 1, 1.0f, 0};
+  rp_tf_desc td = {&p, 1, 1.0f, 0, 0, 0, 0, 0};
   uint8_t data[11 * 16 * 16];
   slab s;
   memset(&s, 0, sizeof s);

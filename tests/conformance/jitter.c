@@ -18,7 +18,7 @@ static lit_scene jitter_box(void) {
   rp_volume_desc vd = {{dims[0], dims[1], dims[2]}, RP_U8, {1, 1, 1},
                        NULL, {0}};
   rp_tf_point p = {0.5f, 0.9f, 0.6f, 0.3f, 0.1f};
-  rp_tf_desc td = {&p, 1, 1.0f, 0};
+  rp_tf_desc td = {&p, 1, 1.0f, 0, 0, 0, 0, 0};
   uint8_t *data = malloc(20 * 16 * 16);
   scene s = {"jitter box 20x16x16", NULL, NULL};
   rp_tf *tf = NULL;
