@@ -72,7 +72,7 @@ static double paint(double v, double hu, double m) {
  * 700, cortical 1500, iodinated contrast 300). The nose points anterior
  * and the spine runs inferior, so a wrong view shows at once. */
 static double ct_head(double x, double y, double z) {
-  const double w = 0.02;
+  const double w = 0.045;
   double cran = ell(x, y, z, 0, 0.05, 0.18, 0.62, 0.74, 0.70);
   double face = ell(x, y, z, 0, -0.25, -0.22, 0.50, 0.52, 0.45);
   double nose = ell(x, y, z, 0, -0.74, -0.08, 0.08, 0.14, 0.18);
