@@ -263,9 +263,23 @@ static int info_json(const info_opts *o, const scene *sc) {
                         cJSON_CreateFloatArray(in.spacing, 3));
   cJSON_AddNumberToObject(root, "min", in.min);
   cJSON_AddNumberToObject(root, "max", in.max);
+  if (in.orientation.known) {
+    cJSON *or = cJSON_AddObjectToObject(root, "orientation");
+    cJSON_AddItemToObject(or, "direction",
+                          cJSON_CreateDoubleArray(in.orientation.direction,
+                                                  9));
+    cJSON_AddItemToObject(or, "origin",
+                          cJSON_CreateDoubleArray(in.orientation.origin, 3));
+  }
   cJSON_AddItemToObject(root, "blocks", json_u32s(in.blocks, 3));
   cJSON_AddNumberToObject(root, "block_count", nb);
   cJSON_AddStringToObject(root, "tf", o->tf);
+  {
+    double lo, hi;
+    rp_tf_data_range(sc->tf, sc->vol, &lo, &hi);
+    cJSON_AddItemToObject(root, "tf_range",
+                          cJSON_CreateDoubleArray((double[]){lo, hi}, 2));
+  }
   cJSON_AddNumberToObject(root, "empty_blocks",
                           rp_occupancy_empty_blocks(sc->occ));
   cJSON_AddNumberToObject(root, "empty_fraction",
@@ -298,12 +312,38 @@ static int info_text(const info_opts *o, const scene *sc) {
   printf("type:          %s\n", rp_voxel_type_name(in.type));
   printf("spacing:       %g %g %g\n", in.spacing[0], in.spacing[1],
          in.spacing[2]);
+  if (in.orientation.known) {
+    const double *d = in.orientation.direction;
+    /* Each voxel axis by the patient direction it is nearest to. */
+    static const char *const pos[3] = {"L", "P", "S"}, *neg[3] = {"R", "A",
+                                                                  "I"};
+    int a, c;
+    printf("orientation:   ");
+    for (a = 0; a < 3; a++) {
+      int best = 0;
+      for (c = 1; c < 3; c++)
+        if (fabs(d[3 * a + c]) > fabs(d[3 * a + best]))
+          best = c;
+      printf("%s%s", a ? " " : "", d[3 * a + best] > 0 ? pos[best]
+                                                      : neg[best]);
+    }
+    printf(" (voxel x, y, z towards; LPS origin %g %g %g)\n",
+           in.orientation.origin[0], in.orientation.origin[1],
+           in.orientation.origin[2]);
+  } else {
+    printf("orientation:   not given by the file\n");
+  }
   printf("range:         %g .. %g\n", in.min, in.max);
   printf("blocks:        %u x %u x %u = %u (16^3)\n", in.blocks[0],
          in.blocks[1], in.blocks[2], nb);
   printf("empty blocks:  %u (%.1f %%) under TF '%s'\n",
          rp_occupancy_empty_blocks(sc->occ),
          100.0 * rp_occupancy_empty_blocks(sc->occ) / nb, o->tf);
+  {
+    double lo, hi;
+    rp_tf_data_range(sc->tf, sc->vol, &lo, &hi);
+    printf("tf range:      %g .. %g (data units)\n", lo, hi);
+  }
   printf("timing:        H %.2f ms, H-alpha + occupancy %.2f ms\n",
          sc->histogram_s * 1e3, sc->occupancy_s * 1e3);
   if (o->hist) {

@@ -79,6 +79,34 @@ refuse "seed 0" "bad value '0' for --seed" "$rp" render gen:ml:8 --seed 0 \
 refuse "seed -1" "bad value '-1' for --seed" "$rp" render gen:ml:8 \
   --seed -1 -o "$dir/c.png"
 
+# Data units: the CT head is int16 HU with its orientation; its default
+# TF is ct-bone on [-500, 1500] HU; a window moves it; a TF file in HU.
+check "ct info" "$rp" info gen:ct:24
+has "ct type" "type:          int16"
+has "ct orientation" "orientation:   L P S"
+has "ct default tf" "under TF 'ct-bone'"
+has "ct tf range" "tf range:      -500 .. 1500"
+check "ct window" "$rp" info gen:ct:24 --window 400 --level 40
+has "ct window range" "tf range:      -160 .. 240"
+check "mri percentiles" "$rp" info gen:ct:24 --tf mri --json
+has "mri json range" '"tf_range":'
+printf 'units: data\n-100 0 0 0 0\n700 1 1 1 1\n' >"$dir/hu.tf"
+check "tf file" "$rp" info gen:ct:24 --tf "$dir/hu.tf"
+has "tf file range" "tf range:      -100 .. 700"
+printf '0 0 0 0 0\n1 1 1\n' >"$dir/bad.tf"
+refuse "bad tf file" "bad.tf: line 2" "$rp" info gen:ct:24 \
+  --tf "$dir/bad.tf"
+refuse "window without level" "go together" "$rp" info gen:ct:24 \
+  --window 400
+refuse "zero window" "bad value '0' for --window" "$rp" info gen:ct:24 \
+  --window 0 --level 40
+check "ct views" "$rp" render gen:ct:24 --size 16x16 --view left \
+  --no-shading -o "$dir/v.png"
+refuse "bad view" "bad value 'up' for --view" "$rp" render gen:ct:24 \
+  --view up -o "$dir/v.png"
+refuse "view and camera" "--view excludes --camera" "$rp" render \
+  gen:ct:24 --view left --camera 0,0,2 -o "$dir/v.png"
+
 refuse "missing file" "no such file" "$rp" info "$dir/does-not-exist.nrrd"
 refuse "bad preset" "known: transparent" "$rp" render gen:ml:8 --tf nope \
   -o "$dir/c.png"
