@@ -5,7 +5,9 @@
  * The formats are told apart in this order: a .raw file by its name (its
  * bytes can be anything, "NRRD" included); NRRD by its magic "NRRD" at
  * byte 0; a sidecar by at least two of the lines "file:", "dims:" and
- * "type:". Only regular files are opened: a FIFO would block. */
+ * "type:". Only regular files are opened: a FIFO would block. A folder
+ * is a DICOM series, and a file with DICOM's magic ("DICM" at byte 128)
+ * one DICOM image (volume_dicom.c). */
 #include <errno.h>
 #include <fcntl.h>
 #include <stdio.h>
@@ -14,6 +16,7 @@
 #include <sys/types.h>
 #include <unistd.h>
 
+#include "volume_dicom.h"
 #include "volume_io.h"
 
 /* Bytes read from the start of a file to recognise it; an NRRD header or a
@@ -190,6 +193,7 @@ static int load_nrrd(rp_context *ctx, const char *path, FILE *fp,
 
 int rp_volume_load(rp_context *ctx, const char *path, rp_volume **out) {
   rp__volume_header hdr;
+  struct stat st;
   uint8_t *head = NULL;
   size_t head_len, got;
   uint64_t size = 0;
@@ -202,6 +206,8 @@ int rp_volume_load(rp_context *ctx, const char *path, rp_volume **out) {
     return rp__fail(ctx, RP_EINVAL,
                     "rp_volume_load: path and out must not be NULL");
   rp__volume_header_init(&hdr);
+  if (stat(path, &st) == 0 && S_ISDIR(st.st_mode))
+    return rp__dicom_load_dir(ctx, path, out);
   if ((fp = open_file(ctx, path, NULL, &size, &rc)) == NULL)
     return rc;
   /* A .raw file by its name first: its content is voxels only, and voxels
@@ -228,6 +234,9 @@ int rp_volume_load(rp_context *ctx, const char *path, rp_volume **out) {
   }
   if (head_len >= 4 && memcmp(head, "NRRD", 4) == 0) {
     rc = load_nrrd(ctx, path, fp, size, head, head_len, out);
+  } else if (head_len >= 132 && memcmp(head + 128, "DICM", 4) == 0) {
+    rp__dicom_src src = {path, NULL, 0};
+    rc = rp__dicom_load_file(ctx, &src, out);
   } else if (rp__looks_like_sidecar(head, head_len)) {
     if (size > HEAD_MAX)
       rc = rp__fail(ctx, RP_EFORMAT,
@@ -238,7 +247,8 @@ int rp_volume_load(rp_context *ctx, const char *path, rp_volume **out) {
   } else {
     rc = rp__fail(ctx, RP_EFORMAT,
                   "%s: not a volume file; accepted: NRRD (starts with "
-                  "NRRD000N), a sidecar (lines 'file:', 'dims:', 'type:') "
+                  "NRRD000N), DICOM (DICM at byte 128; or a folder of "
+                  "slices), a sidecar (lines 'file:', 'dims:', 'type:') "
                   "or NAME_XxYxZ_TYPE.raw (TYPE uint8, int8, uint16, int16, uint32, int32, float32)",
                   path);
   }
