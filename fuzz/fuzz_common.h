@@ -35,9 +35,9 @@ static int fuzz_parsed(rp_context *ctx, int rc) {
   return rc == 0;
 }
 
-static void fuzz_decode_checked(rp_context *ctx, const char *name,
-                                const rp__volume_header *hdr,
-                                const uint8_t *payload, size_t len) {
+static inline void fuzz_decode_checked(rp_context *ctx, const char *name,
+                                       const rp__volume_header *hdr,
+                                       const uint8_t *payload, size_t len) {
   static int sentinel;
   rp_volume *vol = (rp_volume *)&sentinel;
   rp_volume_info info;

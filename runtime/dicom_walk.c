@@ -8,7 +8,9 @@
  * walk checks only structure: every element's length fits in what
  * encloses it, sequences and items nest and close, explicit VRs are VRs,
  * and the data set ends where the file does. It decodes no value beyond
- * the transfer syntax; GDCM does the rest. */
+ * the transfer syntax; GDCM does the rest. RLE pixel data (whose GDCM
+ * decoder asserts that each frame decodes to its size) is decoded dry:
+ * every segment must give exactly Rows x Columns bytes. */
 #include <errno.h>
 #include <fcntl.h>
 #include <string.h>
@@ -29,7 +31,10 @@ typedef struct walk {
   const char *name;
   const uint8_t *p;
   size_t len;
-  int implicit, big_endian;
+  int implicit, big_endian, rle;
+  /* Top-level image tags, for the RLE check; 0: absent. */
+  uint32_t rows, cols, bits, samples, frames;
+  uint32_t rle_frames; /* frames checked */
 } walk;
 
 static uint32_t u16(const walk *w, size_t at) {
@@ -80,11 +85,104 @@ static int cut(walk *w, uint32_t group, uint32_t element, size_t at,
 static int walk_set(walk *w, size_t *pos, size_t end, int depth,
                     int in_item);
 
+static uint32_t le32(const uint8_t *b) {
+  return (uint32_t)b[3] << 24 | (uint32_t)b[2] << 16 | (uint32_t)b[1] << 8 |
+         b[0];
+}
+
+/* One PackBits segment of an RLE frame, from `p` up to `limit`: must give
+ * exactly `want` bytes. Returns the bytes left after it, or -1. */
+static long rle_segment(const uint8_t *p, size_t at, size_t limit,
+                        uint64_t want) {
+  uint64_t got = 0;
+  while (got < want) {
+    int8_t n;
+    if (at >= limit)
+      return -1;
+    n = (int8_t)p[at++];
+    if (n >= 0) {
+      if ((size_t)n + 1 > limit - at)
+        return -1;
+      at += (size_t)n + 1;
+      got += (uint64_t)n + 1;
+    } else if (n != -128) {
+      if (at >= limit)
+        return -1;
+      at++;
+      got += (uint64_t)(1 - n);
+    }
+  }
+  return got == want ? (long)(limit - at) : -1;
+}
+
+/* An RLE frame (a fragment after the offset table): a 64-byte header
+ * (segment count, 15 offsets), one segment per byte of a pixel. */
+static int rle_frame(walk *w, size_t at, uint32_t len) {
+  const uint8_t *f = w->p + at;
+  uint32_t segments, want_segments, i;
+  uint64_t plane = (uint64_t)w->rows * w->cols;
+  want_segments = w->bits / 8 * w->samples;
+  if (w->rows == 0 || w->cols == 0 || w->bits % 8 != 0 ||
+      want_segments == 0 || want_segments > 15)
+    return rp__fail(w->ctx, RP_EFORMAT, "%s: RLE pixel data without "
+                    "valid Rows, Columns, BitsAllocated and SamplesPerPixel "
+                    "before it", w->name);
+  if (len < 64 || (segments = le32(f)) != want_segments)
+    return rp__fail(w->ctx, RP_EFORMAT, "%s: RLE frame %u: %u segments, "
+                    "BitsAllocated / 8 x SamplesPerPixel = %u", w->name,
+                    w->rle_frames, len < 64 ? 0 : le32(f), want_segments);
+  for (i = 0; i < segments; i++) {
+    uint32_t start = le32(f + 4 + 4 * i);
+    uint32_t limit = i + 1 < segments ? le32(f + 8 + 4 * i) : len;
+    long left;
+    if ((i == 0 && start != 64) || start >= limit || limit > len ||
+        (left = rle_segment(f, start, limit, plane)) < 0 ||
+        (i + 1 < segments && left > 2))
+      return rp__fail(w->ctx, RP_EFORMAT, "%s: RLE frame %u, segment %u "
+                      "(bytes %u to %u) does not decode to Rows x Columns "
+                      "= %llu bytes: malformed RLE data", w->name,
+                      w->rle_frames, i, start, limit,
+                      (unsigned long long)plane);
+  }
+  w->rle_frames++;
+  return 0;
+}
+
+/* Top-level values the RLE check needs: US tags and NumberOfFrames. */
+static void note_image_tag(walk *w, uint32_t g, uint32_t e, size_t at,
+                           uint32_t len) {
+  uint32_t *us = NULL;
+  if (g != 0x0028)
+    return;
+  if (e == 0x0010)
+    us = &w->rows;
+  else if (e == 0x0011)
+    us = &w->cols;
+  else if (e == 0x0100)
+    us = &w->bits;
+  else if (e == 0x0002)
+    us = &w->samples;
+  if (us != NULL && len == 2)
+    *us = u16(w, at);
+  if (e == 0x0008) {
+    uint32_t v = 0, i;
+    for (i = 0; i < len && v < 100000000u; i++) {
+      uint8_t c = w->p[at + i];
+      if (c >= '0' && c <= '9')
+        v = v * 10 + (uint32_t)(c - '0');
+      else if (c != ' ' && c != '+')
+        break;
+    }
+    w->frames = v;
+  }
+}
+
 /* The items of a sequence (or the fragments of encapsulated pixel data,
  * `fragments`), from *pos: up to `end` for a defined length, else to the
  * sequence delimiter. */
 static int walk_items(walk *w, size_t *pos, size_t end, int undefined,
                       int fragments, int depth) {
+  uint32_t index = 0;
   while (undefined || *pos < end) {
     uint32_t g, e, len;
     size_t at = *pos;
@@ -92,8 +190,14 @@ static int walk_items(walk *w, size_t *pos, size_t end, int undefined,
       return cut(w, 0xfffe, 0xe000, at, 8, end);
     g = u16(w, at), e = u16(w, at + 2), len = u32(w, at + 4);
     *pos = at + 8;
-    if (g == 0xfffe && e == 0xe0dd && undefined)
+    if (g == 0xfffe && e == 0xe0dd && undefined) {
+      uint32_t frames = w->frames ? w->frames : 1;
+      if (fragments && w->rle && w->rle_frames != frames)
+        return rp__fail(w->ctx, RP_EFORMAT, "%s: %u RLE frames, "
+                        "NumberOfFrames (0028,0008) says %u", w->name,
+                        w->rle_frames, frames);
       return 0;
+    }
     if (g != 0xfffe || e != 0xe000)
       return rp__fail(w->ctx, RP_EFORMAT, "%s: (%04X,%04X) at byte %zu "
                       "where a sequence item (FFFE,E000) belongs", w->name,
@@ -114,7 +218,12 @@ static int walk_items(walk *w, size_t *pos, size_t end, int undefined,
       int rc = walk_set(w, pos, item_end, depth + 1, 0);
       if (rc != 0)
         return rc;
+    } else if (w->rle && index > 0) { /* item 0: the offset table */
+      int rc = rle_frame(w, *pos, len);
+      if (rc != 0)
+        return rc;
     }
+    index++;
     *pos = at + 8 + len;
   }
   return 0;
@@ -170,6 +279,8 @@ static int walk_set(walk *w, size_t *pos, size_t end, int depth,
                       "%zu has an undefined length", w->name, g, e, at);
     if (len != UNDEFINED && len > end - *pos)
       return cut(w, g, e, at, (uint64_t)len + head, end);
+    if (depth == 0 && len != UNDEFINED)
+      note_image_tag(w, g, e, *pos, len);
     if (sequence && (!w->implicit || len == UNDEFINED)) {
       size_t seq_end = len == UNDEFINED ? end : *pos + len;
       int rc = walk_items(w, pos, seq_end, len == UNDEFINED, 0, depth);
@@ -187,26 +298,39 @@ static int walk_set(walk *w, size_t *pos, size_t end, int depth,
 }
 
 /* The file meta group (explicit VR little endian, group 0002) from
- * *pos; sets the data set's transfer syntax. */
+ * *pos; sets the data set's transfer syntax. Its elements must end
+ * exactly where its group length (0002,0000), when present, says: GDCM
+ * asserts on a meta group that runs over it. */
 static int walk_meta(walk *w, size_t *pos) {
   char ts[68] = "";
-  while (w->len - *pos >= 8 && u16(w, *pos) == 0x0002) {
+  size_t meta_end = w->len;
+  int counted = 0;
+  while (*pos < meta_end && w->len - *pos >= 8 &&
+         (counted || u16(w, *pos) == 0x0002)) {
     size_t at = *pos;
     const uint8_t *vr = w->p + at + 4;
-    uint32_t len, element = u16(w, at + 2);
+    uint32_t len, group = u16(w, at), element = u16(w, at + 2);
     size_t head = 8;
-    if (!known_vr(vr))
-      return rp__fail(w->ctx, RP_EFORMAT, "%s: meta element (0002,%04X) "
-                      "has no valid VR", w->name, element);
+    if (group != 0x0002 || !known_vr(vr))
+      return rp__fail(w->ctx, RP_EFORMAT, "%s: meta element (%04X,%04X) at "
+                      "byte %zu: not group 0002 with a valid VR", w->name,
+                      group, element, at);
     if (long_vr(vr)) {
-      if (w->len - at < 12)
-        return cut(w, 2, element, at, 12, w->len);
+      if (meta_end - at < 12)
+        return cut(w, 2, element, at, 12, meta_end);
       len = u32(w, at + 8), head = 12;
     } else {
       len = u16(w, at + 6);
     }
-    if (len > w->len - at - head)
-      return cut(w, 2, element, at, (uint64_t)len + head, w->len);
+    if (len > meta_end - at - head)
+      return cut(w, 2, element, at, (uint64_t)len + head, meta_end);
+    if (element == 0x0000 && at == 132 && len == 4 && !counted) {
+      uint64_t group_end = (uint64_t)at + head + len + u32(w, at + head);
+      if (group_end > w->len)
+        return cut(w, 2, 0, at, group_end - at, w->len);
+      meta_end = (size_t)group_end;
+      counted = 1;
+    }
     if (element == 0x0010 && len < sizeof ts) {
       size_t n = len;
       memcpy(ts, w->p + at + head, n);
@@ -216,10 +340,16 @@ static int walk_meta(walk *w, size_t *pos) {
     }
     *pos = at + head + len;
   }
+  if (counted && *pos != meta_end)
+    return rp__fail(w->ctx, RP_EFORMAT, "%s: the meta group ends at byte "
+                    "%zu, its length (0002,0000) says %zu", w->name, *pos,
+                    meta_end);
   if (strcmp(ts, "1.2.840.10008.1.2") == 0)
     w->implicit = 1;
   else if (strcmp(ts, "1.2.840.10008.1.2.2") == 0)
     w->big_endian = 1;
+  else if (strcmp(ts, "1.2.840.10008.1.2.5") == 0)
+    w->rle = 1;
   else if (strcmp(ts, "1.2.840.10008.1.2.1.99") == 0)
     return rp__fail(w->ctx, RP_EUNSUPPORTED, "%s: TransferSyntaxUID "
                     "(0002,0010) '%s' (deflated) is not supported", w->name,
@@ -229,7 +359,9 @@ static int walk_meta(walk *w, size_t *pos) {
 
 int rp__dicom_walk(rp_context *ctx, const char *name, const uint8_t *p,
                    size_t len) {
-  walk w = {ctx, name, p, len, 0, 0};
+  walk w;
+  memset(&w, 0, sizeof w);
+  w.ctx = ctx, w.name = name, w.p = p, w.len = len;
   size_t pos = 132;
   int rc;
   if (len < 132 || memcmp(p + 128, "DICM", 4) != 0)

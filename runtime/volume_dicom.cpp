@@ -155,20 +155,22 @@ void read_uid(const gdcm::DataSet &ds, char *out, size_t cap) {
   out[n] = '\0';
 }
 
-/* A multi-frame image's geometry and rescale, which enhanced CT and MR
- * keep in functional group sequences: GDCM's helpers know where. */
+/* An enhanced multi-frame image (CT, MR, ...) keeps its geometry and
+ * rescale in functional group sequences, where GDCM's helpers know to
+ * look. A legacy multi-frame keeps them at the top level, read already
+ * (the step from SpacingBetweenSlices, else SliceThickness). */
 void multiframe_geometry(const gdcm::File &file, rp__dicom_meta *m) {
   const gdcm::DataSet &ds = file.GetDataSet();
+  if (!ds.FindDataElement(gdcm::Tag(0x5200, 0x9229)) &&
+      !ds.FindDataElement(gdcm::Tag(0x5200, 0x9230)))
+    return;
   std::vector<double> origin = gdcm::ImageHelper::GetOriginValue(file);
   std::vector<double> cosines =
       gdcm::ImageHelper::GetDirectionCosinesValue(file);
   std::vector<double> spacing = gdcm::ImageHelper::GetSpacingValue(file);
   std::vector<double> rescale =
       gdcm::ImageHelper::GetRescaleInterceptSlopeValue(file);
-  bool placed = ds.FindDataElement(gdcm::Tag(0x0020, 0x0032)) ||
-                ds.FindDataElement(gdcm::Tag(0x5200, 0x9229)) ||
-                ds.FindDataElement(gdcm::Tag(0x5200, 0x9230));
-  if (placed && origin.size() == 3 && cosines.size() == 6) {
+  if (origin.size() == 3 && cosines.size() == 6) {
     for (int i = 0; i < 3; i++)
       m->position[i] = origin[i];
     for (int i = 0; i < 6; i++)
@@ -296,11 +298,34 @@ void widen(const char *buf, size_t count, int bits, bool is_signed,
   }
 }
 
+/* The header's pixel format, checked before GDCM's image reader sees it:
+ * GDCM asserts on some values (SamplesPerPixel above 4, for one). */
+int format_ok(rp_context *ctx, const char *name, const rp__dicom_meta *m) {
+  int alloc = m->bits_allocated, stored = m->bits_stored;
+  if (m->samples != 1)
+    return rp__fail(ctx, RP_EUNSUPPORTED, "%s: SamplesPerPixel (0028,0002) "
+                    "%d: only grey images (one sample) make a volume", name,
+                    m->samples);
+  if ((alloc != 8 && alloc != 16 && alloc != 32) || stored < 1 ||
+      stored > alloc || m->high_bit != stored - 1 ||
+      (m->pixel_rep != 0 && m->pixel_rep != 1) ||
+      (alloc == 32 && stored == 32 && m->pixel_rep == 0))
+    return rp__fail(ctx, RP_EUNSUPPORTED, "%s: BitsAllocated (0028,0100) "
+                    "%d, BitsStored (0028,0101) %d, HighBit (0028,0102) %d, "
+                    "PixelRepresentation (0028,0103) %d: not a supported "
+                    "integer pixel format", name, alloc, stored, m->high_bit,
+                    m->pixel_rep);
+  return 0;
+}
+
 int pixels_read(rp_context *ctx, const rp__dicom_src *src,
                 const rp__dicom_meta *m, int32_t *dst, size_t count) {
   Input in(src);
   gdcm::ImageReader reader;
   const char *name = src->name;
+  int rc;
+  if ((rc = format_ok(ctx, name, m)) != 0)
+    return rc;
   if (in.stream == nullptr)
     return rp__fail(ctx, RP_EIO, "%s: cannot open: %s", name,
                     std::strerror(errno));
@@ -343,6 +368,17 @@ int pixels_read(rp_context *ctx, const rp__dicom_src *src,
   if (img.GetBufferLength() != bytes)
     return rp__fail(ctx, RP_EFORMAT, "%s: pixel data of %lu bytes, %zu "
                     "expected", name, img.GetBufferLength(), bytes);
+  /* Native pixel data shorter than the image: GDCM would copy the
+   * image's length out of the shorter value. */
+  const gdcm::DataElement &pd = img.GetDataElement();
+  const gdcm::ByteValue *native = pd.GetByteValue();
+  if (native != nullptr && native->GetLength() < bytes)
+    return rp__fail(ctx, RP_ETRUNC, "%s: PixelData (7FE0,0010) holds %u "
+                    "bytes, Columns x Rows x NumberOfFrames x "
+                    "BitsAllocated/8 = %zu", name,
+                    (unsigned)native->GetLength(), bytes);
+  if (native == nullptr && pd.GetSequenceOfFragments() == nullptr)
+    return rp__fail(ctx, RP_EFORMAT, "%s: no PixelData (7FE0,0010)", name);
   std::vector<char> buf(bytes);
   if (!img.GetBuffer(buf.data()))
     return rp__fail(ctx, RP_EFORMAT, "%s: PixelData (7FE0,0010) cannot be "

@@ -319,6 +319,35 @@ static void test_single_file(void **state) {
   rp_context_destroy(ctx);
 }
 
+/* A multi-frame file (legacy: one ImagePositionPatient for the first
+ * frame, SpacingBetweenSlices for the step), loaded on its own. */
+static void test_multiframe(void **state) {
+  rp_context *ctx = rp_test_context();
+  series s = oblique_ct();
+  const char *dir = fresh_dir("multiframe");
+  uint16_t pix[3 * 64], plane[64];
+  char path[600];
+  dicom_slice_desc d;
+  rp_volume *vol;
+  uint32_t k;
+  (void)state;
+  s.n = 3, s.step = 1.5;
+  snprintf(path, sizeof path, "%s/mf.dcm", dir);
+  for (k = 0; k < s.n; k++) {
+    slice_desc(&s, k, path, plane, &d);
+    memcpy(pix + k * 20, plane, 20 * sizeof *plane);
+  }
+  slice_desc(&s, 0, path, plane, &d);
+  d.pixels = pix;
+  d.frames = s.n;
+  d.spacing_between = s.step;
+  assert_int_equal(dicom_write(&d), 0);
+  vol = load_ok(ctx, path);
+  expect_series(vol, &s, RP_S16, -1);
+  rp_volume_destroy(vol);
+  rp_context_destroy(ctx);
+}
+
 /* Loads `dir`, which must fail with `err` and a message holding each of
  * the NULL-ended `parts`. */
 static void expect_refused(rp_context *ctx, const char *dir, int err,
@@ -491,6 +520,37 @@ static void test_truncated(void **state) {
   }
 }
 
+/* A corrupt RLE frame header (3 segments for 16-bit pixels): refused
+ * with a message, where GDCM's RLE decoder alone would abort on an
+ * assertion. */
+static void test_corrupt_rle(void **state) {
+  static const uint8_t header[] = {2, 0, 0, 0, 64, 0, 0, 0};
+  rp_context *ctx = rp_test_context();
+  series s = oblique_ct();
+  const char *dir = fresh_dir("bad_rle");
+  char path[600];
+  const char *parts[] = {path, "RLE frame 0", "3 segments", NULL};
+  uint8_t buf[4096];
+  size_t n, i;
+  FILE *f;
+  (void)state;
+  s.enc = DICOM_RLE;
+  write_series(&s, dir);
+  slice_name(path, sizeof path, dir, &s, 4);
+  assert_non_null(f = fopen(path, "r+b"));
+  n = fread(buf, 1, sizeof buf, f);
+  for (i = 132; i + sizeof header <= n; i++)
+    if (memcmp(buf + i, header, sizeof header) == 0)
+      break;
+  assert_true(i + sizeof header <= n);
+  buf[i] = 3;
+  assert_int_equal(fseek(f, 0, SEEK_SET), 0);
+  assert_int_equal(fwrite(buf, 1, n, f), n);
+  fclose(f);
+  expect_refused(ctx, dir, RP_EFORMAT, parts);
+  rp_context_destroy(ctx);
+}
+
 static void test_empty_and_foreign(void **state) {
   rp_context *ctx = rp_test_context();
   const char *dir = fresh_dir("empty");
@@ -532,10 +592,12 @@ int main(void) {
       cmocka_unit_test(test_widens_to_float_rle),
       cmocka_unit_test(test_non_dicom_skipped),
       cmocka_unit_test(test_single_file),
+      cmocka_unit_test(test_multiframe),
       cmocka_unit_test(test_mixed_series),
       cmocka_unit_test(test_missing_slice),
       cmocka_unit_test(test_refused_edits),
       cmocka_unit_test(test_truncated),
+      cmocka_unit_test(test_corrupt_rle),
       cmocka_unit_test(test_empty_and_foreign),
       cmocka_unit_test(test_volume_limit),
   };

@@ -91,6 +91,9 @@ int write(const dicom_slice_desc *d) {
   if (d->slice_thickness > 0)
     put(ds, 0x0018, 0x0050, gdcm::VR::DS,
         numbers(&d->slice_thickness, 1));
+  if (d->spacing_between > 0)
+    put(ds, 0x0018, 0x0088, gdcm::VR::DS,
+        numbers(&d->spacing_between, 1));
   if (d->has_rescale) {
     put(ds, 0x0028, 0x1053, gdcm::VR::DS, numbers(&d->slope, 1));
     put(ds, 0x0028, 0x1052, gdcm::VR::DS, numbers(&d->intercept, 1));

@@ -28,6 +28,7 @@ typedef struct dicom_slice_desc {
   double position[3], orientation[6];
   double pixel_spacing[2];  /* rows, columns; 0: no PixelSpacing */
   double slice_thickness;   /* 0: none */
+  double spacing_between;   /* SpacingBetweenSlices; 0: none */
   double slope, intercept;
   enum dicom_encoding encoding;
 } dicom_slice_desc;
