@@ -74,6 +74,42 @@ static int known_vr(const uint8_t *vr) {
   return 0;
 }
 
+/* Tags GDCM's image reader reads through its typed attributes, which
+ * assert that a file's VR is the dictionary's: in explicit VR each must
+ * carry this VR, and US values are one short (2 bytes) in either mode. */
+static const struct {
+  uint16_t group, element;
+  char vr[3];
+} typed_tags[] = {
+    {0x0008, 0x0016, "UI"}, {0x0008, 0x0060, "CS"}, {0x0018, 0x0050, "DS"},
+    {0x0018, 0x0088, "DS"}, {0x0018, 0x1164, "DS"}, {0x0020, 0x000d, "UI"},
+    {0x0020, 0x000e, "UI"}, {0x0020, 0x0013, "IS"}, {0x0020, 0x0032, "DS"},
+    {0x0020, 0x0037, "DS"}, {0x0028, 0x0002, "US"}, {0x0028, 0x0004, "CS"},
+    {0x0028, 0x0006, "US"}, {0x0028, 0x0008, "IS"}, {0x0028, 0x0010, "US"},
+    {0x0028, 0x0011, "US"}, {0x0028, 0x0030, "DS"}, {0x0028, 0x0034, "IS"},
+    {0x0028, 0x0100, "US"}, {0x0028, 0x0101, "US"}, {0x0028, 0x0102, "US"},
+    {0x0028, 0x0103, "US"}, {0x0028, 0x1050, "DS"}, {0x0028, 0x1051, "DS"},
+    {0x0028, 0x1052, "DS"}, {0x0028, 0x1053, "DS"}, {0x0028, 0x1054, "LO"}};
+
+static int typed_ok(walk *w, uint32_t g, uint32_t e, size_t at,
+                    const uint8_t *vr, uint32_t len) {
+  size_t i;
+  for (i = 0; i < sizeof typed_tags / sizeof typed_tags[0]; i++) {
+    if (typed_tags[i].group != g || typed_tags[i].element != e)
+      continue;
+    if ((vr != NULL && memcmp(vr, typed_tags[i].vr, 2) != 0) ||
+        (memcmp(typed_tags[i].vr, "US", 2) == 0 && len != 2))
+      return rp__fail(w->ctx, RP_EFORMAT, "%s: element (%04X,%04X) at byte "
+                      "%zu: VR %.2s and %u bytes; the dictionary says %s%s",
+                      w->name, g, e, at, vr != NULL ? (const char *)vr : "--",
+                      len, typed_tags[i].vr,
+                      memcmp(typed_tags[i].vr, "US", 2) == 0 ? " of 2 bytes"
+                                                              : "");
+    return 0;
+  }
+  return 0;
+}
+
 static int cut(walk *w, uint32_t group, uint32_t element, size_t at,
                uint64_t need, size_t end) {
   return rp__fail(w->ctx, RP_ETRUNC, "%s: element (%04X,%04X) at byte %zu "
@@ -279,6 +315,12 @@ static int walk_set(walk *w, size_t *pos, size_t end, int depth,
                       "%zu has an undefined length", w->name, g, e, at);
     if (len != UNDEFINED && len > end - *pos)
       return cut(w, g, e, at, (uint64_t)len + head, end);
+    if (len != UNDEFINED && g != 0xfffe) {
+      int rc = typed_ok(w, g, e, at,
+                        w->implicit ? NULL : w->p + at + 4, len);
+      if (rc != 0)
+        return rc;
+    }
     if (depth == 0 && len != UNDEFINED)
       note_image_tag(w, g, e, *pos, len);
     if (sequence && (!w->implicit || len == UNDEFINED)) {
@@ -305,16 +347,17 @@ static int walk_meta(walk *w, size_t *pos) {
   char ts[68] = "";
   size_t meta_end = w->len;
   int counted = 0;
-  while (*pos < meta_end && w->len - *pos >= 8 &&
-         (counted || u16(w, *pos) == 0x0002)) {
+  while (*pos < meta_end && w->len - *pos >= 8 && (counted || *pos == 132)) {
     size_t at = *pos;
     const uint8_t *vr = w->p + at + 4;
     uint32_t len, group = u16(w, at), element = u16(w, at + 2);
     size_t head = 8;
-    if (group != 0x0002 || !known_vr(vr))
+    if (group != 0x0002 || !known_vr(vr) || memcmp(vr, "SQ", 2) == 0 ||
+        (at == 132 && (element != 0 || memcmp(vr, "UL", 2) != 0)))
       return rp__fail(w->ctx, RP_EFORMAT, "%s: meta element (%04X,%04X) at "
-                      "byte %zu: not group 0002 with a valid VR", w->name,
-                      group, element, at);
+                      "byte %zu: the meta group is group 0002, starts with "
+                      "its length (0002,0000) UL and holds no sequence",
+                      w->name, group, element, at);
     if (long_vr(vr)) {
       if (meta_end - at < 12)
         return cut(w, 2, element, at, 12, meta_end);
@@ -340,10 +383,17 @@ static int walk_meta(walk *w, size_t *pos) {
     }
     *pos = at + head + len;
   }
-  if (counted && *pos != meta_end)
+  if (!counted || *pos != meta_end)
     return rp__fail(w->ctx, RP_EFORMAT, "%s: the meta group ends at byte "
                     "%zu, its length (0002,0000) says %zu", w->name, *pos,
-                    meta_end);
+                    counted ? meta_end : 0);
+  /* GDCM reads on while it finds group 0002, and asserts when the file
+   * ends where it looks for a tag. */
+  if (w->len - *pos < 8 || u16(w, *pos) == 0x0002)
+    return rp__fail(w->ctx, RP_EFORMAT, "%s: %s after the meta group "
+                    "(byte %zu)", w->name,
+                    w->len - *pos < 8 ? "no data set" : "a group 0002 element",
+                    *pos);
   if (strcmp(ts, "1.2.840.10008.1.2") == 0)
     w->implicit = 1;
   else if (strcmp(ts, "1.2.840.10008.1.2.2") == 0)

@@ -129,9 +129,12 @@ static int check_same(rp_context *ctx, const slice *first,
     return rp__fail(ctx, RP_EUNSUPPORTED, "%s: NumberOfFrames (0028,0008) "
                     "%u in a folder of slices: load a multi-frame file on "
                     "its own", s->path, b->frames);
-  if (!b->has_position || !b->has_orientation)
+  if (first == s)
+    return 0;
+  if (!b->has_position || !b->has_orientation || !a->has_orientation)
     return rp__fail(ctx, RP_EFORMAT, "%s: no %s: slices cannot be put in "
-                    "order without it", s->path,
+                    "order without it", !a->has_orientation ? first->path
+                                                            : s->path,
                     !b->has_position ? "ImagePositionPatient (0020,0032)"
                                      : "ImageOrientationPatient (0020,0037)");
   for (i = 0; i < 6; i++)
@@ -401,10 +404,18 @@ static int load_series(rp_context *ctx, const char *dir, slice_list *l,
   double normal[3], step = 1.0, min_pixel = 1.0;
   size_t i;
   int rc;
-  for (i = 0; i < l->n; i++)
+  if (l->n == 0)
+    return rp__fail(ctx, RP_EFORMAT, "%s: no slices", dir);
+  /* Slice 0 is held to the others (its position too) from slice 1 on. */
+  for (i = l->n > 1 ? 1 : 0; i < l->n; i++)
     if ((rc = check_same(ctx, &l->s[0], &l->s[i])) != 0)
       return rc;
-  if ((rc = orientation_ok(ctx, l->s[0].path, l->s[0].m.orientation)) != 0)
+  if (l->n > 1 && !l->s[0].m.has_position)
+    return rp__fail(ctx, RP_EFORMAT, "%s: no ImagePositionPatient "
+                    "(0020,0032): slices cannot be put in order without it",
+                    l->s[0].path);
+  if (l->s[0].m.has_orientation &&
+      (rc = orientation_ok(ctx, l->s[0].path, l->s[0].m.orientation)) != 0)
     return rc;
   normal_of(l->s[0].m.orientation, normal);
   for (i = 0; i < l->n; i++)
@@ -481,7 +492,7 @@ static int list_files(rp_context *ctx, const char *dir, char ***names,
 static int imageless_in_series(rp_context *ctx, const slice_list *l,
                                const slice_list *other) {
   size_t i;
-  for (i = 0; i < other->n; i++)
+  for (i = 0; l->n > 0 && i < other->n; i++)
     if (strcmp(other->s[i].m.series_uid, l->s[0].m.series_uid) == 0)
       return rp__fail(ctx, RP_EFORMAT, "%s: a file of the series '%s' "
                       "without an image (no Rows (0028,0010) or Columns "
