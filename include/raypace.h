@@ -189,6 +189,9 @@ RP_API int rp_volume_create(rp_context *ctx, const rp_volume_desc *desc,
  *  - Orientation: direction columns are the row cosines, the column
  *    cosines and the slice normal (the order slices were stacked in);
  *    origin is the first slice's ImagePositionPatient.
+ *  - Each file's structure is checked before GDCM reads it (element
+ *    lengths, nesting, tag order, VRs against the dictionary; RLE frames
+ *    decoded dry): Debian's GDCM aborts on some malformed files.
  *  max_volume_bytes is checked before anything is allocated.
  *  \returns 0, RP_ENOENT, RP_EIO, RP_EFORMAT, RP_ETRUNC, RP_ERANGE,
  *  RP_EUNSUPPORTED (also: DICOM in a build without GDCM),

@@ -74,42 +74,6 @@ static int known_vr(const uint8_t *vr) {
   return 0;
 }
 
-/* Tags GDCM's image reader reads through its typed attributes, which
- * assert that a file's VR is the dictionary's: in explicit VR each must
- * carry this VR, and US values are one short (2 bytes) in either mode. */
-static const struct {
-  uint16_t group, element;
-  char vr[3];
-} typed_tags[] = {
-    {0x0008, 0x0016, "UI"}, {0x0008, 0x0060, "CS"}, {0x0018, 0x0050, "DS"},
-    {0x0018, 0x0088, "DS"}, {0x0018, 0x1164, "DS"}, {0x0020, 0x000d, "UI"},
-    {0x0020, 0x000e, "UI"}, {0x0020, 0x0013, "IS"}, {0x0020, 0x0032, "DS"},
-    {0x0020, 0x0037, "DS"}, {0x0028, 0x0002, "US"}, {0x0028, 0x0004, "CS"},
-    {0x0028, 0x0006, "US"}, {0x0028, 0x0008, "IS"}, {0x0028, 0x0010, "US"},
-    {0x0028, 0x0011, "US"}, {0x0028, 0x0030, "DS"}, {0x0028, 0x0034, "IS"},
-    {0x0028, 0x0100, "US"}, {0x0028, 0x0101, "US"}, {0x0028, 0x0102, "US"},
-    {0x0028, 0x0103, "US"}, {0x0028, 0x1050, "DS"}, {0x0028, 0x1051, "DS"},
-    {0x0028, 0x1052, "DS"}, {0x0028, 0x1053, "DS"}, {0x0028, 0x1054, "LO"}};
-
-static int typed_ok(walk *w, uint32_t g, uint32_t e, size_t at,
-                    const uint8_t *vr, uint32_t len) {
-  size_t i;
-  for (i = 0; i < sizeof typed_tags / sizeof typed_tags[0]; i++) {
-    if (typed_tags[i].group != g || typed_tags[i].element != e)
-      continue;
-    if ((vr != NULL && memcmp(vr, typed_tags[i].vr, 2) != 0) ||
-        (memcmp(typed_tags[i].vr, "US", 2) == 0 && len != 2))
-      return rp__fail(w->ctx, RP_EFORMAT, "%s: element (%04X,%04X) at byte "
-                      "%zu: VR %.2s and %u bytes; the dictionary says %s%s",
-                      w->name, g, e, at, vr != NULL ? (const char *)vr : "--",
-                      len, typed_tags[i].vr,
-                      memcmp(typed_tags[i].vr, "US", 2) == 0 ? " of 2 bytes"
-                                                              : "");
-    return 0;
-  }
-  return 0;
-}
-
 static int cut(walk *w, uint32_t group, uint32_t element, size_t at,
                uint64_t need, size_t end) {
   return rp__fail(w->ctx, RP_ETRUNC, "%s: element (%04X,%04X) at byte %zu "
@@ -269,6 +233,8 @@ static int walk_items(walk *w, size_t *pos, size_t end, int undefined,
  * delimiter (FFFE,E00D). */
 static int walk_set(walk *w, size_t *pos, size_t end, int depth,
                     int in_item) {
+  uint32_t last = 0;
+  int first = 1;
   if (depth > MAX_DEPTH)
     return rp__fail(w->ctx, RP_EFORMAT, "%s: sequences nested deeper than "
                     "%d levels at byte %zu", w->name, MAX_DEPTH, *pos);
@@ -283,6 +249,14 @@ static int walk_set(walk *w, size_t *pos, size_t end, int depth,
       *pos = at + 8;
       return 0;
     }
+    /* Tags ascend in a data set; GDCM re-reads a file that breaks the
+     * order in other encodings, where lengths mean other things. */
+    if (!first && (g << 16 | e) <= last)
+      return rp__fail(w->ctx, RP_EFORMAT, "%s: element (%04X,%04X) at byte "
+                      "%zu after (%04X,%04X): tags out of order", w->name, g,
+                      e, at, last >> 16, last & 0xffff);
+    last = g << 16 | e;
+    first = 0;
     if (w->implicit || g == 0xfffe) {
       len = u32(w, at + 4);
       sequence = len == UNDEFINED;
@@ -315,12 +289,6 @@ static int walk_set(walk *w, size_t *pos, size_t end, int depth,
                       "%zu has an undefined length", w->name, g, e, at);
     if (len != UNDEFINED && len > end - *pos)
       return cut(w, g, e, at, (uint64_t)len + head, end);
-    if (len != UNDEFINED && g != 0xfffe) {
-      int rc = typed_ok(w, g, e, at,
-                        w->implicit ? NULL : w->p + at + 4, len);
-      if (rc != 0)
-        return rc;
-    }
     if (depth == 0 && len != UNDEFINED)
       note_image_tag(w, g, e, *pos, len);
     if (sequence && (!w->implicit || len == UNDEFINED)) {

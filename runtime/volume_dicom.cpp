@@ -21,10 +21,13 @@
 #include <vector>
 
 #include <gdcmDataSet.h>
+#include <gdcmDicts.h>
+#include <gdcmGlobal.h>
 #include <gdcmImage.h>
 #include <gdcmImageHelper.h>
 #include <gdcmImageReader.h>
 #include <gdcmReader.h>
+#include <gdcmSequenceOfItems.h>
 #include <gdcmTag.h>
 #include <gdcmTrace.h>
 #include <gdcmTransferSyntax.h>
@@ -190,6 +193,57 @@ void multiframe_geometry(const gdcm::File &file, rp__dicom_meta *m) {
   }
 }
 
+/* GDCM's typed attributes assert that an element's VR is the one its
+ * dictionary gives, and its image reader reads many tags through them:
+ * a file that gives a public tag another VR (or a binary value whose
+ * length is not a whole number of values) is refused before that.
+ * Nested data sets are checked too (enhanced images keep their geometry
+ * in sequences). */
+int vrs_ok(rp_context *ctx, const char *name, const gdcm::DataSet &ds,
+           int depth) {
+  const gdcm::Dicts &dicts = gdcm::Global::GetInstance().GetDicts();
+  for (auto it = ds.Begin(); it != ds.End(); ++it) {
+    const gdcm::DataElement &de = *it;
+    const gdcm::Tag &tag = de.GetTag();
+    gdcm::VR vr = de.GetVR();
+    if (tag.IsPrivate() || tag.GetGroup() == 0xfffe)
+      continue;
+    gdcm::VR want = dicts.GetDictEntry(tag).GetVR();
+    if (vr != gdcm::VR::INVALID && want != gdcm::VR::INVALID &&
+        want != gdcm::VR::UN && !want.Compatible(vr))
+      return rp__fail(ctx, RP_EFORMAT, "%s: (%04X,%04X) has VR %s, the "
+                      "dictionary says %s", name, tag.GetGroup(),
+                      tag.GetElement(), gdcm::VR::GetVRString(vr),
+                      gdcm::VR::GetVRString(want));
+    gdcm::VR as = vr != gdcm::VR::INVALID ? vr : want;
+    const gdcm::ByteValue *bv = de.GetByteValue();
+    static const gdcm::VR::VRType fixed[] = {
+        gdcm::VR::AT, gdcm::VR::FL, gdcm::VR::FD, gdcm::VR::SL,
+        gdcm::VR::SS, gdcm::VR::UL, gdcm::VR::US};
+    for (gdcm::VR::VRType f : fixed)
+      if (as == f && bv != nullptr &&
+          bv->GetLength() % gdcm::VR(f).GetSize() != 0)
+        return rp__fail(ctx, RP_EFORMAT, "%s: (%04X,%04X) %s holds %u "
+                        "bytes, not whole values of %u", name,
+                        tag.GetGroup(), tag.GetElement(),
+                        gdcm::VR::GetVRString(f), (unsigned)bv->GetLength(),
+                        gdcm::VR(f).GetSize());
+    const gdcm::SequenceOfItems *sq =
+        de.IsEmpty() ? nullptr
+                     : dynamic_cast<const gdcm::SequenceOfItems *>(
+                           &de.GetValue());
+    if (sq != nullptr && depth < 16)
+      for (gdcm::SequenceOfItems::SizeType i = 1;
+           i <= sq->GetNumberOfItems(); i++) {
+        int rc = vrs_ok(ctx, name, sq->GetItem(i).GetNestedDataSet(),
+                        depth + 1);
+        if (rc != 0)
+          return rc;
+      }
+  }
+  return 0;
+}
+
 /* The tags of a header that has been read. */
 int meta_from(rp_context *ctx, const char *name, const gdcm::File &file,
               rp__dicom_meta *m) {
@@ -278,7 +332,8 @@ int meta_read(rp_context *ctx, const rp__dicom_src *src, rp__dicom_meta *m) {
   if (!reader.ReadUpToTag(kPixelData, std::set<gdcm::Tag>{kPixelData}))
     return rp__fail(ctx, RP_EFORMAT, "%s: GDCM cannot read the header "
                     "(malformed)", src->name);
-  return meta_from(ctx, src->name, reader.GetFile(), m);
+  int rc = vrs_ok(ctx, src->name, reader.GetFile().GetDataSet(), 0);
+  return rc != 0 ? rc : meta_from(ctx, src->name, reader.GetFile(), m);
 }
 
 /* Stored values to int32: masked to BitsStored, sign-extended when

@@ -56,7 +56,8 @@ typedef struct rp__dicom_meta {
 int rp__dicom_meta_read(rp_context *ctx, const rp__dicom_src *src,
                         rp__dicom_meta *m);
 
-/* Walks, reads the whole file and decodes its pixel data (any transfer syntax
+/* After rp__dicom_meta_read on the same file (which checks what GDCM's
+ * image reader would assert on): walks, reads the whole file and decodes its pixel data (any transfer syntax
  * GDCM reads: implicit/explicit VR, JPEG, JPEG-LS, JPEG 2000, RLE) into
  * `dst`, `count` stored values, x fastest, then rows, then frames: each
  * value sign-extended or masked to BitsStored. The file must still match
