@@ -276,6 +276,12 @@ static int walk_set(walk *w, size_t *pos, size_t end, int depth,
       }
       sequence = memcmp(vr, "SQ", 2) == 0 ||
                  (len == UNDEFINED && memcmp(vr, "UN", 2) == 0);
+      /* GDCM asserts PixelData is neither a sequence nor UN. */
+      if (g == 0x7fe0 && e == 0x0010 && memcmp(vr, "OB", 2) != 0 &&
+          memcmp(vr, "OW", 2) != 0)
+        return rp__fail(w->ctx, RP_EFORMAT, "%s: PixelData (7FE0,0010) at "
+                        "byte %zu has VR %.2s, not OB or OW", w->name, at,
+                        (const char *)vr);
     }
     *pos = at + head;
     if (g == 0x7fe0 && e == 0x0010 && len == UNDEFINED) {
@@ -293,7 +299,13 @@ static int walk_set(walk *w, size_t *pos, size_t end, int depth,
       note_image_tag(w, g, e, *pos, len);
     if (sequence && (!w->implicit || len == UNDEFINED)) {
       size_t seq_end = len == UNDEFINED ? end : *pos + len;
-      int rc = walk_items(w, pos, seq_end, len == UNDEFINED, 0, depth);
+      /* An explicit UN of undefined length holds implicit VR items
+       * (CP 246), and GDCM reads them so. */
+      int was_implicit = w->implicit, rc;
+      if (!w->implicit && memcmp(w->p + at + 4, "UN", 2) == 0)
+        w->implicit = 1;
+      rc = walk_items(w, pos, seq_end, len == UNDEFINED, 0, depth);
+      w->implicit = was_implicit;
       if (rc != 0)
         return rc;
       if (len != UNDEFINED)
