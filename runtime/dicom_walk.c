@@ -190,6 +190,10 @@ static int walk_items(walk *w, size_t *pos, size_t end, int undefined,
       return cut(w, 0xfffe, 0xe000, at, 8, end);
     g = u16(w, at), e = u16(w, at + 2), len = u32(w, at + 4);
     *pos = at + 8;
+    if (g == 0xfffe && (e == 0xe0dd || e == 0xe00d) && len != 0)
+      return rp__fail(w->ctx, RP_EFORMAT, "%s: a delimiter (FFFE,%04X) at "
+                      "byte %zu with length %u (a delimiter has none)",
+                      w->name, e, at, len);
     if (g == 0xfffe && e == 0xe0dd && undefined) {
       uint32_t frames = w->frames ? w->frames : 1;
       if (fragments && w->rle && w->rle_frames != frames)
@@ -246,6 +250,10 @@ static int walk_set(walk *w, size_t *pos, size_t end, int depth,
       return cut(w, 0, 0, at, 8, end);
     g = u16(w, at), e = u16(w, at + 2);
     if (g == 0xfffe && e == 0xe00d && in_item) {
+      if (u32(w, at + 4) != 0)
+        return rp__fail(w->ctx, RP_EFORMAT, "%s: a delimiter (FFFE,E00D) "
+                        "at byte %zu with a length (a delimiter has none)",
+                        w->name, at);
       *pos = at + 8;
       return 0;
     }
