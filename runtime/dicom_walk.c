@@ -26,12 +26,15 @@
 #define MAX_DEPTH 16
 #define UNDEFINED 0xffffffffu
 
+enum { CODEC_NONE, CODEC_JPEG, CODEC_J2K };
+
 typedef struct walk {
   rp_context *ctx;
   const char *name;
   const uint8_t *p;
   size_t len;
   int implicit, big_endian, rle;
+  int codec; /* CODEC_*: the compressed pixel data's frame headers */
   /* Top-level image tags, for the RLE check; 0: absent. */
   uint32_t rows, cols, bits, samples, frames;
   uint32_t rle_frames; /* frames checked */
@@ -148,6 +151,75 @@ static int rle_frame(walk *w, size_t at, uint32_t len) {
   return 0;
 }
 
+static uint32_t be16(const uint8_t *b) { return (uint32_t)b[0] << 8 | b[1]; }
+
+static uint32_t be32(const uint8_t *b) {
+  return be16(b) << 16 | be16(b + 2);
+}
+
+/* The size a JPEG or JPEG-LS frame header (SOFn, SOF55) gives, from the
+ * markers before the scan; 0 when none is found. */
+static int jpeg_size(const uint8_t *f, size_t len, uint32_t *width,
+                     uint32_t *height, uint32_t *components) {
+  size_t at = 2; /* after SOI */
+  while (at + 4 <= len && f[at] == 0xff) {
+    uint8_t m = f[at + 1];
+    uint32_t seg = be16(f + at + 2);
+    if (m == 0xda)
+      return 0; /* the scan, and no frame header before it */
+    if (((m >= 0xc0 && m <= 0xcf && m != 0xc4 && m != 0xc8 &&
+          m != 0xcc) || m == 0xf7) && seg >= 8 && at + 2 + seg <= len) {
+      *height = be16(f + at + 5);
+      *width = be16(f + at + 7);
+      *components = f[at + 9];
+      return 1;
+    }
+    at += 2 + seg;
+  }
+  return 0;
+}
+
+/* The size a JPEG 2000 codestream's SIZ marker gives; 0 when absent. */
+static int j2k_size(const uint8_t *f, size_t len, uint32_t *width,
+                    uint32_t *height, uint32_t *components) {
+  size_t at;
+  for (at = 0; at + 42 <= len && at < 512; at++)
+    if (f[at] == 0xff && f[at + 1] == 0x4f && f[at + 2] == 0xff &&
+        f[at + 3] == 0x51) {
+      const uint8_t *siz = f + at + 4;
+      *width = be32(siz + 4) - be32(siz + 12);
+      *height = be32(siz + 8) - be32(siz + 16);
+      *components = be16(siz + 36);
+      return 1;
+    }
+  return 0;
+}
+
+/* A fragment of JPEG-family pixel data: one that starts a frame (SOI, or
+ * a JPEG 2000 box or codestream) must say the image's size, since GDCM
+ * asserts that a codec gives it at least the bytes the image needs. */
+static int codec_fragment(walk *w, size_t at, uint32_t len) {
+  const uint8_t *f = w->p + at;
+  uint32_t width = 0, height = 0, components = 0;
+  int found;
+  if (w->codec == CODEC_JPEG) {
+    if (len < 2 || f[0] != 0xff || f[1] != 0xd8)
+      return 0; /* a frame's continuation */
+    found = jpeg_size(f, len, &width, &height, &components);
+  } else {
+    found = j2k_size(f, len, &width, &height, &components);
+    if (!found && !(len >= 12 && memcmp(f + 4, "jP  ", 4) == 0))
+      return 0; /* a continuation */
+  }
+  if (!found || width != w->cols || height != w->rows ||
+      components != (w->samples ? w->samples : 1))
+    return rp__fail(w->ctx, RP_EFORMAT, "%s: compressed frame at byte %zu: "
+                    "%s%ux%u with %u components, the image is Columns %u x "
+                    "Rows %u", w->name, at, found ? "" : "no frame header; ",
+                    width, height, components, w->cols, w->rows);
+  return 0;
+}
+
 /* Top-level values the RLE check needs: US tags and NumberOfFrames. */
 static void note_image_tag(walk *w, uint32_t g, uint32_t e, size_t at,
                            uint32_t len) {
@@ -222,8 +294,10 @@ static int walk_items(walk *w, size_t *pos, size_t end, int undefined,
       int rc = walk_set(w, pos, item_end, depth + 1, 0);
       if (rc != 0)
         return rc;
-    } else if (w->rle && index > 0) { /* item 0: the offset table */
-      int rc = rle_frame(w, *pos, len);
+    } else if (index > 0 && (w->rle || w->codec != CODEC_NONE)) {
+      /* Item 0 is the offset table. */
+      int rc = w->rle ? rle_frame(w, *pos, len)
+                      : codec_fragment(w, *pos, len);
       if (rc != 0)
         return rc;
     }
@@ -388,6 +462,12 @@ static int walk_meta(walk *w, size_t *pos) {
     w->big_endian = 1;
   else if (strcmp(ts, "1.2.840.10008.1.2.5") == 0)
     w->rle = 1;
+  else if (strncmp(ts, "1.2.840.10008.1.2.4.", 20) == 0 &&
+           strlen(ts) == 22 && ts[20] == '9')
+    w->codec = CODEC_J2K; /* .90 to .93, JPEG 2000 */
+  else if (strncmp(ts, "1.2.840.10008.1.2.4.", 20) == 0 &&
+           strlen(ts) == 22 && ts[20] >= '5' && ts[20] <= '8')
+    w->codec = CODEC_JPEG; /* JPEG .50 to .70, JPEG-LS .80 and .81 */
   else if (strcmp(ts, "1.2.840.10008.1.2.1.99") == 0)
     return rp__fail(w->ctx, RP_EUNSUPPORTED, "%s: TransferSyntaxUID "
                     "(0002,0010) '%s' (deflated) is not supported", w->name,
