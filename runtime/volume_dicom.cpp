@@ -143,11 +143,13 @@ int read_numbers(rp_context *ctx, const char *name, const gdcm::DataSet &ds,
                   element, shown(bv).c_str(), n, n > 1 ? "s" : "");
 }
 
-void read_uid(const gdcm::DataSet &ds, char *out, size_t cap) {
-  const gdcm::ByteValue *bv = value_of(ds, 0x0020, 0x000e);
+/* A short text value (a UID or a code string) without its padding. */
+void read_text(const gdcm::DataSet &ds, uint16_t group, uint16_t element,
+               char *out, size_t cap) {
+  const gdcm::ByteValue *bv = value_of(ds, group, element);
   size_t n = 0;
   if (bv != nullptr) {
-    /* UIDs are padded with a NUL (or a space) to an even length. */
+    /* Values are padded with a NUL or a space to an even length. */
     for (n = 0; n < bv->GetLength() && n + 1 < cap; n++) {
       char c = bv->GetPointer()[n];
       if (c == '\0' || c == ' ')
@@ -252,7 +254,7 @@ int meta_from(rp_context *ctx, const char *name, const gdcm::File &file,
   double frames = 1, step = 0;
   int rc;
   int has_rows, has_step = 0;
-  read_uid(ds, m->series_uid, sizeof m->series_uid);
+  read_text(ds, 0x0020, 0x000e, m->series_uid, sizeof m->series_uid);
   if ((has_rows = read_us(ctx, name, ds, 0x0028, 0x0010, "Rows",
                           &m->rows)) < 0 ||
       (rc = read_us(ctx, name, ds, 0x0028, 0x0011, "Columns",
@@ -275,6 +277,7 @@ int meta_from(rp_context *ctx, const char *name, const gdcm::File &file,
     if (rc == 1)
       *u.out = (int)v;
   }
+  read_text(ds, 0x0028, 0x0004, m->photometric, sizeof m->photometric);
   struct {
     uint16_t group, element;
     const char *what;
@@ -357,6 +360,12 @@ void widen(const char *buf, size_t count, int bits, bool is_signed,
  * GDCM asserts on some values (SamplesPerPixel above 4, for one). */
 int format_ok(rp_context *ctx, const char *name, const rp__dicom_meta *m) {
   int alloc = m->bits_allocated, stored = m->bits_stored;
+  if (m->photometric[0] != '\0' &&
+      std::strcmp(m->photometric, "MONOCHROME1") != 0 &&
+      std::strcmp(m->photometric, "MONOCHROME2") != 0)
+    return rp__fail(ctx, RP_EUNSUPPORTED, "%s: PhotometricInterpretation "
+                    "(0028,0004) '%s': only grey images (MONOCHROME1/2) "
+                    "make a volume", name, m->photometric);
   if (m->samples != 1)
     return rp__fail(ctx, RP_EUNSUPPORTED, "%s: SamplesPerPixel (0028,0002) "
                     "%d: only grey images (one sample) make a volume", name,

@@ -38,6 +38,7 @@ typedef struct rp__dicom_meta {
   int high_bit;              /* (0028,0102) */
   int pixel_rep;             /* (0028,0103): 0 unsigned, 1 signed */
   int samples;               /* (0028,0002); 1 when absent */
+  char photometric[20];      /* (0028,0004), trimmed; "" when absent */
   int has_position, has_orientation, has_pixel_spacing;
   double position[3];        /* (0020,0032) ImagePositionPatient */
   double orientation[6];     /* (0020,0037) row, then column cosines */
