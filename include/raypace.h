@@ -189,6 +189,9 @@ RP_API int rp_volume_create(rp_context *ctx, const rp_volume_desc *desc,
  *  - Orientation: direction columns are the row cosines, the column
  *    cosines and the slice normal (the order slices were stacked in);
  *    origin is the first slice's ImagePositionPatient.
+ *  - Classes read: CT, MR, PET, NM, their enhanced and legacy-converted
+ *    forms, grey secondary capture; others are refused (RP_EUNSUPPORTED),
+ *    as are colour and palette images.
  *  - Each file's structure is checked before GDCM reads it (element
  *    lengths, nesting, tag order, VRs against the dictionary; RLE frames
  *    decoded dry): Debian's GDCM aborts on some malformed files.

@@ -246,6 +246,47 @@ int vrs_ok(rp_context *ctx, const char *name, const gdcm::DataSet &ds,
   return 0;
 }
 
+/* The image storage classes read as volumes. GDCM's image reader takes
+ * modality-specific paths by SOP class (RT dose scaling, palettes, ...),
+ * some of which assert on malformed values; these are the classes of
+ * grey volumes, and the ones tested. */
+const char *const kVolumeClasses[] = {
+    "1.2.840.10008.5.1.4.1.1.2",     /* CT */
+    "1.2.840.10008.5.1.4.1.1.2.1",   /* Enhanced CT */
+    "1.2.840.10008.5.1.4.1.1.2.2",   /* Legacy Converted Enhanced CT */
+    "1.2.840.10008.5.1.4.1.1.4",     /* MR */
+    "1.2.840.10008.5.1.4.1.1.4.1",   /* Enhanced MR */
+    "1.2.840.10008.5.1.4.1.1.4.4",   /* Legacy Converted Enhanced MR */
+    "1.2.840.10008.5.1.4.1.1.128",   /* PET */
+    "1.2.840.10008.5.1.4.1.1.128.1", /* Legacy Converted Enhanced PET */
+    "1.2.840.10008.5.1.4.1.1.130",   /* Enhanced PET */
+    "1.2.840.10008.5.1.4.1.1.20",    /* NM */
+    "1.2.840.10008.5.1.4.1.1.7",     /* Secondary Capture */
+    "1.2.840.10008.5.1.4.1.1.7.2",   /* Multi-frame Grayscale Byte SC */
+    "1.2.840.10008.5.1.4.1.1.7.3"};  /* Multi-frame Grayscale Word SC */
+
+/* SOPClassUID (0008,0016) and the meta header's MediaStorageSOPClassUID
+ * (0002,0002), which GDCM prefers, must both name a volume class. */
+int sop_class_ok(rp_context *ctx, const char *name, const gdcm::File &file) {
+  char sop[68], media[68];
+  read_text(file.GetDataSet(), 0x0008, 0x0016, sop, sizeof sop);
+  read_text(file.GetHeader(), 0x0002, 0x0002, media, sizeof media);
+  const char *uids[] = {sop, media};
+  for (const char *uid : uids) {
+    bool known = false;
+    for (const char *c : kVolumeClasses)
+      known = known || std::strcmp(uid, c) == 0;
+    if (!known && (uid == sop || uid[0] != '\0'))
+      return rp__fail(ctx, RP_EUNSUPPORTED, "%s: %s '%s' is not a volume "
+                      "class raypace reads (CT, MR, PET, NM, their enhanced "
+                      "forms, grey secondary capture)", name,
+                      uid == sop ? "SOPClassUID (0008,0016)"
+                                 : "MediaStorageSOPClassUID (0002,0002)",
+                      uid);
+  }
+  return 0;
+}
+
 /* The tags of a header that has been read. */
 int meta_from(rp_context *ctx, const char *name, const gdcm::File &file,
               rp__dicom_meta *m) {
@@ -335,8 +376,12 @@ int meta_read(rp_context *ctx, const rp__dicom_src *src, rp__dicom_meta *m) {
   if (!reader.ReadUpToTag(kPixelData, std::set<gdcm::Tag>{kPixelData}))
     return rp__fail(ctx, RP_EFORMAT, "%s: GDCM cannot read the header "
                     "(malformed)", src->name);
-  int rc = vrs_ok(ctx, src->name, reader.GetFile().GetDataSet(), 0);
-  return rc != 0 ? rc : meta_from(ctx, src->name, reader.GetFile(), m);
+  int rc = meta_from(ctx, src->name, reader.GetFile(), m);
+  if (rc == 0)
+    rc = vrs_ok(ctx, src->name, reader.GetFile().GetDataSet(), 0);
+  if (rc == 0)
+    rc = sop_class_ok(ctx, src->name, reader.GetFile());
+  return rc;
 }
 
 /* Stored values to int32: masked to BitsStored, sign-extended when
