@@ -15,7 +15,7 @@ PKGS="cmake make gcc clang libclang-rt-14-dev pkg-config zlib1g-dev
 libpng-dev libcjson-dev libuv1-dev libcmocka-dev ocl-icd-opencl-dev
 opencl-headers pocl-opencl-icd libvulkan-dev mesa-vulkan-drivers glslc
 g++ libdlib-dev libjpeg-dev libblas-dev liblapack-dev gnuplot-nox
-libopenmpi-dev openmpi-bin libnifti2-dev"
+libopenmpi-dev openmpi-bin libnifti2-dev libgdcm-dev"
 missing=""
 for p in $PKGS; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "ok installed" ||
@@ -95,6 +95,6 @@ if printf '%s' "$report" | grep -qE "warning:|error:"; then
 fi
 echo "clang --analyze: no reports"
 
-CC=clang build build-fuzz -DRP_FUZZ=ON -DRP_BUILD_TESTS=OFF \
+CC=clang CXX=clang++ build build-fuzz -DRP_FUZZ=ON -DRP_BUILD_TESTS=OFF \
   -DRP_BUILD_CLI=OFF -DRP_BUILD_SAMPLES=OFF -DRP_BUILD_BENCH=OFF
 ctest --test-dir build-fuzz -j "$jobs" --output-on-failure

@@ -56,8 +56,8 @@ static inline int fuzz_orientation_bad(const rp_orientation *o) {
 }
 
 static inline void fuzz_decode_checked(rp_context *ctx, const char *name,
-                                const rp__volume_header *hdr,
-                                const uint8_t *payload, size_t len) {
+                                       const rp__volume_header *hdr,
+                                       const uint8_t *payload, size_t len) {
   static int sentinel;
   rp_volume *vol = (rp_volume *)&sentinel;
   rp_volume_info info;

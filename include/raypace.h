@@ -173,8 +173,43 @@ RP_API int rp_volume_create(rp_context *ctx, const rp_volume_desc *desc,
  *  integer data with integer scaling that fits stays int16, anything else
  *  becomes float32 (so does float64 data). Messages name the file, the
  *  field and the value at fault.
+ *
+ *  DICOM (\since 0.11; builds with GDCM): `path` may be a folder holding
+ *  one series of slice files, or one DICOM file (a slice, or a
+ *  multi-frame image). In a folder, files that are not DICOM images
+ *  (no "DICM" at byte 128, or no Rows/Columns: a DICOMDIR, a report, a
+ *  README) and sub-folders are skipped; hidden files are not read.
+ *  - One series only: a folder with several SeriesInstanceUIDs is
+ *    refused, the message listing each UID and its file count.
+ *  - Slices are ordered by their position along the slice normal
+ *    (ImagePositionPatient . (row x column cosines)), not by file name
+ *    or InstanceNumber. Refused, naming the files and the tag: mixed
+ *    ImageOrientationPatient, Rows/Columns, BitsAllocated or
+ *    PixelRepresentation; duplicate positions; a step off the median
+ *    step by more than 5 % (a missing slice); slices off the normal
+ *    line (gantry tilt); a file of the series without an image, or cut
+ *    short (RP_ETRUNC).
+ *  - Spacing: PixelSpacing (x = between columns, y = between rows) and
+ *    the measured mean step; a lone slice takes SpacingBetweenSlices,
+ *    else SliceThickness, else 1.
+ *  - Values are in data units: stored x RescaleSlope + RescaleIntercept
+ *    (HU for CT), after masking to BitsStored (sign-extended when
+ *    PixelRepresentation is 1). The type is RP_S16 when every slope is
+ *    1, every intercept an integer and every value fits int16; else
+ *    RP_F32.
+ *  - Orientation: direction columns are the row cosines, the column
+ *    cosines and the slice normal (the order slices were stacked in);
+ *    origin is the first slice's ImagePositionPatient.
+ *  - Classes read: CT, MR, PET, NM, their enhanced and legacy-converted
+ *    forms, grey secondary capture; others are refused (RP_EUNSUPPORTED),
+ *    as are colour and palette images.
+ *  - Each file's structure is checked before GDCM reads it (element
+ *    lengths, nesting, tag order, VRs against the dictionary; RLE frames
+ *    decoded dry): Debian's GDCM aborts on some malformed files.
+ *  max_volume_bytes is checked before anything is allocated.
  *  \returns 0, RP_ENOENT, RP_EIO, RP_EFORMAT, RP_ETRUNC, RP_ERANGE,
- *  RP_EUNSUPPORTED, RP_ENOTFINITE or RP_ENOMEM. \since 0.1 */
+ *  RP_EUNSUPPORTED (also: DICOM in a build without GDCM),
+ *  RP_ENOTFINITE or RP_ENOMEM. \since 0.1 */
 RP_API int rp_volume_load(rp_context *ctx, const char *path,
                           rp_volume **out);
 

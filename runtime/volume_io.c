@@ -7,7 +7,8 @@
  * byte 0; NIfTI by its name or magic (volume_nifti.c); MetaImage by its
  * name or first key (volume_mhd.c); a sidecar by at least two of the
  * lines "file:", "dims:" and "type:". Only regular files are opened: a
- * FIFO would block. */
+ * FIFO would block. A folder is a DICOM series, and a file with DICOM's
+ * magic ("DICM" at byte 128) one DICOM image (volume_dicom.c). */
 #include <errno.h>
 #include <fcntl.h>
 #include <stdio.h>
@@ -16,6 +17,7 @@
 #include <sys/types.h>
 #include <unistd.h>
 
+#include "volume_dicom.h"
 #include "volume_io.h"
 
 /* Bytes read from the start of a file to recognise it; an NRRD header or a
@@ -207,6 +209,7 @@ static int load_mhd(rp_context *ctx, const char *path, FILE *fp,
 
 int rp_volume_load(rp_context *ctx, const char *path, rp_volume **out) {
   rp__volume_header hdr;
+  struct stat st;
   uint8_t *head = NULL;
   size_t head_len, got;
   uint64_t size = 0;
@@ -219,6 +222,8 @@ int rp_volume_load(rp_context *ctx, const char *path, rp_volume **out) {
     return rp__fail(ctx, RP_EINVAL,
                     "rp_volume_load: path and out must not be NULL");
   rp__volume_header_init(&hdr);
+  if (stat(path, &st) == 0 && S_ISDIR(st.st_mode))
+    return rp__dicom_load_dir(ctx, path, out);
   if ((fp = open_file(ctx, path, NULL, &size, &rc)) == NULL)
     return rc;
   /* A .raw file by its name first: its content is voxels only, and voxels
@@ -245,6 +250,9 @@ int rp_volume_load(rp_context *ctx, const char *path, rp_volume **out) {
   }
   if (head_len >= 4 && memcmp(head, "NRRD", 4) == 0) {
     rc = load_nrrd(ctx, path, fp, size, head, head_len, out);
+  } else if (head_len >= 132 && memcmp(head + 128, "DICM", 4) == 0) {
+    rp__dicom_src src = {path, NULL, 0};
+    rc = rp__dicom_load_file(ctx, &src, out);
   } else if (rp__looks_like_nifti(path, head, head_len)) {
     rc = rp__nifti_load(ctx, path, out);
   } else if (rp__looks_like_mhd(path, head, head_len)) {
@@ -260,9 +268,10 @@ int rp_volume_load(rp_context *ctx, const char *path, rp_volume **out) {
     rc = rp__fail(ctx, RP_EFORMAT,
                   "%s: not a volume file; accepted: NRRD (starts with "
                   "NRRD000N), NIfTI (.nii, .nii.gz, .hdr/.img), MetaImage "
-                  "(.mhd, .mha), a sidecar (lines 'file:', 'dims:', "
-                  "'type:') or NAME_XxYxZ_TYPE.raw (TYPE uint8, int8, "
-                  "uint16, int16, uint32, int32, float32)",
+                  "(.mhd, .mha), DICOM (DICM at byte 128; or a folder of "
+                  "slices), a sidecar (lines 'file:', 'dims:', 'type:') "
+                  "or NAME_XxYxZ_TYPE.raw (TYPE uint8, int8, uint16, "
+                  "int16, uint32, int32, float32)",
                   path);
   }
 done:
