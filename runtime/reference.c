@@ -31,7 +31,8 @@
  * sample that brings A to >= the threshold. With RP_EFFECT_PREINT,
  * sample i instead takes the segment from sample i - 1 (rp__preint_mean
  * over their positions, runtime/preint.c), sample first - 1 being
- * fetched for the first one, and with skipping the range ends one
+ * fetched for the first one, shading and AO at the segment's middle
+ * s + (i - 1/2) step, and with skipping the range ends one
  * sample after the last occupied one (the segment leaving it). A pixel
  * channel is
  * floor(clamp(C, 0, 1) * 255 + 0.5). */
@@ -222,6 +223,11 @@ static void cast(const render_ctx *rc, const rp__ray *ray, ray_result *out) {
     /* A transparent sample adds exactly 0 whatever its colour, so its
      * gradient and AO fetches can be spared without changing a bit. */
     if ((rc->shading || rc->ao != NULL) && alpha > 0.0) {
+      /* A segment is lit and occluded at its middle, where its samples
+       * would be centred: at its end its colour lags half a step (MSE
+       * 5x the plain lattice's at step 0.5 on the phantom). */
+      if (rc->preint)
+        point_at(ray, ray->s + ((double)i - 0.5) * rc->step, p);
       if (rc->shading)
         shade(rc, ray, p, rgb);
       if (rc->ao != NULL) {

@@ -343,6 +343,15 @@ void rp_cl_raycast(rp_cl_frame fp, uint x0, uint y0, uint x1, uint y1,
        * The lanes that show are the ones counted. */
       lit = live & (a > 0.0f);
 #endif
+#ifdef RP_PREINT
+      /* A segment is shaded and occluded at its middle (reference.c). */
+      {
+        vfloat tm = k.s + (i0 + step_i - 0.5f) * fp.step;
+        qx = k.p0x + tm * k.dpx;
+        qy = k.p0y + tm * k.dpy;
+        qz = k.p0z + tm * k.dpz;
+      }
+#endif
 #ifdef RP_SHADING
       if (any(lit)) {
         vfloat gx = (RP_CL_FETCH(qx + 1.0f, qy, qz, lit) -
@@ -358,6 +367,13 @@ void rp_cl_raycast(rp_cl_frame fp, uint x0, uint y0, uint x1, uint y1,
       /* After shading: the AO volume at the density's own point, from
        * the cell that point already found. */
       if (any(lit)) {
+#ifdef RP_PREINT
+#ifdef RP_BRICKED
+        cell = rp_cl_cell_at_cached(&g, &bcache, qx, qy, qz);
+#else
+        cell = rp_cl_cell_at(&g, qx, qy, qz);
+#endif
+#endif
         vfloat occ = rp_cl_sample_bytes(ao, &g, &cell) / 255.0f;
         RP_CL_COUNT(lit);
         r *= occ;

@@ -305,7 +305,10 @@ Result cast_ray(uvec2 pix, uvec2 rpix) {
     }
     vec3 rgb = c.rgb;
     if ((RP_SHADING || RP_AO) && a > 0.0) {
-      vec3 p = ray.p0 + (ray.s + float(i) * step) * ray.dp;
+      /* A pre-integrated segment is shaded and occluded at its middle
+       * (reference.c). */
+      vec3 p = ray.p0 + (ray.s + (float(i) - (RP_PREINT ? 0.5 : 0.0)) *
+                                     step) * ray.dp;
       if (RP_SHADING) {
         rgb = shade(rgb, p, ray.dir);
         if (RP_COUNT)
