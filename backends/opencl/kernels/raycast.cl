@@ -365,7 +365,8 @@ void rp_cl_raycast(rp_cl_frame fp, uint x0, uint y0, uint x1, uint y1,
 #endif
 #ifdef RP_AO
       /* After shading: the AO volume at the density's own point, from
-       * the cell that point already found. */
+       * the cell that point already found (pre-integrated: at the
+       * segment's middle, a cell of its own). */
       if (any(lit)) {
 #ifdef RP_PREINT
 #ifdef RP_BRICKED
