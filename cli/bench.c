@@ -65,7 +65,8 @@ static void usage_quality(FILE *f) {
           "in ray space (step), image space (image scale) and hybrid (both)"
           "\nand reports time against MSE, PSNR and SSIM, and the quality\n"
           "each space reaches at equal time budgets.\n\n"
-          "  --tf PRESET           transfer function (default minmax-bone)\n"
+          "  --tf PRESET|FILE      transfer function: a preset or a file of\n"
+          "                        'x r g b a' lines (default minmax-bone)\n"
           "  --camera AZ,EL,DIST   orbit (default 30,20,2.5)\n"
           "  --size WxH            output size (default 512x512)\n"
           "  --backend NAME        opencl, vulkan or reference; default: the"
@@ -86,11 +87,12 @@ static void usage_quality(FILE *f) {
           "  --json                one JSON object on stdout\n"
           "  --quick               128x128, 4 densities, 1 run: a smoke test"
           "\n"
-          "  --sampling            instead of the sweep: plain against\n"
-          "                        jittered ray starts at steps 2, 1, 0.5\n"
-          "                        and 0.25 (and the mean of --frames\n"
-          "                        jittered frames); the reference is\n"
-          "                        never jittered\n"
+          "  --sampling            instead of the sweep: plain, jittered\n"
+          "                        ray starts, pre-integrated and both at\n"
+          "                        steps 4, 2, 1, 0.5 and 0.25 (and the\n"
+          "                        mean of --frames jittered frames); the\n"
+          "                        reference is neither jittered nor\n"
+          "                        pre-integrated\n"
           "  --frames N            jittered frames averaged (default 8)\n");
 }
 
@@ -533,9 +535,11 @@ static int bench_quality(int argc, char **argv) {
   }
   if (cli_open_volume(b.ctx, o.volume, &b.vol) != 0)
     goto out;
-  if ((err = rp_tf_create_preset(b.ctx, o.tf, &b.tf)) != 0) {
-    cli_error(b.ctx, "--tf", err);
-    goto out;
+  {
+    /* A preset or a TF file, as render takes them. */
+    cli_tf spec = {o.tf, 0, 0.0, 0.0};
+    if (cli_make_tf(b.ctx, b.vol, &spec, &b.tf) != 0)
+      goto out;
   }
   if ((err = rp_histograms_build(b.ctx, b.vol, &h)) != 0 ||
       (err = rp_occupancy_build(b.ctx, h, b.tf, &b.occ)) != 0) {

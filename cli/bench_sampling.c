@@ -1,14 +1,17 @@
-/* raypace bench quality --sampling: what jittered ray starts cost and buy
- * (DESIGN section 14, docs/sampling.md).
+/* raypace bench quality --sampling: what jittered ray starts and
+ * pre-integrated classification cost and buy (DESIGN section 14,
+ * docs/sampling.md).
  *
- * At each step, full image scale, three ways to sample: plain (every ray
+ * At each step, full image scale, five ways to sample: plain (every ray
  * on the lattice from its box entry, RP_JITTER_OFF), jittered (one frame,
- * a per-pixel offset of the lattice), and the mean of N jittered frames
- * with the seeds a runtime gives consecutive frames (what a still view
- * accumulates to; its time is N frames'). Each against the unjittered
+ * a per-pixel offset of the lattice), pre-integrated (RP_EFFECT_PREINT,
+ * unjittered), both, and the mean of N jittered frames with the seeds a
+ * runtime gives consecutive frames (what a still view accumulates to; its
+ * time is N frames'). Each against the unjittered, plainly classified
  * fine reference: MSE, PSNR and SSIM, and the median frame time over the
- * runs. The settings alternate inside each step, so that a drift of the
- * machine shifts plain and jittered alike. */
+ * runs, so that equal times can be compared across rows (the plot's x
+ * axis). The settings alternate inside each step, so that a drift of the
+ * machine shifts them alike. */
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -16,12 +19,13 @@
 
 #include "bench_quality.h"
 
-#define KINDS 3
-#define MAX_STEPS 4
+#define KINDS 5
+#define MAX_STEPS 5
+#define MEAN_KIND 4 /* the jittered mean: its frames' time */
 
-static const float all_steps[MAX_STEPS] = {2.0f, 1.0f, 0.5f, 0.25f};
-static const char *const kind_names[KINDS] = {"plain", "jittered",
-                                              "jittered-mean"};
+static const float all_steps[MAX_STEPS] = {4.0f, 2.0f, 1.0f, 0.5f, 0.25f};
+static const char *const kind_names[KINDS] = {
+    "plain", "jittered", "preint", "jittered-preint", "jittered-mean"};
 
 typedef struct sample_point {
   float step;
@@ -51,28 +55,40 @@ static int jittered_mean(bench *b, rp_device *dev, float step,
   return 0;
 }
 
+/* The kinds at one step; *n points appended to p. Pre-integration only
+ * where the device has it (`preint`). */
 static int measure_step(bench *b, rp_device *dev, const quality_opts *o,
                         float step, const uint8_t *ref, float *acc,
-                        sample_point p[KINDS]) {
-  uint32_t sw, sh;
+                        int preint, sample_point *p, int *n) {
+  uint32_t sw, sh, effects = b->rd.effects;
+  double jittered_ms = 0.0;
   int k, err;
   for (k = 0; k < KINDS; k++) {
-    p[k].step = step;
-    p[k].kind = k;
-    if (k < 2) {
-      b->rd.jitter = k == 0 ? RP_JITTER_OFF : RP_JITTER_ON;
+    sample_point *q = &p[*n];
+    int pre = k == 2 || k == 3;
+    if (pre && !preint)
+      continue;
+    q->step = step;
+    q->kind = k;
+    if (k != MEAN_KIND) {
+      b->rd.jitter = (k & 1) ? RP_JITTER_ON : RP_JITTER_OFF;
       b->rd.jitter_seed = 0; /* RP_JITTER_SEED */
-      if (bench_measure(b, dev, step, 1.0f, o->runs, &sw, &sh, &p[k].ms) !=
-          0)
+      b->rd.effects = effects | (pre ? RP_EFFECT_PREINT : 0u);
+      err = bench_measure(b, dev, step, 1.0f, o->runs, &sw, &sh, &q->ms);
+      b->rd.effects = effects;
+      if (err != 0)
         return 1;
+      if (k == 1)
+        jittered_ms = q->ms;
     } else {
       if (jittered_mean(b, dev, step, o->frames, acc) != 0)
         return 1;
-      p[k].ms = p[1].ms * o->frames;
+      q->ms = jittered_ms * o->frames;
     }
     if ((err = rp_image_compare(b->ctx, b->out, ref, o->width, o->height,
-                                &p[k].m)) != 0)
+                                &q->m)) != 0)
       return cli_error(b->ctx, "compare", err);
+    (*n)++;
   }
   return 0;
 }
@@ -88,10 +104,10 @@ static void print_table(const quality_opts *o, const rp_caps *caps,
          "\njittered-mean: the mean of %u jittered frames (its time: "
          "theirs)\n\n",
          o->ref_step, ref_backend, ref_ms, o->frames);
-  printf("%6s %-14s %10s %10s %7s %7s\n", "step", "sampling", "ms", "MSE",
+  printf("%6s %-16s %10s %10s %7s %7s\n", "step", "sampling", "ms", "MSE",
          "PSNR", "SSIM");
   for (i = 0; i < n; i++)
-    printf("%6g %-14s %10.2f %10.3f %7.2f %7.4f\n", p[i].step,
+    printf("%6g %-16s %10.2f %10.3f %7.2f %7.4f\n", p[i].step,
            kind_names[p[i].kind], p[i].ms, p[i].m.mse, p[i].m.psnr,
            p[i].m.ssim);
 }
@@ -159,7 +175,7 @@ static int write_plot(const quality_opts *o, const char *device,
   int k, i;
   snprintf(title, sizeof title,
            "%s, %ux%u, %s: PSNR against an unjittered step %g reference, "
-           "steps 2 to 0.25",
+           "steps 4 to 0.25",
            o->volume, o->width, o->height, device, o->ref_step);
   if (bench_plot_open(&plot, o->plot, title) != 0)
     return 1;
@@ -184,15 +200,19 @@ int bench_sampling(bench *b, rp_device *dev, const quality_opts *o,
                    const rp_caps *caps, const char *ref_backend,
                    double ref_ms, const uint8_t *ref) {
   sample_point pts[MAX_STEPS * KINDS];
-  int steps = o->quick ? 2 : MAX_STEPS, s, n = steps * KINDS, rc = 0;
+  int steps = o->quick ? 2 : MAX_STEPS, s, n = 0, rc = 0;
+  int preint = (caps->effects & RP_EFFECT_PREINT) != 0;
   float *acc = malloc((size_t)o->width * o->height * 4 * sizeof *acc);
   if (acc == NULL) {
     fprintf(stderr, "raypace bench: out of memory\n");
     return 1;
   }
+  if (!preint && !o->json)
+    printf("(%s has no RP_EFFECT_PREINT: its rows are left out)\n",
+           caps->backend);
   for (s = 0; s < steps; s++)
-    if (measure_step(b, dev, o, all_steps[s], ref, acc,
-                     &pts[s * KINDS]) != 0) {
+    if (measure_step(b, dev, o, all_steps[s], ref, acc, preint, pts,
+                     &n) != 0) {
       free(acc);
       return 1;
     }

@@ -85,6 +85,10 @@ static void usage_render(FILE *f) {
           "                        or naive\n"
           "  --no-ert              no early ray termination\n"
           "  --no-skip             no empty-space skipping\n"
+          "  --preint              pre-integrated classification: each\n"
+          "                        sample takes the segment from the one\n"
+          "                        before, so a coarse --step keeps thin,\n"
+          "                        steep features (docs/sampling.md)\n"
           "  --ert-threshold A     stop rays at this opacity (default 0.99)"
           "\n"
           "  --no-jitter           no per-pixel jitter of the ray starts\n"
@@ -388,7 +392,7 @@ typedef struct render_opts {
   float orbit[3], background[3], fov, step, ert_threshold, scale;
   uint32_t device;
   uint32_t width, height;
-  int ortho, shading, ert, skip, json, ao, no_jitter;
+  int ortho, shading, ert, skip, json, ao, no_jitter, preint;
   uint32_t seed;
   int device_given, overlay;
   rp_ao_scheme ao_scheme;
@@ -417,6 +421,7 @@ static int parse_render(int argc, char **argv, render_opts *o) {
       {"ao-scheme", required_argument, 0, 'C'},
       {"no-ert", no_argument, 0, 'E'},
       {"no-skip", no_argument, 0, 'K'},
+      {"preint", no_argument, 0, 'P'},
       {"ert-threshold", required_argument, 0, 'a'},
       {"no-jitter", no_argument, 0, 'J'},
       {"seed", required_argument, 0, 'N'},
@@ -474,6 +479,7 @@ static int parse_render(int argc, char **argv, render_opts *o) {
       break;
     case 'E': o->ert = 0; break;
     case 'K': o->skip = 0; break;
+    case 'P': o->preint = 1; break;
     case 'a': bad = cli_parse_positive(optarg, &o->ert_threshold); break;
     case 'J': o->no_jitter = 1; break;
     case 'N':
@@ -563,7 +569,8 @@ static void render_setup(const render_opts *o, const rp_volume *vol,
   rd->jitter_seed = o->seed;
   rd->effects = (o->shading ? RP_EFFECT_SHADING : 0) |
                 (o->ert ? RP_EFFECT_ERT : 0) |
-                (o->skip ? RP_EFFECT_SKIP : 0) | (o->ao ? RP_EFFECT_AO : 0);
+                (o->skip ? RP_EFFECT_SKIP : 0) | (o->ao ? RP_EFFECT_AO : 0) |
+                (o->preint ? RP_EFFECT_PREINT : 0);
 }
 
 static int out_of_memory(void) {

@@ -399,6 +399,7 @@ static const struct {
     {"ert", RP_EFFECT_ERT},
     {"skip", RP_EFFECT_SKIP},
     {"ao", RP_EFFECT_AO},
+    {"preint", RP_EFFECT_PREINT},
 };
 
 #define RP__SEQ_EFFECTS (sizeof effect_names / sizeof effect_names[0])
@@ -421,7 +422,7 @@ static int parse_effects(parser *p, const cJSON *v, const char *path,
     describe(e, got, sizeof got);
     if (k == RP__SEQ_EFFECTS)
       return fail(p, RP_EINVAL, ep, "unknown effect %s (known: shading, "
-                  "ert, skip, ao)", got);
+                  "ert, skip, ao, preint)", got);
     if (*out & effect_names[k].bit)
       return fail(p, RP_EFORMAT, ep, "effect %s is listed twice", got);
     *out |= effect_names[k].bit;

@@ -453,7 +453,14 @@ enum {
   RP_EFFECT_SHADING = 1u << 0, /* gradient (central differences) shading */
   RP_EFFECT_ERT = 1u << 1,     /* early ray termination */
   RP_EFFECT_SKIP = 1u << 2,    /* empty-space skipping from occupancy */
-  RP_EFFECT_AO = 1u << 3       /* ambient occlusion fetch (M7) */
+  RP_EFFECT_AO = 1u << 3,      /* ambient occlusion fetch (M7) */
+  /** Pre-integrated classification (Engel, Kraus and Ertl 2001;
+   *  docs/sampling.md): each sample stands for the segment from the
+   *  previous lattice sample, over which the value is taken to run
+   *  linearly, and takes the TF's extinction integrated over the values
+   *  it crosses, so a coarse step keeps thin, steep features. One more
+   *  volume fetch per ray. \since 0.11 */
+  RP_EFFECT_PREINT = 1u << 4
 };
 
 /** Ray-start jitter (rp_render_desc.jitter, DESIGN section 14). Each

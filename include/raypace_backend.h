@@ -27,6 +27,10 @@ extern "C" {
  * and jitter_seed. */
 #define RP_BACKEND_ABI 8
 
+/* RP_EFFECT_PREINT: LUT alphas are clamped to this before their
+ * extinction -ln(1 - a) is taken (runtime/preint.c says why). */
+#define RP_PREINT_ALPHA_MAX (1.0 - 1e-6)
+
 /* Coarse ERT pre-pass geometry (DESIGN section 3). */
 #define RP_ERT_RAY_STRIDE 4    /* one pre-pass ray per 4x4 pixels */
 #define RP_ERT_COARSE_STEP 8.0f /* half a block, in voxels */
@@ -124,7 +128,10 @@ typedef struct rp_backend_ops {
   void (*destroy)(void *impl);
   /* Voxels in their native type, x fastest. */
   int (*upload_volume)(void *impl, const rp_volume *vol);
-  /* lut_size RGBA float entries (straight colour, alpha per ref step). */
+  /* lut_size RGBA float entries (straight colour, alpha per ref step).
+   * A backend with RP_EFFECT_PREINT keeps beside them the LUT's
+   * pre-integration table (rp__preint_table, runtime/preint.c: the model
+   * and the RP_PREINT_ALPHA_MAX clamp), derived from these entries. */
   int (*upload_tf)(void *impl, const float *lut, uint32_t lut_size);
   /* One byte per block (occupied), and 16 bytes per block (H-alpha). */
   int (*upload_occupancy)(void *impl, const uint8_t *grid,

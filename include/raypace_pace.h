@@ -269,7 +269,9 @@ RP_API int rp_frame_probe_compute(rp_context *ctx, const rp_volume *vol,
 /** The most volume fetches a sample takes with an effect set:
  *  1 + 6 * shading + 1 * AO. Only samples with opacity above 0 take the
  *  shading and AO fetches; the cost model's k (rp_cost_estimate.fetches)
- *  takes the probe's share of them. \since 0.1 */
+ *  takes the probe's share of them. RP_EFFECT_PREINT adds one fetch per
+ *  ray that samples, not per sample: k adds the probe's rays over its
+ *  samples (since 0.11). \since 0.1 */
 RP_API uint32_t rp_fetches_per_sample(uint32_t effects);
 
 #define RP_COST_FEATURES 8

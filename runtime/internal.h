@@ -250,6 +250,18 @@ int rp__tf_same(const rp_tf *a, const rp_tf *b);
  * viewport), eye == center included. */
 int rp__camera_check(rp_context *ctx, const rp_camera *cam);
 void rp__tf_sample(const rp_tf *tf, double x, float rgba[4]);
+/* Pre-integration (runtime/preint.c has the model). The table a backend
+ * keeps for RP_EFFECT_PREINT: per LUT entry i, 8 floats: (tau, q_r, q_g,
+ * q_b) at i and their integrals over positions [0, i] (LUT index units),
+ * computed in double. */
+void rp__preint_table(const float *lut, uint32_t lut_size, float *out);
+/* The mean (tau, q) over TF positions [xa, xb] (either order, clamped to
+ * [0, 1]), in double from the LUT alone: the oracle of the table. */
+void rp__preint_mean(const rp_tf *tf, double xa, double xb, double out[4]);
+/* A segment of (step / ref_step) = ratio with that mean: straight colour
+ * and opacity. */
+void rp__preint_classify(const double mean[4], double ratio,
+                         double rgba[4]);
 /* Largest alpha of the interpolated LUT over [x0, x1] (clamped). */
 float rp__tf_alpha_max(const rp_tf *tf, double x0, double x1);
 /* Counts of the LUT's entries with alpha above 0: prefix[i] of entries

@@ -75,7 +75,8 @@ void rp__ert_prepass(const rp__raygen *rg, const uint8_t *grid,
 
 /* Every RP_EFFECT_* bit: anything else in an effects field is refused. */
 #define RP__KNOWN_EFFECTS                                                     \
-  (RP_EFFECT_SHADING | RP_EFFECT_ERT | RP_EFFECT_SKIP | RP_EFFECT_AO)
+  (RP_EFFECT_SHADING | RP_EFFECT_ERT | RP_EFFECT_SKIP | RP_EFFECT_AO |     \
+   RP_EFFECT_PREINT)
 
 /* The render desc with its zero fields replaced by defaults (the one
  * place that knows them), and its validation (message prefixed by fn). */

@@ -235,7 +235,8 @@ void rp__ref_caps(rp_caps *caps) {
   strcpy(caps->backend, "reference");
   strcpy(caps->device, "scalar C reference (one thread)");
   caps->effects =
-      RP_EFFECT_SHADING | RP_EFFECT_ERT | RP_EFFECT_SKIP | RP_EFFECT_AO;
+      RP_EFFECT_SHADING | RP_EFFECT_ERT | RP_EFFECT_SKIP | RP_EFFECT_AO |
+      RP_EFFECT_PREINT;
   caps->voxel_types = (1u << RP_U8) | (1u << RP_U16) | (1u << RP_F32);
   caps->global_mem_bytes = UINT64_MAX;
   caps->max_alloc_bytes = SIZE_MAX;

@@ -28,7 +28,13 @@
  * a' = rp_opacity_correct(a, step, reference step). With shading, c is
  * lit by a headlight (below). Front to back, premultiplied:
  * C += (1 - A) a' c, A += (1 - A) a'. With ERT the ray stops after a
- * sample that brings A to >= the threshold. A pixel channel is
+ * sample that brings A to >= the threshold. With RP_EFFECT_PREINT,
+ * sample i instead takes the segment from sample i - 1 (rp__preint_mean
+ * over their positions, runtime/preint.c), sample first - 1 being
+ * fetched for the first one, shading and AO at the segment's middle
+ * s + (i - 1/2) step, and with skipping the range ends one
+ * sample after the last occupied one (the segment leaving it). A pixel
+ * channel is
  * floor(clamp(C, 0, 1) * 255 + 0.5). */
 #include <math.h>
 
@@ -89,7 +95,7 @@ typedef struct render_ctx {
   uint32_t blocks[3];
   double step;
   float step_f, ref_step;
-  int shading, ert;
+  int shading, ert, preint;
   double ert_threshold; /* the float from the desc, widened exactly */
   const rp_volume *ao;  /* the AO volume as 8-bit voxels; NULL: no AO */
   int jitter;
@@ -163,7 +169,7 @@ static void shade(const render_ctx *rc, const rp__ray *ray, const double p[3],
 static void cast(const render_ctx *rc, const rp__ray *ray, ray_result *out) {
   const rp_volume *vol = rc->vol;
   uint64_t n, first = 0, last, i;
-  double C[3] = {0.0, 0.0, 0.0}, A = 0.0;
+  double C[3] = {0.0, 0.0, 0.0}, A = 0.0, x_prev = 0.0;
   int c;
   out->samples = 0;
   out->lit = 0;
@@ -181,19 +187,47 @@ static void cast(const render_ctx *rc, const rp__ray *ray, ray_result *out) {
       return;
     while (!occupied(rc, ray, last))
       last--;
+    /* A pre-integrated sample stands for the segment before it: the one
+     * leaving the last occupied sample is the next sample's. */
+    if (rc->preint && last + 1 < n)
+      last++;
+  }
+  if (rc->preint) {
+    /* The value at the lattice depth before the first sample taken (off
+     * the box when that is sample 0: the clamped field). */
+    double p[3];
+    point_at(ray, ray->s + ((double)first - 1.0) * rc->step, p);
+    x_prev = rp__value_to_x(rp__sample_trilinear(vol, p), rc->span[0],
+                            rc->span[1]);
   }
   for (i = first; i <= last; i++) {
-    double t = ray->s + (double)i * rc->step, p[3], v, rgb[3], alpha, w;
-    float tf[4];
+    double t = ray->s + (double)i * rc->step, p[3], x, rgb[3], alpha, w;
     point_at(ray, t, p);
-    v = rp__sample_trilinear(vol, p);
-    rp__tf_sample(rc->tf, rp__value_to_x(v, rc->span[0], rc->span[1]), tf);
-    alpha = rp_opacity_correct(tf[3], rc->step_f, rc->ref_step);
-    for (c = 0; c < 3; c++)
-      rgb[c] = tf[c];
+    x = rp__value_to_x(rp__sample_trilinear(vol, p), rc->span[0],
+                       rc->span[1]);
+    if (rc->preint) {
+      double mean[4], seg[4];
+      rp__preint_mean(rc->tf, x_prev, x, mean);
+      rp__preint_classify(mean, rc->step / rc->ref_step, seg);
+      for (c = 0; c < 3; c++)
+        rgb[c] = seg[c];
+      alpha = seg[3];
+      x_prev = x;
+    } else {
+      float tf[4];
+      rp__tf_sample(rc->tf, x, tf);
+      alpha = rp_opacity_correct(tf[3], rc->step_f, rc->ref_step);
+      for (c = 0; c < 3; c++)
+        rgb[c] = tf[c];
+    }
     /* A transparent sample adds exactly 0 whatever its colour, so its
      * gradient and AO fetches can be spared without changing a bit. */
     if ((rc->shading || rc->ao != NULL) && alpha > 0.0) {
+      /* A segment is lit and occluded at its middle, where its samples
+       * would be centred: at its end its colour lags half a step (MSE
+       * 5x the plain lattice's at step 0.5 on the phantom). */
+      if (rc->preint)
+        point_at(ray, ray->s + ((double)i - 0.5) * rc->step, p);
       if (rc->shading)
         shade(rc, ray, p, rgb);
       if (rc->ao != NULL) {
@@ -329,7 +363,8 @@ static int check_args(rp_context *ctx, const rp_volume *vol,
 }
 
 /* Renders one tile's pixels and fills its stats and its volume fetches
- * (either may be NULL): one per sample, six more per shaded one. */
+ * (either may be NULL): one per sample, six more per shaded one, one
+ * more per AO one, and with PREINT one more per ray that samples. */
 static void render_tile(const render_ctx *rc, const rp__raygen *rg,
                         uint32_t tx, uint32_t ty, uint8_t *rgba,
                         rp_tile_stats *stats, uint64_t *fetches) {
@@ -368,7 +403,8 @@ static void render_tile(const render_ctx *rc, const rp__raygen *rg,
     stats->mean_depth = hits > 0 ? (float)(depth_sum / (double)hits) : 0.0f;
   }
   if (fetches != NULL)
-    *fetches = samples + ((rc->shading ? 6u : 0u) + (rc->ao ? 1u : 0u)) * lit;
+    *fetches = samples + ((rc->shading ? 6u : 0u) + (rc->ao ? 1u : 0u)) * lit +
+               (rc->preint ? hits : 0u);
 }
 
 void rp__reference_render(const rp_volume *vol, const rp_tf *tf,
@@ -393,6 +429,7 @@ void rp__reference_render(const rp_volume *vol, const rp_tf *tf,
   rc.ref_step = rp_tf_reference_step(tf);
   rc.shading = (d->effects & RP_EFFECT_SHADING) != 0;
   rc.ert = (d->effects & RP_EFFECT_ERT) != 0;
+  rc.preint = (d->effects & RP_EFFECT_PREINT) != 0;
   rc.ert_threshold = d->ert_threshold;
   rc.ao = (d->effects & RP_EFFECT_AO) ? ao : NULL;
   rc.jitter = d->jitter != RP_JITTER_OFF;

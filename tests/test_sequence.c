@@ -605,7 +605,8 @@ static void steps_hold_until_the_next_change(void **state) {
       " {\"frame\": 6, \"tf\": 1, \"effects\": [\"skip\", \"shading\"]},\n"
       " {\"frame\": 7, \"target_fraction\": 0.25},\n"
       " {\"frame\": 8, \"effects\": []},\n"
-      " {\"frame\": 9, \"tf\": 0, \"effects\": [\"ao\", \"ert\"]}]}";
+      " {\"frame\": 9, \"tf\": 0, \"effects\": [\"ao\", \"ert\"]},\n"
+      " {\"frame\": 11, \"effects\": [\"ert\", \"preint\"]}]}";
   /* By hand: tf, target_ms, target_fraction, effects and the three
    * change flags per frame. Before a track's first change: tf 0,
    * fraction 0.5, no effects; the camera has the defaults. */
@@ -627,7 +628,7 @@ static void steps_hold_until_the_next_change(void **state) {
       {1, 0, 0.25, 0, 0, 0, 1},
       {0, 0, 0.25, RP_EFFECT_AO | RP_EFFECT_ERT, 1, 0, 1},
       {0, 0, 0.25, RP_EFFECT_AO | RP_EFFECT_ERT, 0, 0, 0},
-      {0, 0, 0.25, RP_EFFECT_AO | RP_EFFECT_ERT, 0, 0, 0},
+      {0, 0, 0.25, RP_EFFECT_ERT | RP_EFFECT_PREINT, 0, 0, 1},
   };
   rp_context *ctx = rp_test_context();
   rp_sequence *s = parse_ok(ctx, doc);
@@ -922,7 +923,7 @@ static const bad_case bad_cases[] = {
      "not both"},
     {DOC("{\"frame\": 0, \"effects\": [\"ert\", \"shadow\"]}"), RP_EINVAL,
      "events[0].effects[1]: unknown effect \"shadow\" (known: shading, "
-     "ert, skip, ao)"},
+     "ert, skip, ao, preint)"},
     {DOC("{\"frame\": 0, \"effects\": \"ert\"}"), RP_EFORMAT,
      "events[0].effects: expected an array of effect names, got \"ert\""},
     {DOC("{\"frame\": 0, \"effects\": [\"ert\", \"ert\"]}"), RP_EFORMAT,

@@ -42,7 +42,8 @@
 #define RP_CL_PACKET 16
 #define RP_CL_PACKETS_PER_TILE (RP_TILE_SIZE * RP_TILE_SIZE / RP_CL_PACKET)
 #define RP_CL_EFFECT_BITS                                                     \
-  (RP_EFFECT_SHADING | RP_EFFECT_ERT | RP_EFFECT_SKIP | RP_EFFECT_AO)
+  (RP_EFFECT_SHADING | RP_EFFECT_ERT | RP_EFFECT_SKIP | RP_EFFECT_AO |       \
+   RP_EFFECT_PREINT)
 /* Zero bytes after the last voxel (and grid byte): kernels read voxel
  * pairs and grid bytes as unaligned words, and trilinear reads two voxels
  * along x even on a one-voxel-wide axis (the second with weight zero). */
@@ -75,12 +76,13 @@ static void key_options(rp_cl_kind kind, uint32_t key, char *buf,
   if (kind != RP_CL_RAYCAST && kind != RP_CL_AO)
     type = 0;
   snprintf(buf, n,
-           "-cl-std=CL1.2 -cl-mad-enable%s%s%s%s%s%s -DRP_VOXEL_T=%s "
+           "-cl-std=CL1.2 -cl-mad-enable%s%s%s%s%s%s%s -DRP_VOXEL_T=%s "
            "-DRP_VOXEL_BYTES=%d -DRP_INDEX_T=%s -DRP_CL_W=%d",
            (key & RP_EFFECT_SHADING) ? " -DRP_SHADING" : "",
            (key & RP_EFFECT_ERT) ? " -DRP_ERT" : "",
            (key & RP_EFFECT_SKIP) ? " -DRP_SKIP" : "",
            (key & RP_EFFECT_AO) ? " -DRP_AO" : "",
+           (key & RP_EFFECT_PREINT) ? " -DRP_PREINT" : "",
            (key & RP_CL_KEY_COUNT) ? " -DRP_COUNT_FETCHES" : "",
            (key & RP_CL_KEY_BRICKED) ? " -DRP_BRICKED" : "",
            types[type], bytes[type], (key & RP_CL_KEY_BIG) ? "long" : "int",
@@ -397,10 +399,24 @@ static int cl_upload_volume(void *p, const rp_volume *vol) {
   return rc;
 }
 
+/* The LUT and, after it, its pre-integration table (8 floats an entry,
+ * rp__preint_table), which the RP_PREINT raycast reads: 32 KiB for the
+ * default 1024 entries, built whether or not a frame will use it, so that
+ * switching the effect on costs no upload. */
 static int cl_upload_tf(void *p, const float *lut, uint32_t lut_size) {
   rp_cl_impl *impl = p;
-  return upload(impl, &impl->lut, lut, (size_t)lut_size * 4 * sizeof(float),
-                0, "the transfer function");
+  size_t n = (size_t)lut_size * 12;
+  float *all = rp__malloc(impl->ctx, n * sizeof *all);
+  int rc;
+  if (all == NULL)
+    return rp__fail(impl->ctx, RP_ENOMEM, "opencl: no memory to stage the "
+                    "transfer function (%u entries)", (unsigned)lut_size);
+  memcpy(all, lut, (size_t)lut_size * 4 * sizeof *all);
+  rp__preint_table(lut, lut_size, all + (size_t)lut_size * 4);
+  rc = upload(impl, &impl->lut, all, n * sizeof *all, 0,
+              "the transfer function");
+  free(all);
+  return rc;
 }
 
 static int cl_upload_occupancy(void *p, const uint8_t *grid,
@@ -532,6 +548,11 @@ static int cl_raycast(void *p, const rp_frame_params *fp, const rp_region *r,
                     "table, but the device holds %s", fp->brick_shift != 0
                     ? "through" : "without", impl->bricked
                     ? "a brick pool" : "the whole volume");
+  if ((fp->effects & RP_EFFECT_PREINT) && impl->bricked)
+    return rp__fail(impl->ctx, RP_EINVAL, "opencl: RP_EFFECT_PREINT with an "
+                    "out-of-core volume (a brick pool) is not supported: "
+                    "a depth slab cannot read the value before its first "
+                    "sample");
   if ((fp->effects & RP_EFFECT_AO) &&
       (impl->ao.mem == NULL || impl->ao_voxels != impl->voxels))
     return rp__fail(impl->ctx, RP_ESTATE, "opencl: raycast with "

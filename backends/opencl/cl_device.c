@@ -248,7 +248,8 @@ static void fill_caps(const rp_cl_impl *impl, int part, rp_caps *caps) {
   else
     snprintf(caps->device, sizeof caps->device, "%s", name);
   caps->effects =
-      RP_EFFECT_SHADING | RP_EFFECT_ERT | RP_EFFECT_SKIP | RP_EFFECT_AO;
+      RP_EFFECT_SHADING | RP_EFFECT_ERT | RP_EFFECT_SKIP | RP_EFFECT_AO |
+      RP_EFFECT_PREINT;
   caps->voxel_types = (1u << RP_U8) | (1u << RP_U16) | (1u << RP_F32);
   caps->global_mem_bytes = mem;
   caps->max_alloc_bytes = alloc;

@@ -42,6 +42,7 @@
  *   the outputs and is read back (kernels/raycast.comp). */
 #include <math.h>
 #include <stdio.h>
+#include <stdlib.h>
 #include <string.h>
 
 #include "passes.h"
@@ -378,7 +379,7 @@ static uint32_t pipeline_key(rp_vk_kernel k, const rp_frame_params *p,
   uint32_t effects = p->effects;
   if (k == RP_VK_RAYCAST) {
     key |= effects & (RP_EFFECT_SHADING | RP_EFFECT_ERT | RP_EFFECT_SKIP |
-                      RP_EFFECT_AO);
+                      RP_EFFECT_AO | RP_EFFECT_PREINT);
     key |= p->step != p->ref_step ? RP_VK_KEY_CORRECT : 0;
     key |= counting ? RP_VK_KEY_COUNT : 0;
     key |= quad ? RP_VK_KEY_QUAD : 0;
@@ -441,6 +442,7 @@ static int build_pipeline(rp_vk_impl *impl, rp_context *ctx, uint32_t key,
   values[RP_VK_SPEC_QUAD] = (key & RP_VK_KEY_QUAD) != 0;
   values[RP_VK_SPEC_CORRECT] = (key & RP_VK_KEY_CORRECT) != 0;
   values[RP_VK_SPEC_BRICKED] = (key & RP_VK_KEY_BRICKED) != 0;
+  values[RP_VK_SPEC_PREINT] = (key & RP_EFFECT_PREINT) != 0;
   for (i = 0; i < RP_VK_SPEC_TOTAL; i++) {
     map[i].constantID = i;
     map[i].offset = i * (uint32_t)sizeof(uint32_t);
@@ -923,11 +925,27 @@ static void fill_copy(void *dst, void *user) {
 static int vk_upload_tf(void *p, const float *lut, uint32_t lut_size) {
   rp_vk_impl *impl = p;
   copy_fill c;
+  float *all;
   int err;
   if ((err = alive(impl)) != 0)
     return err;
-  c.src = lut;
-  c.bytes = (size_t)lut_size * 4 * sizeof(float);
+  /* The LUT and its pre-integration table (rp__preint_table), which the
+   * RP_PREINT raycast reads after the LUT's texels: 32 KiB for the
+   * default 1024 entries, kept whether or not a frame uses it, so that
+   * switching the effect on costs no upload. */
+  c.bytes = (size_t)lut_size * 12 * sizeof(float);
+  if ((uint64_t)lut_size * 3 > impl->props.limits.maxTexelBufferElements)
+    return rp__fail(impl->ctx, RP_ERANGE, "vulkan: a transfer function of "
+                    "%u entries and its pre-integration table need %llu "
+                    "texels; the device's maxTexelBufferElements is %u",
+                    (unsigned)lut_size, (unsigned long long)lut_size * 3,
+                    (unsigned)impl->props.limits.maxTexelBufferElements);
+  if ((all = rp__malloc(impl->ctx, c.bytes)) == NULL)
+    return rp__fail(impl->ctx, RP_ENOMEM, "vulkan: no memory to stage the "
+                    "transfer function (%u entries)", (unsigned)lut_size);
+  memcpy(all, lut, (size_t)lut_size * 4 * sizeof(float));
+  rp__preint_table(lut, lut_size, all + (size_t)lut_size * 4);
+  c.src = all;
   if (impl->lut.size != c.bytes) {
     free_view(impl, &impl->lut_view);
     rp_vk__buffer_free(impl, &impl->lut);
@@ -940,13 +958,16 @@ static int vk_upload_tf(void *p, const float *lut, uint32_t lut_size) {
       free_view(impl, &impl->lut_view);
       rp_vk__buffer_free(impl, &impl->lut);
       bind_all(impl);
+      free(all);
       return err;
     }
     bind_all(impl);
   }
   impl->have_lut = 0;
-  if ((err = write_buffer(impl, &impl->lut, "transfer function staging",
-                          fill_copy, &c)) != 0)
+  err = write_buffer(impl, &impl->lut, "transfer function staging",
+                     fill_copy, &c);
+  free(all);
+  if (err != 0)
     return err;
   impl->have_lut = 1;
   return 0;
@@ -1215,6 +1236,11 @@ static int vk_raycast(void *ip, const rp_frame_params *p, const rp_region *r,
                     "table, but the device holds %s",
                     p->brick_shift != 0 ? "through" : "without",
                     impl->bricked ? "a brick pool" : "the whole volume");
+  if ((p->effects & RP_EFFECT_PREINT) && impl->bricked)
+    return rp__fail(impl->ctx, RP_EINVAL, "vulkan: RP_EFFECT_PREINT with an "
+                    "out-of-core volume (a brick pool) is not supported: "
+                    "a depth slab cannot read the value before its first "
+                    "sample");
   if ((p->effects & RP_EFFECT_AO) && impl->ao.buf == VK_NULL_HANDLE)
     return rp__fail(impl->ctx, RP_ESTATE, "vulkan: a raycast with "
                     "RP_EFFECT_AO needs an AO volume, and none is uploaded "

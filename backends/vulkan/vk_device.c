@@ -170,7 +170,7 @@ static void fill_caps(const rp_vk_impl *impl, rp_caps *caps) {
   memcpy(caps->device, impl->props.deviceName, sizeof caps->device - 1);
   caps->device[sizeof caps->device - 1] = '\0';
   caps->effects = RP_EFFECT_SHADING | RP_EFFECT_ERT | RP_EFFECT_SKIP |
-                  RP_EFFECT_AO;
+                  RP_EFFECT_AO | RP_EFFECT_PREINT;
   caps->voxel_types = (1u << RP_U8) | (1u << RP_U16) | (1u << RP_F32);
   for (i = 0; i < impl->mem_props.memoryHeapCount; i++)
     if (impl->mem_props.memoryHeaps[i].flags &

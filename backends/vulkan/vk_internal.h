@@ -35,7 +35,8 @@ enum {
   RP_VK_SPEC_QUAD = 6,
   RP_VK_SPEC_CORRECT = 7,
   RP_VK_SPEC_BRICKED = 8,
-  RP_VK_SPEC_TOTAL = 9
+  RP_VK_SPEC_PREINT = 9,
+  RP_VK_SPEC_TOTAL = 10
 };
 
 /* Descriptor bindings of the one set all kernels share. */

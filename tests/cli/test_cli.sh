@@ -146,19 +146,32 @@ if [ "$(head -1 "$dir/q.csv")" = \
      "space,rho,step,scale,rays_x,rays_y,ms,mse,psnr,ssim" ] &&
    [ "$(wc -l <"$dir/q.csv")" -eq 13 ]; then pass=$((pass + 1)); else
   echo "FAIL: bench csv"; cat "$dir/q.csv"; fails=$((fails + 1)); fi
-# --sampling: plain, jittered and the mean of jittered frames at steps 2
-# and 1 (--quick). The mean of 8 jittered frames is nearer the reference
-# than one at each step: its noise averages out.
+# --sampling: plain, jittered, pre-integrated, both and the mean of
+# jittered frames at steps 4 and 2 (--quick). The mean of 8 jittered
+# frames is nearer the reference than one at each step: its noise
+# averages out. Under a TF that is opaque only on a thin value interval
+# (an iso-surface of the smooth Marschner-Lobb field) a step of 4 misses
+# most of the surface, and pre-integration keeps it: its error is under
+# half the plain one's (measured about a third).
 check "bench sampling" "$rp" bench quality gen:phantom:32 --quick \
   --sampling --size 48x48 --shading --backend reference --csv "$dir/s.csv"
 has "bench sampling table" "jittered-mean"
+has "bench sampling preint" "jittered-preint"
 if [ "$(head -1 "$dir/s.csv")" = "sampling,step,ms,mse,psnr,ssim" ] &&
-   [ "$(wc -l <"$dir/s.csv")" -eq 7 ] &&
+   [ "$(wc -l <"$dir/s.csv")" -eq 11 ] &&
    awk -F, 'NR > 1 { mse[$1 "@" $2] = $4 }
-     END { exit !(mse["jittered-mean@2"] < mse["jittered@2"] &&
-                  mse["jittered-mean@1"] < mse["jittered@1"]) }' \
+     END { exit !(mse["jittered-mean@4"] < mse["jittered@4"] &&
+                  mse["jittered-mean@2"] < mse["jittered@2"]) }' \
      "$dir/s.csv"; then pass=$((pass + 1)); else
   echo "FAIL: bench sampling csv"; cat "$dir/s.csv"; fails=$((fails + 1)); fi
+printf '0.47 1 1 1 0\n0.48 1 0.85 0.6 0.8\n0.49 1 1 1 0\n' >"$dir/iso.tf"
+check "bench sampling iso" "$rp" bench quality gen:ml:32 --quick \
+  --sampling --size 32x32 --backend reference --tf "$dir/iso.tf" \
+  --csv "$dir/p.csv"
+if awk -F, 'NR > 1 { mse[$1 "@" $2] = $4 }
+     END { exit !(mse["preint@4"] * 2 < mse["plain@4"]) }' "$dir/p.csv"
+then pass=$((pass + 1)); else
+  echo "FAIL: bench preint iso"; cat "$dir/p.csv"; fails=$((fails + 1)); fi
 refuse "bench bad frames" "bad value '0' for --frames" "$rp" bench quality \
   gen:ml:8 --quick --sampling --frames 0
 check "bench help" "$rp" bench quality --help; has "bench help" "--ref-step"

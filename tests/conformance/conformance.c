@@ -299,7 +299,7 @@ void check_render_out(tally *t, const scene *s, const rp_tf *tf,
           rp__render_desc_defaults(d).step);
   if (count_fetches)
     rp_test_check_fetches(what, f.gt, f.fetches, f.wt, f.want_fetches,
-                          f.tiles, rp_test_visible_fetches(d->effects),
+                          f.tiles, d->effects,
                           &t->fetches, &t->fetches_off);
   if (rgba != NULL)
     memcpy(rgba, f.got, (size_t)sw * sh * 4);

@@ -12,15 +12,19 @@
 static const char *const tfs[] = {"minmax-bone", "transparent", "opaque",
                                   "nearly-transparent", "mri"};
 #define TFS 5
-/* AO appears once, with every other effect: each set is a kernel
- * variant to build per voxel type, and AO alone (without shading) is
- * held to the reference in occlusion.c. */
+/* AO appears twice, with every other effect, pre-integration off and
+ * on: each set is a kernel variant to build per voxel type, and AO alone
+ * (without shading) is held to the reference in occlusion.c. */
 static const uint32_t effect_sets[] = {
     0, RP_EFFECT_SHADING, RP_EFFECT_ERT, RP_EFFECT_SKIP,
     RP_EFFECT_SHADING | RP_EFFECT_ERT | RP_EFFECT_SKIP,
-    RP_EFFECT_AO | RP_EFFECT_SHADING | RP_EFFECT_ERT | RP_EFFECT_SKIP};
-#define EFFECT_SETS 6
-#define EFFECT_SETS_NO_AO 5 /* the first five */
+    RP_EFFECT_PREINT,
+    RP_EFFECT_PREINT | RP_EFFECT_SHADING | RP_EFFECT_ERT | RP_EFFECT_SKIP,
+    RP_EFFECT_AO | RP_EFFECT_SHADING | RP_EFFECT_ERT | RP_EFFECT_SKIP,
+    RP_EFFECT_AO | RP_EFFECT_SHADING | RP_EFFECT_ERT | RP_EFFECT_SKIP |
+        RP_EFFECT_PREINT};
+#define EFFECT_SETS 9
+#define EFFECT_SETS_NO_AO 7 /* the first seven */
 
 /* AO settings small enough for the reference to compute per TF. */
 static const rp_ao_desc conformance_ao = {6, 4, 4.0f, 1.0f, 0};

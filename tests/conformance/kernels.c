@@ -81,7 +81,7 @@ static uint8_t *bare_check(const bare *b, const lit_scene *l,
   finish(&t, what, 1);
   if (count)
     rp_test_check_fetches(what, gt, gf, wt, wf, (size_t)tx * ty,
-                          rp_test_visible_fetches(effects), &total, &off);
+                          effects, &total, &off);
   free(want), free(gt), free(wt), free(gf), free(wf);
   if (keep)
     return got;

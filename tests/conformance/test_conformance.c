@@ -33,7 +33,8 @@ static void device_caps(void **state) {
   assert_true(caps.device[0] != '\0');
   assert_int_equal(caps.sub_device, 0);
   assert_int_equal(caps.effects, RP_EFFECT_SHADING | RP_EFFECT_ERT |
-                                     RP_EFFECT_SKIP | RP_EFFECT_AO);
+                                     RP_EFFECT_SKIP | RP_EFFECT_AO |
+                                     RP_EFFECT_PREINT);
   assert_int_equal(caps.voxel_types,
                    (1u << RP_U8) | (1u << RP_U16) | (1u << RP_F32));
   assert_true(caps.compute_units >= 1);

@@ -97,22 +97,34 @@ void rp_test_check_fetches(const char *what, const rp_tile_stats *got,
                            const uint64_t *got_fetches,
                            const rp_tile_stats *want,
                            const uint64_t *want_fetches, size_t tiles,
-                           unsigned per_visible, uint64_t *total,
+                           uint32_t effects, uint64_t *total,
                            uint64_t *off) {
-  uint64_t sum = 0, away = 0, explained = 0, per = per_visible;
+  uint64_t sum = 0, away = 0, explained = 0;
+  uint64_t per = rp_test_visible_fetches(effects);
+  uint64_t per_ray = (effects & RP_EFFECT_PREINT) ? 1u : 0u;
   size_t k;
   for (k = 0; k < tiles; k++) {
+    uint64_t ray_f = per_ray * got[k].rays_hit;
     uint64_t f = got_fetches[k], n = got[k].samples, w = want_fetches[k];
     int64_t ds = (int64_t)got[k].samples - (int64_t)want[k].samples;
-    uint64_t slack = (1u + per) * (uint64_t)(ds < 0 ? -ds : ds);
+    int64_t dh = (int64_t)got[k].rays_hit - (int64_t)want[k].rays_hit;
+    uint64_t slack = (1u + per) * (uint64_t)(ds < 0 ? -ds : ds) +
+                     per_ray * (uint64_t)(dh < 0 ? -dh : dh);
     uint64_t d = f > w ? f - w : w - f;
+    /* The per-ray fetch first (PREINT: the value before the first
+     * sample), then one per sample and per_visible per visible one. */
+    if (f < ray_f)
+      fail_msg("%s: tile %zu: %llu fetches for %u rays that sample", what,
+               k, (unsigned long long)f, got[k].rays_hit);
+    f -= ray_f;
     if (f < n || f > (1u + per) * n || (per == 0 && f != n) ||
         (per != 0 && (f - n) % per != 0))
       fail_msg("%s: tile %zu: %llu fetches for %llu samples", what, k,
                (unsigned long long)f, (unsigned long long)n);
     if (d > slack + per * RP_TILE_SIZE * RP_TILE_SIZE)
       fail_msg("%s: tile %zu: %llu fetches, reference %llu (samples %u vs "
-               "%u)", what, k, (unsigned long long)f, (unsigned long long)w,
+               "%u)", what, k, (unsigned long long)got_fetches[k],
+               (unsigned long long)w,
                got[k].samples, want[k].samples);
   sum += w;
     away += d;

@@ -53,9 +53,10 @@ rp_volume *rp_test_float_blob(rp_context *ctx);
 
 /* Holds a device's per-tile volume fetches (its counting variant) to the
  * reference's (rp__reference_render), failing the test with `what` and
- * the tile otherwise. `per_visible` is the fetches each sample with
- * opacity above 0 adds: 6 with shading, 1 with AO, 7 with both, 0 with
- * neither.
+ * the tile otherwise. per_visible = rp_test_visible_fetches(effects) is
+ * the fetches each sample with opacity above 0 adds: 6 with shading, 1
+ * with AO, 7 with both, 0 with neither; with RP_EFFECT_PREINT each ray
+ * that samples adds one more (rays_hit per tile), taken off first.
  * - structure: one fetch per sample, per_visible more per visible one,
  *   so samples <= fetches <= (1 + per_visible) samples and the excess is
  *   a multiple of per_visible;
@@ -70,7 +71,7 @@ void rp_test_check_fetches(const char *what, const rp_tile_stats *got,
                            const uint64_t *got_fetches,
                            const rp_tile_stats *want,
                            const uint64_t *want_fetches, size_t tiles,
-                           unsigned per_visible, uint64_t *total,
+                           uint32_t effects, uint64_t *total,
                            uint64_t *off);
 
 /* Asserts that `got` (w x h RGBA8) is, bit for bit, the reference

@@ -29,6 +29,10 @@
  *                     in depth slabs: each pass takes the samples before
  *                     fp.slab_cut and leaves its rays' state for the
  *                     next (rp_cl_slab below)
+ *   RP_PREINT         pre-integrated classification: each sample takes
+ *                     the segment from the previous lattice sample
+ *                     (sample.cl's rp_cl_preint; one more fetch per ray,
+ *                     for the value before its first sample)
  *   RP_COUNT_FETCHES  also count volume fetches per tile */
 
 typedef struct rp_cl_tile {
@@ -191,6 +195,9 @@ void rp_cl_raycast(rp_cl_frame fp, uint x0, uint y0, uint x1, uint y1,
     rp_cl_lutpos lp =
         rp_cl_lutpos_make(fp.value_min, fp.value_max, fp.lut_size);
     vfloat cr = 0.0f, cg = 0.0f, cb = 0.0f, acc = 0.0f, step_i = 0.0f;
+#ifdef RP_PREINT
+    vfloat f_prev;
+#endif
     vfloat front, back;
     vint live;
     float ratio = fp.step / fp.ref_step;
@@ -217,6 +224,9 @@ void rp_cl_raycast(rp_cl_frame fp, uint x0, uint y0, uint x1, uint y1,
     }
     /* No occupied block (or a miss): +inf > -inf empties the range. */
     i1 = select((vfloat)(-1.0f), i1, front <= back);
+#if defined(RP_PREINT) && defined(RP_SKIP)
+    vfloat i_lattice = i1;
+#endif
 #ifdef RP_SKIP
     {
       /* Start one lattice step outside the depth pass's span so that a
@@ -234,6 +244,25 @@ void rp_cl_raycast(rp_cl_frame fp, uint x0, uint y0, uint x1, uint y1,
       while (any(more = (i1 > i0) &
                         !rp_cl_occupied(&fp, grid, &k, i1)))
         i1 -= to_vfloat(more & 1);
+    }
+#endif
+#ifdef RP_PREINT
+    {
+      /* As the reference: with skipping the segment leaving the last
+       * occupied sample is the next sample's; and each lane's first
+       * sample takes the segment from the lattice depth before it. (Not
+       * with RP_BRICKED: the host refuses it, that value's brick may be
+       * gone by a later slab.) */
+      vint has;
+      vfloat t;
+#ifdef RP_SKIP
+      i1 = select(i1, fmin(i1 + 1.0f, i_lattice), i0 <= i1);
+#endif
+      has = i0 <= i1;
+      t = k.s + (i0 - 1.0f) * fp.step;
+      f_prev = rp_cl_lut_pos(&lp, RP_CL_FETCH(k.p0x + t * k.dpx,
+                                              k.p0y + t * k.dpy,
+                                              k.p0z + t * k.dpz, has));
     }
 #endif
 #ifdef RP_BRICKED
@@ -284,17 +313,28 @@ void rp_cl_raycast(rp_cl_frame fp, uint x0, uint y0, uint x1, uint y1,
 #else
       rp_cl_cell cell = rp_cl_cell_at(&g, qx, qy, qz);
 #endif
-      vfloat v = rp_cl_sample_cell(vol, &g, &cell), w, r, gr, b, a, wgt;
-      vint e = rp_cl_lut_entry(&lp, v, &w);
+      vfloat v = rp_cl_sample_cell(vol, &g, &cell), r, gr, b, a, wgt;
 #if defined(RP_SHADING) || defined(RP_AO)
       vint lit;
 #endif
       RP_CL_COUNT(live);
-      rp_cl_classify(lut, e, w, &r, &gr, &b, &a);
+#ifdef RP_PREINT
+      {
+        vfloat f = rp_cl_lut_pos(&lp, v);
+        rp_cl_preint(lut, &lp, f_prev, f, ratio, &r, &gr, &b, &a);
+        f_prev = f;
+      }
+#else
+      {
+        vfloat w;
+        vint e = rp_cl_lut_entry(&lp, v, &w);
+        rp_cl_classify(lut, e, w, &r, &gr, &b, &a);
+      }
       /* At the TF's own step the correction is the identity (the
        * reference's double evaluation rounds back to a exactly). */
       if (ratio != 1.0f)
         a = rp_cl_correct(a, ratio);
+#endif
 #if defined(RP_SHADING) || defined(RP_AO)
       /* A transparent sample adds exactly 0 whatever its colour, so the
        * gradient and the AO are fetched only where some lane's sample
@@ -302,6 +342,15 @@ void rp_cl_raycast(rp_cl_frame fp, uint x0, uint y0, uint x1, uint y1,
        * is most packets (bonsai, 512^2: 46 -> 147 M samples/s shaded).
        * The lanes that show are the ones counted. */
       lit = live & (a > 0.0f);
+#endif
+#ifdef RP_PREINT
+      /* A segment is shaded and occluded at its middle (reference.c). */
+      {
+        vfloat tm = k.s + (i0 + step_i - 0.5f) * fp.step;
+        qx = k.p0x + tm * k.dpx;
+        qy = k.p0y + tm * k.dpy;
+        qz = k.p0z + tm * k.dpz;
+      }
 #endif
 #ifdef RP_SHADING
       if (any(lit)) {
@@ -316,8 +365,16 @@ void rp_cl_raycast(rp_cl_frame fp, uint x0, uint y0, uint x1, uint y1,
 #endif
 #ifdef RP_AO
       /* After shading: the AO volume at the density's own point, from
-       * the cell that point already found. */
+       * the cell that point already found (pre-integrated: at the
+       * segment's middle, a cell of its own). */
       if (any(lit)) {
+#ifdef RP_PREINT
+#ifdef RP_BRICKED
+        cell = rp_cl_cell_at_cached(&g, &bcache, qx, qy, qz);
+#else
+        cell = rp_cl_cell_at(&g, qx, qy, qz);
+#endif
+#endif
         vfloat occ = rp_cl_sample_bytes(ao, &g, &cell) / 255.0f;
         RP_CL_COUNT(lit);
         r *= occ;

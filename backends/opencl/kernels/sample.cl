@@ -258,6 +258,25 @@ vfloat rp_cl_sample_bytes(__global const uchar *bytes, const rp_cl_grid *g,
   return mix(mix(e0, e1, c->wy), mix(e2, e3, c->wy), c->wz);
 }
 
+/* 1 - e^x for x <= 0 (the expm1 half of rp_cl_correct below, which
+ * says how). e^-87 is below the smallest normal float: the result is 1
+ * there. */
+vfloat rp_cl_one_minus_exp(vfloat x) {
+  vfloat y, em, p2;
+  vint n;
+  x = max(x, -87.0f);
+  n = RP_CL_CAT(to_vint, _rte)(x * 1.44269504f);
+  y = x - to_vfloat(n) * 0.693147181f;
+  em = y * (1.0f + y * (1.0f / 2.0f +
+                        y * (1.0f / 6.0f +
+                             y * (1.0f / 24.0f +
+                                  y * (1.0f / 120.0f +
+                                       y * (1.0f / 720.0f +
+                                            y * (1.0f / 5040.0f)))))));
+  p2 = as_vfloat((n + 127) << 23); /* 2^n, normal */
+  return -(em * p2 + (p2 - 1.0f));
+}
+
 /* Opacity for `step` from opacity a over the reference step:
  * 1 - (1 - a)^ratio = -expm1(ratio * log1p(-a)), exact at 0 and 1.
  *
@@ -276,8 +295,7 @@ vfloat rp_cl_correct(vfloat a, float ratio) {
   vint e = ((bits >> 23) & 0xff) - 127;
   vfloat m = as_vfloat((bits & 0x7fffff) | 0x3f800000);
   vint top = m > 1.41421356f;
-  vfloat t, s, s2, ln, x, y, em, p2;
-  vint n;
+  vfloat t, s, s2, ln, x;
   m = select(m, 0.5f * m, top);
   e -= top; /* top is -1 where true */
   t = select(m - 1.0f, -a, small);
@@ -286,19 +304,7 @@ vfloat rp_cl_correct(vfloat a, float ratio) {
   ln = 2.0f * s * (1.0f + s2 * (1.0f / 3.0f +
                                  s2 * (1.0f / 5.0f + s2 * (1.0f / 7.0f)))) +
        select(to_vfloat(e), (vfloat)(0.0f), small) * 0.693147181f;
-  /* e^-87 is below the smallest normal float: the result is 1 there. */
-  x = max(ratio * ln, -87.0f);
-  n = RP_CL_CAT(to_vint, _rte)(x * 1.44269504f);
-  y = x - to_vfloat(n) * 0.693147181f;
-  em = y * (1.0f + y * (1.0f / 2.0f +
-                        y * (1.0f / 6.0f +
-                             y * (1.0f / 24.0f +
-                                  y * (1.0f / 120.0f +
-                                       y * (1.0f / 720.0f +
-                                            y * (1.0f / 5040.0f)))))));
-  p2 = as_vfloat((n + 127) << 23); /* 2^n, normal */
-  x = -(em * p2 + (p2 - 1.0f));
-  x = select(x, (vfloat)(0.0f), a <= 0.0f);
+  x = select(rp_cl_one_minus_exp(ratio * ln), (vfloat)(0.0f), a <= 0.0f);
   return select(x, (vfloat)(1.0f), a >= 1.0f);
 }
 
@@ -364,9 +370,72 @@ rp_cl_lutpos rp_cl_lutpos_make(float value_min, float value_max,
   return q;
 }
 
+/* The position f alone. */
+vfloat rp_cl_lut_pos(const rp_cl_lutpos *q, vfloat v) {
+  return clamp((v - q->min) * q->scale, 0.0f, q->top);
+}
+
 vint rp_cl_lut_entry(const rp_cl_lutpos *q, vfloat v, vfloat *w) {
-  vfloat f = clamp((v - q->min) * q->scale, 0.0f, q->top);
+  vfloat f = rp_cl_lut_pos(q, v);
   vint e = min(to_vint(f), q->last);
   *w = f - to_vfloat(e);
   return e;
 }
+
+#ifdef RP_PREINT
+/* Pre-integration (RP_EFFECT_PREINT; runtime/preint.c has the model and
+ * the table). The table follows the LUT's lut_size entries in the same
+ * buffer: entry i is 8 floats, (tau, tau r, tau g, tau b) at i and their
+ * integrals over positions [0, i]. Each lane's 4 floats at t + idx. */
+void rp_cl_gather4(__global const float *t, vint idx,
+                   rp_cl_float_lanes c[4]) {
+  rp_cl_int_lanes at;
+  int j;
+  at.v = idx;
+#pragma clang loop vectorize(enable) vectorize_width(RP_CL_W)
+  for (j = 0; j < RP_CL_W; j++) {
+    __global const float *q = t + at.a[j];
+    c[0].a[j] = q[0];
+    c[1].a[j] = q[1];
+    c[2].a[j] = q[2];
+    c[3].a[j] = q[3];
+  }
+}
+
+/* The segment over which the LUT position runs from fa to fb (either
+ * order), of ratio = step / ref_step reference steps: straight colour and
+ * opacity. As rp__preint_mean: within one LUT cell the mean of the ends
+ * (no division), else the rest of fa's cell, the table's whole cells and
+ * the start of fb's over fb - fa, so that no term loses the short
+ * segments' precision to a difference of two large integrals. */
+void rp_cl_preint(__global const float4 *lut, const rp_cl_lutpos *q,
+                  vfloat fa, vfloat fb, float ratio, vfloat *r, vfloat *g,
+                  vfloat *b, vfloat *a) {
+  __global const float *t = (__global const float *)lut + 4 * (q->last + 2);
+  vfloat lo = fmin(fa, fb), hi = fmax(fa, fb), m[4], inv_tau;
+  vint elo = min(to_vint(lo), q->last), ehi = min(to_vint(hi), q->last);
+  vfloat wlo = lo - to_vfloat(elo), whi = hi - to_vfloat(ehi);
+  vint same = elo == ehi;
+  vfloat inv = select(1.0f / (hi - lo), (vfloat)(0.0f), same);
+  rp_cl_float_lanes p0[4], p1[4], h0[4], h1[4], i0[4], i1[4];
+  int c;
+  rp_cl_gather4(t, elo * 8, p0);
+  rp_cl_gather4(t, elo * 8 + 8, p1);  /* node elo + 1 */
+  rp_cl_gather4(t, elo * 8 + 12, i0); /* its integral */
+  rp_cl_gather4(t, ehi * 8, h0);
+  rp_cl_gather4(t, ehi * 8 + 4, i1);  /* node ehi's integral */
+  rp_cl_gather4(t, ehi * 8 + 8, h1);
+  for (c = 0; c < 4; c++) {
+    vfloat pl = mix(p0[c].v, p1[c].v, wlo), ph = mix(h0[c].v, h1[c].v, whi);
+    vfloat many = (0.5f * (1.0f - wlo) * (pl + p1[c].v) +
+                   (i1[c].v - i0[c].v) + 0.5f * whi * (h0[c].v + ph)) *
+                  inv;
+    m[c] = select(many, 0.5f * (pl + ph), same);
+  }
+  *a = rp_cl_one_minus_exp(-ratio * m[0]);
+  inv_tau = select((vfloat)(0.0f), 1.0f / m[0], m[0] > 0.0f);
+  *r = clamp(m[1] * inv_tau, 0.0f, 1.0f);
+  *g = clamp(m[2] * inv_tau, 0.0f, 1.0f);
+  *b = clamp(m[3] * inv_tau, 0.0f, 1.0f);
+}
+#endif

@@ -39,6 +39,8 @@ layout(constant_id = 7) const bool RP_CORRECT = true;
  * table (sample_volume). A variant, so that the in-core raycast pays
  * nothing for it. */
 layout(constant_id = 8) const bool RP_BRICKED = false;
+/* Pre-integrated classification (RP_EFFECT_PREINT, raycast.comp). */
+layout(constant_id = 9) const bool RP_PREINT = false;
 
 /* The host's rp_vk_params (vec4-packed, so std430 and the C struct agree
  * without vec3 alignment rules).
@@ -211,7 +213,9 @@ bool block_occupied(uint b) {
  * Float voxels travel as their bits in a UINT format so that one
  * declaration serves all three types. */
 layout(set = 0, binding = 1) uniform usamplerBuffer volume;
-/* lut_size RGBA32F entries, straight colour, alpha per reference step. */
+/* lut_size RGBA32F entries, straight colour, alpha per reference step;
+ * then the pre-integration table (raycast.comp's preint), two texels an
+ * entry. */
 layout(set = 0, binding = 2) uniform samplerBuffer lut;
 /* RP_BRICKED: the pool slot of each brick of the volume, x fastest (one
  * R32 texel each; a stand-in texel otherwise). */

@@ -1,7 +1,8 @@
 /* The raycast (backends/README.md): one invocation per pixel of the
  * region, one workgroup per 8x8 tile. Front-to-back compositing of
  * trilinear samples on the lattice s + i * step, classified through the
- * LUT, opacity-corrected to the step, optionally shaded and darkened by
+ * LUT, opacity-corrected to the step (or pre-integrated over the segment
+ * from the previous sample), optionally shaded and darkened by
  * ambient occlusion, with optional early termination and empty-space
  * skipping. Each workgroup also reduces
  * its tile's statistics in shared memory (integers, and one float sum in
@@ -128,6 +129,46 @@ int lattice_before(float s, float cut, float step) {
   return k;
 }
 
+/* The LUT position f in [0, lut_size - 1] of value v, as classify takes
+ * it. */
+float lut_pos(float v) {
+  float x = clamp((v - P.vrange.x) * P.vrange.y, 0.0, 1.0);
+  return x * float(P.idims.w - 1u);
+}
+
+/* Pre-integration (RP_PREINT; runtime/preint.c has the model and the
+ * table): the segment over which the LUT position runs from fa to fb,
+ * straight colour and opacity. The table follows the LUT's n texels:
+ * entry i's (tau, tau rgb) at n + 2i, their integrals over [0, i] at
+ * n + 2i + 1. Within one LUT cell the mean of the ends (no division);
+ * else the rest of fa's cell, the table's whole cells and the start of
+ * fb's over fb - fa, so that a short segment across an entry does not
+ * lose its precision to a difference of two large integrals. 1 - e^y by
+ * correct()'s series where |y| < 1/4. */
+vec4 preint(float fa, float fb) {
+  int n = int(P.idims.w), top = n - 2;
+  float lo = min(fa, fb), hi = max(fa, fb);
+  int elo = min(int(lo), top), ehi = min(int(hi), top);
+  float wlo = lo - float(elo), whi = hi - float(ehi);
+  vec4 p1 = texelFetch(lut, n + 2 * elo + 2);
+  vec4 h0 = texelFetch(lut, n + 2 * ehi);
+  vec4 pl = lerp(texelFetch(lut, n + 2 * elo), p1, wlo);
+  vec4 ph = lerp(h0, texelFetch(lut, n + 2 * ehi + 2), whi);
+  vec4 m = 0.5 * (pl + ph);
+  if (elo != ehi)
+    m = (0.5 * (1.0 - wlo) * (pl + p1) +
+         (texelFetch(lut, n + 2 * ehi + 1) -
+          texelFetch(lut, n + 2 * elo + 3)) +
+         0.5 * whi * (h0 + ph)) /
+        (hi - lo);
+  float y = -P.vrange.w * m.x;
+  float series = y * (1.0 + y * (1.0 / 2.0 + y * (1.0 / 6.0 + y * (1.0 / 24.0 +
+                 y * (1.0 / 120.0 + y * (1.0 / 720.0 + y * (1.0 / 5040.0)))))));
+  float e = abs(y) < 0.25 ? series : exp(y) - 1.0;
+  vec3 rgb = m.x > 0.0 ? clamp(m.yzw / m.x, 0.0, 1.0) : vec3(0.0);
+  return vec4(rgb, clamp(-e, 0.0, 1.0));
+}
+
 bool sample_occupied(Ray ray, int i) {
   float t = ray.s + float(i) * P.up.w;
   return block_occupied(block_index(block_cell(ray.p0 + t * ray.dp)));
@@ -158,6 +199,7 @@ Result cast_ray(uvec2 pix, uvec2 rpix) {
   if (!ray.hit)
     return res;
   int first = 0, last = lattice_last(ray.s, ray.t1, step);
+  int lattice_end = last;
   if (RP_SKIP) {
     /* The first and last lattice samples in an occupied block. The depth
      * pass brackets them; a little slack absorbs its rounding, and the
@@ -176,6 +218,10 @@ Result cast_ray(uvec2 pix, uvec2 rpix) {
     while (last >= first && !sample_occupied(ray, last))
       last--;
   }
+  /* As the reference: with skipping, the segment leaving the last
+   * occupied sample is the next sample's. */
+  if (RP_PREINT && RP_SKIP && first <= last)
+    last = min(last + 1, lattice_end);
   /* This pass takes samples start .. end: all of them in core, in a depth
    * slab those of [first, last] before the cut not taken yet. Samples
    * and fetches are carried, so those of this pass are added. */
@@ -206,6 +252,17 @@ Result cast_ray(uvec2 pix, uvec2 rpix) {
    * that sample again with the same expression. */
   int i = start;
   float v = sample_volume(ray.p0 + (ray.s + float(i) * step) * ray.dp);
+  /* Pre-integration: the position before each sample, the first one's
+   * from the lattice depth before it (one more fetch; not with
+   * RP_BRICKED, which the host refuses: that value's brick may be gone by
+   * a later slab). */
+  float f_prev = 0.0;
+  if (RP_PREINT && start <= end) {
+    f_prev = lut_pos(sample_volume(ray.p0 + (ray.s + float(start - 1) *
+                                             step) * ray.dp));
+    if (RP_COUNT)
+      fetches++;
+  }
   while (i <= end) {
     vec4 c;
     float a;
@@ -224,9 +281,16 @@ Result cast_ray(uvec2 pix, uvec2 rpix) {
       float v_next = sample_volume(ray.p0 + t_next * ray.dp);
       if (RP_COUNT)
         fetches++;
-      c = classify(v);
+      if (RP_PREINT) {
+        float f = lut_pos(v);
+        c = preint(f_prev, f);
+        f_prev = f;
+        a = c.a;
+      } else {
+        c = classify(v);
+        a = RP_CORRECT ? correct(c.a) : c.a;
+      }
       v = v_next;
-      a = RP_CORRECT ? correct(c.a) : c.a;
       /* A transparent sample at a slab's `end` (before `last`), or the
        * MARCH_CAP-th transparent sample in a row, leaves here and is
        * composited with weight 0 where the single pass skips it: adding
@@ -241,7 +305,10 @@ Result cast_ray(uvec2 pix, uvec2 rpix) {
     }
     vec3 rgb = c.rgb;
     if ((RP_SHADING || RP_AO) && a > 0.0) {
-      vec3 p = ray.p0 + (ray.s + float(i) * step) * ray.dp;
+      /* A pre-integrated segment is shaded and occluded at its middle
+       * (reference.c). */
+      vec3 p = ray.p0 + (ray.s + (float(i) - (RP_PREINT ? 0.5 : 0.0)) *
+                                     step) * ray.dp;
       if (RP_SHADING) {
         rgb = shade(rgb, p, ray.dir);
         if (RP_COUNT)
