@@ -331,6 +331,11 @@ static int walk_set(walk *w, size_t *pos, size_t end, int depth,
       *pos = at + 8;
       return 0;
     }
+    /* Items and delimiters belong in sequences only: GDCM asserts on
+     * one among a data set's elements. */
+    if (g == 0xfffe)
+      return rp__fail(w->ctx, RP_EFORMAT, "%s: (FFFE,%04X) at byte %zu "
+                      "outside a sequence", w->name, e, at);
     /* Tags ascend in a data set; GDCM re-reads a file that breaks the
      * order in other encodings, where lengths mean other things. */
     if (!first && (g << 16 | e) <= last)
@@ -339,7 +344,7 @@ static int walk_set(walk *w, size_t *pos, size_t end, int depth,
                       e, at, last >> 16, last & 0xffff);
     last = g << 16 | e;
     first = 0;
-    if (w->implicit || g == 0xfffe) {
+    if (w->implicit) {
       len = u32(w, at + 4);
       sequence = len == UNDEFINED;
     } else {

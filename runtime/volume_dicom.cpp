@@ -115,9 +115,15 @@ int read_numbers(rp_context *ctx, const char *name, const gdcm::DataSet &ds,
   if (bv == nullptr)
     return 0;
   std::string text(bv->GetPointer(), bv->GetLength());
+  while (!text.empty() && text.back() == '\0')
+    text.pop_back(); /* padding some writers use instead of a space */
   const char *p = text.c_str();
   int got = 0;
-  for (;;) {
+  /* Decimal and integer strings only (no "0x1", "inf" or "nan", which
+   * strtod takes and GDCM's own parser reads otherwise). */
+  if (text.find_first_not_of("0123456789+-.eE \\") != std::string::npos)
+    got = n + 1;
+  while (got <= n) {
     char *end = nullptr;
     double v;
     while (*p == ' ')
@@ -348,6 +354,13 @@ int meta_from(rp_context *ctx, const char *name, const gdcm::File &file,
     if (t.has != nullptr)
       *t.has = rc;
   }
+  /* GDCM reads a slope of 0 where only the intercept is given, and
+   * asserts on it. */
+  if (ds.FindDataElement(gdcm::Tag(0x0028, 0x1052)) !=
+      ds.FindDataElement(gdcm::Tag(0x0028, 0x1053)))
+    return rp__fail(ctx, RP_EFORMAT, "%s: RescaleIntercept (0028,1052) "
+                    "and RescaleSlope (0028,1053) come together; the file "
+                    "has one of them", name);
   if (frames < 1 || frames > 4294967295.0 || frames != std::floor(frames))
     return rp__fail(ctx, RP_EFORMAT, "%s: NumberOfFrames (0028,0008): "
                     "value %g is not a count of frames", name, frames);
