@@ -343,6 +343,50 @@ static void views_follow_the_orientation(void **state) {
   rp_context_destroy(ctx);
 }
 
+/* Block histograms of signed data against brute force on the data values:
+ * bin = (v - min) * 64 / (max - min + 1) per voxel of each 16^3 block, in
+ * HU, on an odd grid of the CT head (-1000 .. about 1400 HU). */
+static void signed_histograms_match_brute_force(void **state) {
+  rp_context *ctx = rp_test_context();
+  rp_generate_desc g = {0};
+  rp_volume *v = NULL;
+  rp_histograms *h = NULL;
+  rp_volume_info info;
+  const uint16_t *d;
+  uint32_t bx, by, bz, x, y, z, nb[3];
+  long long lo, hi;
+  (void)state;
+  g.kind = RP_GEN_CT_HEAD;
+  g.dims[0] = 37, g.dims[1] = 29, g.dims[2] = 33;
+  assert_int_equal(rp_volume_generate(ctx, &g, &v), 0);
+  assert_int_equal(rp_histograms_build(ctx, v, &h), 0);
+  rp_volume_get_info(v, &info);
+  assert_true(info.min < 0.0);
+  d = rp_volume_data(v);
+  lo = (long long)info.min, hi = (long long)info.max;
+  for (x = 0; x < 3; x++)
+    nb[x] = (info.dims[x] + 15) / 16;
+  for (bz = 0; bz < nb[2]; bz++)
+    for (by = 0; by < nb[1]; by++)
+      for (bx = 0; bx < nb[0]; bx++) {
+        uint32_t want[RP_DENSITY_BINS] = {0};
+        const uint32_t *got = rp_histograms_block(
+            h, (bz * nb[1] + by) * nb[0] + bx);
+        for (z = bz * 16; z < bz * 16 + 16 && z < info.dims[2]; z++)
+          for (y = by * 16; y < by * 16 + 16 && y < info.dims[1]; y++)
+            for (x = bx * 16; x < bx * 16 + 16 && x < info.dims[0]; x++) {
+              long long hu = (long long)d[((size_t)z * info.dims[1] + y) *
+                                              info.dims[0] + x] +
+                             (long long)info.stored_offset;
+              want[(hu - lo) * RP_DENSITY_BINS / (hi - lo + 1)]++;
+            }
+        assert_memory_equal(got, want, sizeof want);
+      }
+  rp_histograms_destroy(h);
+  rp_volume_destroy(v);
+  rp_context_destroy(ctx);
+}
+
 int main(void) {
   const struct CMUnitTest tests[] = {
       cmocka_unit_test(window_level_places_the_tf),
@@ -351,6 +395,7 @@ int main(void) {
       cmocka_unit_test(one_outlier_voxel_changes_little),
       cmocka_unit_test(tf_files_in_data_units),
       cmocka_unit_test(views_follow_the_orientation),
+      cmocka_unit_test(signed_histograms_match_brute_force),
   };
   return cmocka_run_group_tests(tests, NULL, NULL);
 }
