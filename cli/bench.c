@@ -370,8 +370,7 @@ static int print_json(const quality_opts *o, const rp_caps *caps,
                       const sweep_point *p, int n,
                       budget_point b[BUDGETS][SPACES], double t1) {
   cJSON *root = cJSON_CreateObject(), *sw, *bu;
-  char *text;
-  int i, s, ok;
+  int i, s;
   cJSON_AddStringToObject(root, "volume", o->volume);
   cJSON_AddStringToObject(root, "backend", caps->backend);
   cJSON_AddStringToObject(root, "device", caps->device);
@@ -416,13 +415,7 @@ static int print_json(const quality_opts *o, const rp_caps *caps,
     cJSON_AddStringToObject(root, "csv", o->csv);
   if (o->plot != NULL)
     cJSON_AddStringToObject(root, "plot", o->plot);
-  text = cJSON_Print(root);
-  ok = text != NULL;
-  if (ok)
-    printf("%s\n", text);
-  free(text);
-  cJSON_Delete(root);
-  return ok ? 0 : 1;
+  return cli_print_json(root);
 }
 
 /* Every density of the grid in every space: its median time over the

@@ -360,8 +360,7 @@ static void print_table(const overhead_opts *o, const overhead *b,
 static int print_json(const overhead_opts *o, const overhead *b,
                       const stage_result r[STAGES], double work) {
   cJSON *root = cJSON_CreateObject(), *arr;
-  char *text;
-  int s, ok;
+  int s;
   cJSON_AddStringToObject(root, "volume", o->volume);
   cJSON_AddStringToObject(root, "device", b->stats[0].devices[0].name);
   cJSON_AddNumberToObject(root, "width", o->width);
@@ -389,13 +388,7 @@ static int print_json(const overhead_opts *o, const overhead *b,
   }
   cJSON_AddNumberToObject(root, "frame_median_ms", r[FRAME_STAGE].median);
   cJSON_AddNumberToObject(root, "prediction_share", work);
-  text = cJSON_Print(root);
-  ok = text != NULL;
-  if (ok)
-    printf("%s\n", text);
-  free(text);
-  cJSON_Delete(root);
-  return ok ? 0 : 1;
+  return cli_print_json(root);
 }
 
 static void on_closed(void *user) { *(int *)user = 1; }

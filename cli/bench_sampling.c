@@ -116,8 +116,7 @@ static int print_json(const quality_opts *o, const rp_caps *caps,
                       const char *ref_backend, double ref_ms,
                       const sample_point *p, int n) {
   cJSON *root = cJSON_CreateObject(), *rows;
-  char *text;
-  int i, ok;
+  int i;
   cJSON_AddStringToObject(root, "volume", o->volume);
   cJSON_AddStringToObject(root, "backend", caps->backend);
   cJSON_AddStringToObject(root, "device", caps->device);
@@ -139,13 +138,7 @@ static int print_json(const quality_opts *o, const rp_caps *caps,
     bench_json_metrics(e, &p[i].m);
     cJSON_AddItemToArray(rows, e);
   }
-  text = cJSON_Print(root);
-  ok = text != NULL;
-  if (ok)
-    printf("%s\n", text);
-  free(text);
-  cJSON_Delete(root);
-  return ok ? 0 : 1;
+  return cli_print_json(root);
 }
 
 static int write_csv(const char *path, const sample_point *p, int n) {

@@ -513,3 +513,13 @@ int cli_parse_window(cli_tf *tf, int is_width, const char *s) {
     tf->level = v, tf->windowed |= 2;
   return 0;
 }
+
+int cli_print_json(cJSON *root) {
+  char *text = cJSON_Print(root);
+  int ok = text != NULL;
+  if (ok)
+    printf("%s\n", text);
+  free(text);
+  cJSON_Delete(root);
+  return ok ? 0 : 1;
+}

@@ -80,6 +80,9 @@ const char *cli_controller_colour(rp_controller_kind kind);
  * (NaN or infinite), as JSON has no such numbers. */
 struct cJSON;
 void cli_json_figure(struct cJSON *o, const char *name, double v);
+/* Prints `root` formatted on stdout and deletes it; 0, or 1 when it could
+ * not be printed (out of memory). */
+int cli_print_json(struct cJSON *root);
 /* Writes s as a gnuplot single-quoted literal ('' is a quote), so that a
  * path cannot end the string or inject commands. */
 void cli_gnuplot_string(FILE *g, const char *s);

@@ -157,15 +157,6 @@ static cJSON *json_u32s(const uint32_t *v, int n) {
   return a;
 }
 
-static int print_json(cJSON *root) {
-  char *s = cJSON_Print(root);
-  int ok = s != NULL;
-  if (ok)
-    printf("%s\n", s);
-  free(s);
-  cJSON_Delete(root);
-  return ok ? 0 : 1;
-}
 
 /* What info and render both build: a context, the volume, a TF, the
  * density histograms and the occupancy under the TF. */
@@ -304,7 +295,7 @@ static int info_json(const info_opts *o, const scene *sc) {
       cJSON_AddItemToArray(ha, json_u32s(op, RP_OPACITY_BINS));
     }
   }
-  return print_json(root);
+  return cli_print_json(root);
 }
 
 static int info_text(const info_opts *o, const scene *sc) {
@@ -938,7 +929,7 @@ static int group_report(const render_opts *o, const group_run *run,
                           json_group(o, rep, fate, run->fb.sw, run->fb.sh));
     cJSON_AddItemToObject(root, "strips",
                           json_strips(o, rep, run->fb.sw, run->fb.sh));
-    return print_json(root);
+    return cli_print_json(root);
   }
   printf("wrote %s (%ux%u on %u devices, %llu samples, %.1f ms, %.2f M "
          "samples/s)\n", o->out, o->width, o->height, rep->count,
@@ -1041,7 +1032,7 @@ static int single_report(const render_opts *o, const rp_device *dev,
     cJSON_AddNumberToObject(root, "samples_per_s",
                             t_render > 0 ? ft.samples / t_render : 0.0);
     add_bricks_json(root, dev);
-    return print_json(root);
+    return cli_print_json(root);
   }
   printf("wrote %s (%ux%u on %s '%s', %llu samples, %.1f ms, %.2f M "
          "samples/s)\n", o->out, o->width, o->height, caps->backend,
