@@ -36,6 +36,17 @@ static inline int fuzz_parsed(rp_context *ctx, int rc) {
   return rc == 0;
 }
 
+/* A load's result against the contract: a failure is negative, leaves
+ * *out (`vol`, first set to `untouched`) alone and carries a message.
+ * Returns whether the load succeeded. */
+static inline int fuzz_loaded(rp_context *ctx, int rc, const rp_volume *vol,
+                              const void *untouched) {
+  if (rc != 0 && (rc > 0 || (const void *)vol != untouched ||
+                  rp_last_error(ctx)[0] == '\0'))
+    abort();
+  return rc == 0;
+}
+
 /* Whether a volume's orientation breaks its promise: unit, orthogonal
  * columns and a finite origin when known, the identity when not. */
 static inline int fuzz_orientation_bad(const rp_orientation *o) {
@@ -64,12 +75,8 @@ static inline void fuzz_decode_checked(rp_context *ctx, const char *name,
   int rc;
   rp__clear_error(ctx);
   rc = rp__volume_decode(ctx, name, hdr, payload, len, &vol);
-  if (rc != 0) {
-    if (rc > 0 || vol != (rp_volume *)&sentinel ||
-        rp_last_error(ctx)[0] == '\0')
-      abort();
+  if (!fuzz_loaded(ctx, rc, vol, &sentinel))
     return;
-  }
   rp_volume_get_info(vol, &info);
   if (info.dims[0] != hdr->dims[0] || info.dims[1] != hdr->dims[1] ||
       info.dims[2] != hdr->dims[2] || info.type != hdr->type ||

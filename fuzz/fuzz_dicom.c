@@ -26,12 +26,8 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size) {
     return 0;
   rp__clear_error(ctx);
   rc = rp__dicom_load_file(ctx, &src, &vol);
-  if (rc != 0) {
-    if (rc > 0 || vol != (rp_volume *)&sentinel ||
-        rp_last_error(ctx)[0] == '\0')
-      abort();
+  if (!fuzz_loaded(ctx, rc, vol, &sentinel))
     return 0;
-  }
   rp_volume_get_info(vol, &info);
   if (info.dims[0] != meta.cols || info.dims[1] != meta.rows ||
       info.dims[2] != meta.frames ||

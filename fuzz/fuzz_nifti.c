@@ -34,12 +34,8 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size) {
   rp__clear_error(ctx);
   rc = rp_volume_load(ctx, path, &vol);
   unlink(path);
-  if (rc != 0) {
-    if (rc > 0 || vol != (rp_volume *)&sentinel ||
-        rp_last_error(ctx)[0] == '\0')
-      abort();
+  if (!fuzz_loaded(ctx, rc, vol, &sentinel))
     return 0;
-  }
   rp_volume_get_info(vol, &info);
   if (!(info.min <= info.max) || fuzz_orientation_bad(&info.orientation))
     abort();
