@@ -78,7 +78,8 @@ ctest --test-dir build-tsan -j "$jobs" --output-on-failure \
   -R "test_core|test_histogram|test_runtime|test_group|test_ao"
 
 # clang --analyze: any report fails the run.
-# The NIfTI loader's real path too, not only its stub (libnifti2-dev).
+# The NIfTI loader's real path too, not only the refusal built without
+# nifticlib (libnifti2-dev).
 nifti=""
 if [ -f /usr/include/nifti/nifti2_io.h ]; then
   nifti="-DRP_WITH_NIFTI=1 -isystem /usr/include/nifti"
