@@ -3,14 +3,10 @@
  * reference step. A file is small and read whole; every error names the
  * file, the line and what was found there. */
 #include <ctype.h>
-#include <errno.h>
-#include <math.h>
 #include <stdio.h>
-#include <stdlib.h>
 #include <string.h>
-#include <sys/stat.h>
 
-#include "internal.h"
+#include "volume_io.h"
 
 #define RP__TF_FILE_MAX (1 << 20)
 #define RP__TF_POINTS_MAX 65536
@@ -24,34 +20,28 @@ typedef struct tf_parse {
   int cap;
 } tf_parse;
 
-static char *trim(char *s) {
-  char *e;
-  while (isspace((unsigned char)*s))
-    s++;
-  e = s + strlen(s);
-  while (e > s && isspace((unsigned char)e[-1]))
-    *--e = '\0';
-  return s;
-}
-
-/* Reads up to `max` numbers separated by blanks or commas; returns how
- * many, or -1 when a token is not a number. */
+/* Reads up to `max` numbers separated by blanks or commas (rp__text_double:
+ * '.' whatever the locale; NaN and infinities pass, for rp_tf_create to
+ * refuse by point and field); returns how many, or -1 when a token is not
+ * a number or there are more than `max`. */
 static int numbers(char *s, double *out, int max) {
   int n = 0;
-  char *end;
   for (;;) {
+    char *tok;
     while (isspace((unsigned char)*s) || *s == ',')
       s++;
     if (*s == '\0')
       return n;
     if (n == max)
       return -1;
-    errno = 0;
-    out[n] = strtod(s, &end);
-    if (end == s || errno == ERANGE)
+    tok = s;
+    while (*s != '\0' && !isspace((unsigned char)*s) && *s != ',')
+      s++;
+    if (*s != '\0')
+      *s++ = '\0';
+    if (!rp__text_double(tok, &out[n]))
       return -1;
     n++;
-    s = end;
   }
 }
 
@@ -82,7 +72,7 @@ static int parse_key(tf_parse *p, const char *key, char *value) {
   if (strcmp(key, "range") == 0) {
     char *rest = value + strcspn(value, " \t");
     size_t word = (size_t)(rest - value);
-    if (word == 6 && strncmp(value, "minmax", 6) == 0 && *trim(rest) == 0) {
+    if (word == 6 && strncmp(value, "minmax", 6) == 0 && *rp__text_trim(rest) == 0) {
       p->desc.range = RP_TF_RANGE_MINMAX;
       return 0;
     }
@@ -143,13 +133,13 @@ static int parse(tf_parse *p, char *text) {
     p->line++;
     if ((s = strchr(line, '#')) != NULL)
       *s = '\0';
-    s = trim(line);
+    s = rp__text_trim(line);
     if (*s == '\0')
       continue;
     colon = strchr(s, ':');
     if (colon != NULL) {
       *colon = '\0';
-      err = parse_key(p, trim(s), trim(colon + 1));
+      err = parse_key(p, rp__text_trim(s), rp__text_trim(colon + 1));
     } else {
       err = parse_point(p, s);
     }
@@ -161,28 +151,25 @@ static int parse(tf_parse *p, char *text) {
 }
 
 static int read_all(rp_context *ctx, const char *path, char **out) {
-  struct stat st;
-  FILE *f;
+  uint64_t size = 0;
+  int rc = 0;
+  FILE *f = rp__open_regular(ctx, path, NULL, &size, &rc);
   char *buf;
   size_t n;
-  if (stat(path, &st) != 0)
-    return rp__fail(ctx, errno == ENOENT ? RP_ENOENT : RP_EIO,
-                    "%s: cannot open: %s", path, strerror(errno));
-  if (!S_ISREG(st.st_mode))
-    return rp__fail(ctx, RP_EIO, "%s: not a regular file", path);
-  if (st.st_size > RP__TF_FILE_MAX)
-    return rp__fail(ctx, RP_ERANGE, "%s: %lld bytes; a transfer function "
-                    "file is at most %d", path, (long long)st.st_size,
+  if (f == NULL)
+    return rc;
+  if (size > RP__TF_FILE_MAX) {
+    fclose(f);
+    return rp__fail(ctx, RP_ERANGE, "%s: %llu bytes; a transfer function "
+                    "file is at most %d", path, (unsigned long long)size,
                     RP__TF_FILE_MAX);
-  if ((f = fopen(path, "rb")) == NULL)
-    return rp__fail(ctx, RP_EIO, "%s: cannot open: %s", path,
-                    strerror(errno));
-  buf = rp__malloc(ctx, (size_t)st.st_size + 1);
+  }
+  buf = rp__malloc(ctx, (size_t)size + 1);
   if (buf == NULL) {
     fclose(f);
     return rp__fail(ctx, RP_ENOMEM, "%s: out of memory", path);
   }
-  n = fread(buf, 1, (size_t)st.st_size, f);
+  n = fread(buf, 1, (size_t)size, f);
   fclose(f);
   buf[n] = '\0';
   if (memchr(buf, '\0', n) != NULL) {

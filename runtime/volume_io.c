@@ -40,13 +40,12 @@ static int not_regular(rp_context *ctx, const char *path,
              : rp__fail(ctx, RP_EIO, "%s: not a regular file", path);
 }
 
-/* Opens a regular file for reading; NULL with *rc set on failure. `owner`,
- * when not NULL, is the header that named it, for the message. A FIFO
+/* rp__open_regular (volume_io.h). A FIFO
  * blocks in open() until a writer comes, and opening a device may act on
  * it, so the path's type is checked before it is opened; the open itself
  * does not block either, and the type is checked again on the descriptor,
  * in case the path changed in between. */
-static FILE *open_file(rp_context *ctx, const char *path, const char *owner,
+FILE *rp__open_regular(rp_context *ctx, const char *path, const char *owner,
                        uint64_t *size, int *rc) {
   struct stat st;
   FILE *f = NULL;
@@ -145,7 +144,7 @@ static int decode_data_file(rp_context *ctx, const char *path,
   int rc = RP_ENOMEM;
   if (data_path == NULL)
     return rc;
-  fp = open_file(ctx, data_path, path, &size, &rc);
+  fp = rp__open_regular(ctx, data_path, path, &size, &rc);
   if (fp != NULL) {
     rc = decode_file(ctx, data_path, fields, hdr, fp, size, 0, out);
     fclose(fp);
@@ -224,7 +223,7 @@ int rp_volume_load(rp_context *ctx, const char *path, rp_volume **out) {
   rp__volume_header_init(&hdr);
   if (stat(path, &st) == 0 && S_ISDIR(st.st_mode))
     return rp__dicom_load_dir(ctx, path, out);
-  if ((fp = open_file(ctx, path, NULL, &size, &rc)) == NULL)
+  if ((fp = rp__open_regular(ctx, path, NULL, &size, &rc)) == NULL)
     return rc;
   /* A .raw file by its name first: its content is voxels only, and voxels
    * may begin with any bytes, "NRRD" included. Then the first bytes

@@ -23,6 +23,15 @@
 
 #include "internal.h"
 
+/* ---- volume_io.c ---------------------------------------------------------- */
+
+/* Opens a regular file for reading (never blocking on a FIFO, never
+ * opening a device); NULL with *rc set and the error recorded on failure.
+ * `owner`, when not NULL, is the header that named it, for the message.
+ * *size is the file's size. Also used by tf_file.c. */
+FILE *rp__open_regular(rp_context *ctx, const char *path, const char *owner,
+                       uint64_t *size, int *rc);
+
 /* ---- volume_header.c: text helpers the header parsers share -------------- */
 
 /* Case-insensitive ASCII comparison, whatever the locale. */
