@@ -4,7 +4,8 @@
 #   ./dev.sh test   install what is missing, build, run every test: the
 #                   plain build, then AddressSanitizer + UBSan, clang's
 #                   static analyzer, and each fuzz target over its seed
-#                   corpus
+#                   corpus; it ends with one line that counts what
+#                   passed, failed and was skipped over every stage
 set -eu
 cd "$(dirname "$0")"
 mode=${1:-}
@@ -55,27 +56,62 @@ if [ "$mode" = demo ]; then
   exit 0
 fi
 
+# Every stage runs even when an earlier one failed, so that one run
+# shows every failure; the last line counts them over all stages and the
+# exit status is non-zero when anything failed.
+passed=0 failed=0 skipped=0 broken=""
+logdir=$(mktemp -d)
+trap 'rm -rf "$logdir"' EXIT
+stage() { # stage NAME BUILD-DIR [ctest args...]: run and count one ctest stage
+  name=$1 dir=$2; shift 2
+  log="$logdir/$name"
+  { ctest --test-dir "$dir" -j "$jobs" --output-on-failure \
+      --no-tests=error "$@"
+    echo $? >"$log.rc"; } 2>&1 | tee "$log"
+  # A test's own line: "12/54 Test #12: test_x ....   Passed  0.1 sec".
+  lines=$(grep -E '^ *[0-9]+/[0-9]+ Test +#[0-9]+: ' "$log" || true)
+  p=$(printf '%s\n' "$lines" | grep -c ' Passed ' || true)
+  s=$(printf '%s\n' "$lines" | grep -c 'Skipped' || true)
+  n=$(printf '%s\n' "$lines" | grep -c 'Test' || true)
+  f=$((n - p - s))
+  # ctest failing with no test line failing (no tests found, a crash of
+  # ctest itself) still fails the stage.
+  if [ "$(cat "$log.rc")" -ne 0 ] && [ "$f" -eq 0 ]; then f=1; fi
+  passed=$((passed + p)) failed=$((failed + f)) skipped=$((skipped + s))
+  [ "$f" -eq 0 ] || broken="$broken $name"
+  echo "dev.sh: $name: $p passed, $f failed, $s skipped"
+}
+try_build() { # try_build NAME DIR [cmake args...]: a build that fails counts
+  name=$1; shift
+  if build "$@"; then return 0; fi
+  failed=$((failed + 1)) broken="$broken $name(build)"
+  return 1
+}
+
 # The demo's configuration (Release, -O3): GCC's -O3 warnings differ
 # from -O2's, and under -Werror a warning only -O3 raises once broke
 # './dev.sh demo' while every test passed.
-build build -DCMAKE_BUILD_TYPE=Release
-ctest --test-dir build -j "$jobs" --output-on-failure
-build build-asan -DRP_ASAN=ON -DRP_UBSAN=ON -DRP_BUILD_CLI=ON
+if try_build plain build -DCMAKE_BUILD_TYPE=Release; then
+  stage plain build
+fi
 # intercept_tls_get_addr=0: up to GCC 13 the sanitizer runtime's
 # __tls_get_addr interceptor can take a malloc'd dynamic TLS block for a
 # pre-2.25 glibc header and make LeakSanitizer's tracer crash at exit
 # ("Tracer caught signal 11", no leak reported; seen once here in
 # test_cl_backend, whose PoCL libraries use dynamic TLS).
-ASAN_OPTIONS=detect_leaks=1:intercept_tls_get_addr=0 \
-  UBSAN_OPTIONS=print_stacktrace=1 \
-  LSAN_OPTIONS="suppressions=$(pwd)/tests/lsan.supp:print_suppressions=0" \
-  ctest --test-dir build-asan -j "$jobs" --output-on-failure \
-  -E test_install_consumer
+if try_build asan build-asan -DRP_ASAN=ON -DRP_UBSAN=ON -DRP_BUILD_CLI=ON
+then
+  ASAN_OPTIONS=detect_leaks=1:intercept_tls_get_addr=0 \
+    UBSAN_OPTIONS=print_stacktrace=1 \
+    LSAN_OPTIONS="suppressions=$(pwd)/tests/lsan.supp:print_suppressions=0" \
+    stage asan+ubsan build-asan -E test_install_consumer
+fi
 # ThreadSanitizer over the tests that run worker threads.
-build build-tsan -DRP_TSAN=ON -DRP_BUILD_CLI=OFF -DRP_BUILD_SAMPLES=OFF \
-  -DRP_BUILD_BENCH=OFF
-ctest --test-dir build-tsan -j "$jobs" --output-on-failure \
-  -R "test_core|test_histogram|test_runtime|test_group|test_ao"
+if try_build tsan build-tsan -DRP_TSAN=ON -DRP_BUILD_CLI=OFF \
+  -DRP_BUILD_SAMPLES=OFF -DRP_BUILD_BENCH=OFF; then
+  stage tsan build-tsan \
+    -R "test_core|test_histogram|test_runtime|test_group|test_ao"
+fi
 
 # clang --analyze: any report fails the run.
 # The NIfTI loader's real path too, not only the refusal built without
@@ -92,10 +128,21 @@ done)
 if printf '%s' "$report" | grep -qE "warning:|error:"; then
   printf '%s\n' "$report"
   echo "clang --analyze: reports above"
+  failed=$((failed + 1)) broken="$broken analyzer"
+else
+  echo "clang --analyze: no reports"
+  passed=$((passed + 1))
+fi
+
+if CC=clang CXX=clang++ try_build fuzz build-fuzz -DRP_FUZZ=ON \
+  -DRP_BUILD_TESTS=OFF -DRP_BUILD_CLI=OFF -DRP_BUILD_SAMPLES=OFF \
+  -DRP_BUILD_BENCH=OFF; then
+  stage fuzz-corpora build-fuzz
+fi
+
+echo "dev.sh test: $passed passed, $failed failed, $skipped skipped" \
+  "(stages plain, asan+ubsan, tsan, analyzer, fuzz-corpora)"
+if [ -n "$broken" ]; then
+  echo "dev.sh test: failed in:$broken" >&2
   exit 1
 fi
-echo "clang --analyze: no reports"
-
-CC=clang CXX=clang++ build build-fuzz -DRP_FUZZ=ON -DRP_BUILD_TESTS=OFF \
-  -DRP_BUILD_CLI=OFF -DRP_BUILD_SAMPLES=OFF -DRP_BUILD_BENCH=OFF
-ctest --test-dir build-fuzz -j "$jobs" --output-on-failure
