@@ -99,8 +99,11 @@ fi
 # pre-2.25 glibc header and make LeakSanitizer's tracer crash at exit
 # ("Tracer caught signal 11", no leak reported; seen once here in
 # test_cl_backend, whose PoCL libraries use dynamic TLS).
-if try_build asan build-asan -DRP_ASAN=ON -DRP_UBSAN=ON -DRP_BUILD_CLI=ON
-then
+# The sanitizer stages reuse the plain stage's compiled kernels (see
+# RP_TEST_CACHE_DIR in tests/CMakeLists.txt).
+cache="-DRP_TEST_CACHE_DIR=$(pwd)/build"
+if try_build asan build-asan -DRP_ASAN=ON -DRP_UBSAN=ON -DRP_BUILD_CLI=ON \
+  "$cache"; then
   ASAN_OPTIONS=detect_leaks=1:intercept_tls_get_addr=0 \
     UBSAN_OPTIONS=print_stacktrace=1 \
     LSAN_OPTIONS="suppressions=$(pwd)/tests/lsan.supp:print_suppressions=0" \
@@ -108,7 +111,7 @@ then
 fi
 # ThreadSanitizer over the tests that run worker threads.
 if try_build tsan build-tsan -DRP_TSAN=ON -DRP_BUILD_CLI=OFF \
-  -DRP_BUILD_SAMPLES=OFF -DRP_BUILD_BENCH=OFF; then
+  -DRP_BUILD_SAMPLES=OFF -DRP_BUILD_BENCH=OFF "$cache"; then
   stage tsan build-tsan \
     -R "test_core|test_histogram|test_runtime|test_group|test_ao"
 fi
