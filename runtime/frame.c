@@ -125,6 +125,8 @@ struct rp__engine {
 
 /* ---- Time and counters --------------------------------------------------- */
 
+rp_device_group *rp__engine_group(rp__engine *e) { return e->group; }
+
 double rp__engine_now_ms(const rp__engine *e) {
   uint64_t ns;
   if (e->clock_dev != NULL && rp__device_clock_ns(e->clock_dev, &ns))

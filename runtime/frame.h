@@ -51,6 +51,7 @@ typedef struct rp__events {
 void rp__events_drop(rp__events *ev);
 
 typedef struct rp__engine rp__engine;
+struct rp_device_group;
 
 /* `desc` is the runtime's, defaults resolved (rp_runtime_create). The
  * engine opens the device group on `ctx`, which it uses from then on for
@@ -80,5 +81,11 @@ void rp__engine_counters(rp__engine *e, rp_runtime_counters *out);
  * runtime's single device keeps one (the deterministic test backend),
  * else CLOCK_MONOTONIC. */
 double rp__engine_now_ms(const rp__engine *e);
+
+/* The engine's device group, so that a test can see what a frame asked
+ * of it (rp_device_group_prepared); the runtime's: its engine's. Between
+ * frames only, from the thread that steps them. */
+struct rp_device_group *rp__engine_group(rp__engine *e);
+struct rp_device_group *rp__runtime_group(rp_runtime *rt);
 
 #endif /* RP_FRAME_H */

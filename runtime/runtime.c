@@ -806,6 +806,10 @@ int rp_runtime_request_frame(rp_runtime *rt) {
   return post(rt, NULL, NULL, 1);
 }
 
+struct rp_device_group *rp__runtime_group(rp_runtime *rt) {
+  return rp__engine_group(rt->engine);
+}
+
 void rp_runtime_get_counters(rp_runtime *rt, rp_runtime_counters *out) {
   uint64_t events, frames;
   if (rt == NULL || out == NULL)
