@@ -2,7 +2,6 @@
  * layout), the transfer function with its pre-integration table, and the
  * occupancy grid with its opacity histograms. The AO volume and the brick
  * pool are uploaded in files of their own (vk_ao.c, vk_bricks.c). */
-#include <stdlib.h>
 #include <string.h>
 
 #include "vk_internal.h"
@@ -211,7 +210,7 @@ int rp_vk__upload_tf(void *p, const float *lut, uint32_t lut_size) {
       rp_vk__free_view(impl, &impl->lut_view);
       rp_vk__buffer_free(impl, &impl->lut);
       rp_vk__bind_all(impl);
-      free(all);
+      rp__free(impl->ctx, all);
       return err;
     }
     rp_vk__bind_all(impl);
@@ -219,7 +218,7 @@ int rp_vk__upload_tf(void *p, const float *lut, uint32_t lut_size) {
   impl->have_lut = 0;
   err = rp_vk__write_buffer(impl, &impl->lut, "transfer function staging",
                             rp_vk__fill_copy, &c);
-  free(all);
+  rp__free(impl->ctx, all);
   if (err != 0)
     return err;
   impl->have_lut = 1;
