@@ -1,7 +1,8 @@
 /* The Vulkan backend's device layer: instance and device, memory and
  * buffers, the persistent pipeline cache, and error mapping.
  *
- * Nothing here knows about kernels; vk_backend.c builds the frame on top.
+ * Nothing here knows about kernels; vk_backend.c and the files beside it
+ * build the frame on top.
  * Every failure is reported through rp__fail with the Vulkan call that
  * failed, and no half-made object is left behind: rp_vk__close and
  * rp_vk__buffer_free accept partly built state. */
@@ -541,7 +542,7 @@ void rp_vk__cache_load(rp_vk_impl *impl) {
   if (st->cache_path[0] != '\0')
     data = read_cache(impl, &len);
   /* No VK_PIPELINE_CACHE_CREATE_EXTERNALLY_SYNCHRONIZED_BIT: prepare
-   * builds pipelines through the cache on another thread (vk_backend.c,
+   * builds pipelines through the cache on another thread (vk_pipeline.c,
    * build_pipeline). */
   info.sType = VK_STRUCTURE_TYPE_PIPELINE_CACHE_CREATE_INFO;
   info.initialDataSize = len;

@@ -254,4 +254,90 @@ int rp_vk__check_spirv(rp_context *ctx, const char *what,
  * figures are read under the lock, so a prepare may be running. */
 void rp_vk_get_stats(void *impl, rp_vk_stats *out);
 
+/* The rest of this header is what the backend's files share; the comment
+ * at each definition says more. */
+
+static inline uint32_t rp_vk__div_up(uint32_t a, uint32_t b) {
+  return a / b + (a % b != 0);
+}
+
+/* A texel view of all of `buf`; rp_vk__free_view takes NULL handles. */
+int rp_vk__make_view(rp_vk_impl *impl, VkBuffer buf, VkFormat format,
+                     VkBufferView *out);
+void rp_vk__free_view(rp_vk_impl *impl, VkBufferView *v);
+/* Rewrites the descriptor set: after any buffer is made or freed. */
+void rp_vk__bind_all(rp_vk_impl *impl);
+/* A storage buffer of at least `size` bytes, kept while large enough. */
+int rp_vk__ensure(rp_vk_impl *impl, rp_vk_buffer *b, const char *what,
+                  VkDeviceSize size, VkBufferUsageFlags usage, int host);
+/* RP_EDEVICE, naming the operation, once the device was lost. */
+int rp_vk__alive(rp_vk_impl *impl);
+/* One operation's command buffer: rp_vk__begin starts recording (and
+ * timing), rp_vk__finish submits it and waits; the barriers go between. */
+int rp_vk__begin(rp_vk_impl *impl);
+void rp_vk__barrier(rp_vk_impl *impl, VkPipelineStageFlags src,
+                    VkAccessFlags src_access, VkPipelineStageFlags dst,
+                    VkAccessFlags dst_access);
+void rp_vk__after_dispatch(rp_vk_impl *impl);
+int rp_vk__finish(rp_vk_impl *impl, const char *op);
+/* Fills `dst` through `fill`, staged when it is not mapped. */
+int rp_vk__write_buffer(rp_vk_impl *impl, rp_vk_buffer *dst,
+                        const char *what,
+                        void (*fill)(void *dst, void *user), void *user);
+/* A fill for rp_vk__write_buffer that copies `bytes` from `src`. */
+typedef struct rp_vk_copy_fill {
+  const void *src;
+  size_t bytes;
+} rp_vk_copy_fill;
+void rp_vk__fill_copy(void *dst, void *user);
+
+/* ---- vk_pipeline.c ------------------------------------------------------- */
+
+int rp_vk__make_modules(rp_vk_impl *impl);
+/* The variant-cache key of a frame's kernel, and of compute_ao's. */
+uint32_t rp_vk__pipeline_key(rp_vk_kernel k, const rp_frame_params *p,
+                             int counting, rp_voxel_type type, int quad);
+uint32_t rp_vk__ao_pipeline_key(int correct, int quad, rp_voxel_type type);
+/* The pipeline for `key`, built on first use (the owner thread's path). */
+int rp_vk__get_pipeline(rp_vk_impl *impl, uint32_t key, VkPipeline *out);
+
+/* ---- vk_upload.c --------------------------------------------------------- */
+
+/* The volume's texel format per rp_voxel_type, one voxel per texel. */
+extern const VkFormat rp_vk__plain_fmt[4];
+/* Whether the device reads `f` from a uniform texel buffer. */
+int rp_vk__format_ok(rp_vk_impl *impl, VkFormat f);
+void rp_vk__set_volume_state(rp_vk_impl *impl, rp_voxel_type type,
+                             int quad, int bricked);
+void rp_vk__drop_volume(rp_vk_impl *impl);
+
+/* ---- vk_frame.c ---------------------------------------------------------- */
+
+/* Binds `pipe` and the one descriptor set. */
+void rp_vk__bind(rp_vk_impl *impl, VkPipeline pipe);
+int rp_vk__check_groups(rp_vk_impl *impl, const char *what, uint32_t gx,
+                        uint32_t gy);
+
+/* ---- vk_ao.c ------------------------------------------------------------- */
+
+void rp_vk__drop_ao(rp_vk_impl *impl);
+
+/* ---- the ops (rp_backend_ops says what each does) ------------------------ */
+
+int rp_vk__prepare(void *ip, rp_context *ctx, uint32_t effects);
+int rp_vk__upload_volume(void *p, const rp_volume *vol);
+int rp_vk__upload_tf(void *p, const float *lut, uint32_t lut_size);
+int rp_vk__upload_occupancy(void *p, const uint8_t *grid,
+                            const uint8_t *alpha_hist,
+                            const uint32_t blocks[3]);
+int rp_vk__depth_pass(void *ip, const rp_frame_params *p, float *front_back);
+int rp_vk__ert_prepass(void *ip, const rp_frame_params *p, float *d_ert);
+int rp_vk__raycast(void *ip, const rp_frame_params *p, const rp_region *r,
+                   uint8_t *rgba, rp_tile_stats *tiles, uint64_t *fetches);
+int rp_vk__upload_ao(void *p, const uint8_t *ao);
+int rp_vk__compute_ao(void *p, const rp_ao_job *job, uint8_t *out);
+int rp_vk__set_brick_pool(void *p, const rp_brick_pool *pool);
+int rp_vk__upload_bricks(void *p, uint32_t count, const uint32_t *slots,
+                         const void *const *voxels, const uint32_t *table);
+
 #endif /* RP_VK_INTERNAL_H */

@@ -11,7 +11,7 @@
  * runs masked lanes' code anyway). The four voxels of a brick row are one
  * output word: they meet in shared memory and one invocation writes them.
  *
- * The Params block is read with AO meanings (vk_backend.c, set_ao_params):
+ * The Params block is read with AO meanings (vk_ao.c, set_ao_params):
  *   dims.xyz, idims.xyz   the volume
  *   idims.w, vrange       the LUT size and value range, as for a raycast,
  *                         vrange.w = step / ref_step
