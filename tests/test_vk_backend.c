@@ -6,7 +6,7 @@
  * upload paths, AO in the plain layout and in slabs with its buffers'
  * life, the opacity correction as a specialization constant, the
  * pipeline cache file, SPIR-V checks, device limits, a missing driver,
- * no sub-devices, and the context's allocator getting back all it gave.
+ * and no sub-devices.
  *
  * Exits 77 (skipped) when no Vulkan device is present. */
 #include "test_util.h"
@@ -399,49 +399,6 @@ static void test_no_partition(void **state) {
   assert_non_null(strstr(rp_last_error(g_ctx), "partition"));
 }
 
-/* Everything the backend takes from the context's allocator goes back to
- * it: upload_tf's staging copy (the LUT and its pre-integration table)
- * included. Counted through a user allocator over create, a TF upload
- * and destroy. */
-typedef struct alloc_count {
-  long allocs, frees;
-} alloc_count;
-
-static void *counted_alloc(size_t size, void *user) {
-  ((alloc_count *)user)->allocs++;
-  return malloc(size);
-}
-
-static void counted_free(void *p, void *user) {
-  ((alloc_count *)user)->frees++;
-  free(p);
-}
-
-static void test_allocator_balance(void **state) {
-  alloc_count c = {0, 0};
-  rp_context_desc d = {0};
-  rp_context *ctx = NULL;
-  const rp_backend_ops *ops = NULL;
-  void *impl = NULL;
-  rp_caps caps;
-  float lut[64 * 4];
-  int i;
-  (void)state;
-  for (i = 0; i < 64 * 4; i++)
-    lut[i] = (float)(i % 4 == 3 ? i / 4 : i) / 256.0f;
-  d.allocator.alloc = counted_alloc;
-  d.allocator.free = counted_free;
-  d.allocator.user = &c;
-  assert_int_equal(rp_context_create(&d, &ctx), 0);
-  assert_int_equal(rp_vk_bootstrap.create(ctx, 0, 0, &ops, &impl, &caps), 0);
-  assert_int_equal(ops->upload_tf(impl, lut, 64), 0);
-  ops->destroy(impl);
-  rp_context_destroy(ctx);
-  /* The context, the device and the staging copy at least. */
-  assert_true(c.allocs >= 3);
-  assert_int_equal(c.allocs, c.frees);
-}
-
 static const char *cache_dir(void) {
   static char dir[512];
   snprintf(dir, sizeof dir, "%s/vk-cache-test-%ld", rp_test_tmp_dir(),
@@ -670,7 +627,6 @@ static int group_teardown(void **state) {
 int main(void) {
   const struct CMUnitTest tests[] = {
       cmocka_unit_test(test_no_partition),
-      cmocka_unit_test(test_allocator_balance),
       cmocka_unit_test(test_layouts_agree),
       cmocka_unit_test(test_ao_layouts),
       cmocka_unit_test(test_ao_memory),

@@ -415,7 +415,7 @@ static int cl_upload_tf(void *p, const float *lut, uint32_t lut_size) {
   rp__preint_table(lut, lut_size, all + (size_t)lut_size * 4);
   rc = upload(impl, &impl->lut, all, n * sizeof *all, 0,
               "the transfer function");
-  free(all);
+  rp__free(impl->ctx, all);
   return rc;
 }
 
