@@ -34,7 +34,8 @@ int rp__check_range(rp_context *ctx, const char *where, const char *field,
   char num[40];
   if (v >= lo && v <= hi)
     return 0;
-  return rp__fail(ctx, RP_EINVAL, "%s%s%s is %s; must be in [%g, %g]%s%s%s%s%s", where,
+  return rp__fail(ctx, RP_EINVAL,
+                  "%s%s%s is %s; must be in [%g, %g]%s%s%s%s%s", where,
                   where[0] != '\0' ? ": " : "", field,
                   rp__num_text(num, v, is_float), lo, hi,
                   unit[0] != '\0' ? " " : "", unit,

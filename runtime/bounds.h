@@ -11,10 +11,10 @@
  * just below 0.001f as "0.0009999999", not "0.001". */
 const char *rp__num_text(char buf[40], double v, int is_float);
 
-/* 0 when lo <= v <= hi; otherwise records "WHERE: FIELD is V; must be in
- * [LO, HI] UNIT (0: ZERO)" and returns RP_EINVAL (NaN included). `where` may be "" and `zero` NULL (no default); V is
- * printed in the fewest digits that read back as the same float when
- * is_float is set, so 179.9f reads "179.9". */
+/* 0 when lo <= v <= hi; otherwise records "WHERE: FIELD is V; must be
+ * in [LO, HI] UNIT (0: ZERO)" and returns RP_EINVAL (NaN included).
+ * `where` may be "" and `zero` NULL (no default); V is printed by
+ * rp__num_text. */
 int rp__check_range(rp_context *ctx, const char *where, const char *field,
                     double v, int is_float, double lo, double hi,
                     const char *unit, const char *zero);
