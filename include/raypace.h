@@ -188,11 +188,13 @@ RP_API const char *rp_last_error(const rp_context *ctx);
 #define RP_ERT_THRESHOLD_MAX 1.0f
 /** The work bound. A render is refused up front (RP_EINVAL, the message
  *  giving the count and the limit) when one ray may take more samples
- *  than RP_MAX_SAMPLES_PER_RAY: floor(D / step) + 1, D the volume's box
- *  diagonal in voxels of its finest spacing; or the frame more than
- *  RP_MAX_SAMPLES_PER_FRAME: the scaled image's rays times that. So a
- *  volume whose spacings differ by 10^9 is refused here. A frame takes
- *  at most minutes on a GPU, never unbounded time. The reference's and
+ *  than RP_MAX_SAMPLES_PER_RAY: floor(D / s) + 1, D the volume's box
+ *  diagonal in voxels of its finest spacing and s the step, or 8 (the
+ *  ERT pre-pass's) when the step is coarser; or the frame more than
+ *  RP_MAX_SAMPLES_PER_FRAME: the scaled image's rays times
+ *  floor(D / step) + 1. So a volume whose spacings differ by 10^9 is
+ *  refused here. A frame takes at most minutes on a GPU, never unbounded
+ *  time. The reference's and
  *  the OpenCL kernel's ray loops also stop at RP_MAX_SAMPLES_PER_RAY.
  *  2^24 samples is a 2^16-voxel axis at step 1/256; 2^38 is an 8192^2
  *  image of a 1024^3 volume at step 1/2. \since 0.12 */

@@ -15,6 +15,7 @@
 #include <unistd.h>
 
 #include "bounds.h"
+#include "raypace_backend.h"
 
 const char *rp__num_text(char buf[40], double v, int is_float) {
   int p;
@@ -132,7 +133,10 @@ double rp__ray_samples_max(const rp__raygen *rg, double step) {
 
 int rp__check_work(rp_context *ctx, const char *where, const rp__raygen *rg,
                    double step) {
-  double per_ray = rp__ray_samples_max(rg, step);
+  /* A ray's finest lattice: the raycast's, or the ERT pre-pass's when
+   * the step is coarser than it. */
+  double lattice = step < RP_ERT_COARSE_STEP ? step : RP_ERT_COARSE_STEP;
+  double per_ray = rp__ray_samples_max(rg, lattice);
   double rays = (double)rg->width * rg->height;
   if (!(per_ray <= (double)RP_MAX_SAMPLES_PER_RAY))
     return rp__fail(ctx, RP_EINVAL, "%s: a ray may take %.4g samples (the "
@@ -140,8 +144,9 @@ int rp__check_work(rp_context *ctx, const char *where, const rp__raygen *rg,
                     "%g, over step %g); at most %u "
                     "(RP_MAX_SAMPLES_PER_RAY): use a coarser step, or a "
                     "volume whose spacings differ less", where, per_ray,
-                    (per_ray - 1.0) * step, rg->min_spacing, step,
+                    (per_ray - 1.0) * lattice, rg->min_spacing, lattice,
                     RP_MAX_SAMPLES_PER_RAY);
+  per_ray = rp__ray_samples_max(rg, step);
   if (!(per_ray * rays <= (double)RP_MAX_SAMPLES_PER_FRAME))
     return rp__fail(ctx, RP_EINVAL, "%s: the frame may take %.4g samples "
                     "(%ux%u rays of up to %.4g each at step %g); at most "

@@ -43,9 +43,10 @@ int rp__check_image_size(rp_context *ctx, const char *where,
 double rp__ray_samples_max(const rp__raygen *rg, double step);
 
 /* The work bound: RP_EINVAL with the counts when a ray may take more than
- * RP_MAX_SAMPLES_PER_RAY samples at `step`, or rg's width x height rays
- * more than RP_MAX_SAMPLES_PER_FRAME. rg->width/height are the scaled
- * image's. */
+ * RP_MAX_SAMPLES_PER_RAY samples at `step` (or at the ERT pre-pass's
+ * RP_ERT_COARSE_STEP, when that is finer), or rg's width x height rays
+ * more than RP_MAX_SAMPLES_PER_FRAME at `step`. rg->width/height are the
+ * scaled image's. */
 int rp__check_work(rp_context *ctx, const char *where, const rp__raygen *rg,
                    double step);
 

@@ -520,6 +520,18 @@ static void work_bounds(void **state) {
   assert_non_null(strstr(rp_last_error(s.ctx), "RP_MAX_SAMPLES_PER_RAY"));
   assert_non_null(strstr(rp_last_error(s.ctx), "16777216"));
 
+  /* A step coarser than the ERT pre-pass's 8 voxels leaves that
+   * pre-pass's lattice: a diagonal of 2e8 voxels is 2.5e7 samples at 8,
+   * over the bound, though 2e4 at step 10^4. */
+  {
+    const float far[3] = {1e8f, 1.0f, 1.0f};
+    scene t = scene_open(2, 1, 1, far);
+    d.step = RP_STEP_MAX;
+    refused(&t, &cam, &d);
+    assert_non_null(strstr(rp_last_error(t.ctx), "over step 8)"));
+    scene_close(&t);
+  }
+
   /* The frame: rays times per_ray at most 2^38. */
   d.step = 2.0f;
   per_ray = floor(diag / 2.0) + 1.0;
