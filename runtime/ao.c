@@ -13,6 +13,7 @@
 #include <string.h>
 
 #include "ao.h"
+#include "bounds.h"
 
 /* L and M: 8 x 16 costs about what 16 x 8 does at 0.6 of its error: at
  * R = 8 four or eight samples step over thin structures, and more
@@ -356,9 +357,11 @@ int rp__ao_new(rp_context *ctx, const rp_ao_plan *plan, rp_ao *reuse,
     }
     rp_ao_destroy(reuse);
   }
-  ao = rp__calloc(ctx, 1, sizeof *ao);
   /* Failures return their code here rather than rp__fail's, so that the
    * analyzer sees *out set on every path that returns 0. */
+  if (rp__check_memory(ctx, "ambient occlusion: a byte per voxel", n) != 0)
+    return RP_ENOMEM;
+  ao = rp__calloc(ctx, 1, sizeof *ao);
   if (ao == NULL) {
     rp__fail(ctx, RP_ENOMEM, "ambient occlusion: out of memory");
     return RP_ENOMEM;

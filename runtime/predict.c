@@ -116,6 +116,7 @@
 #include <math.h>
 #include <string.h>
 
+#include "bounds.h"
 #include "internal.h"
 #include "krls.h"
 #include "passes.h"
@@ -390,6 +391,13 @@ int rp__frame_probe_compute(rp_context *ctx, const rp_volume *vol,
     return err;
   if ((err = rp__raygen_init(ctx, cam, vol, d.width, d.height, &rg)) != 0)
     return err;
+  {
+    /* The frame's work bound, before the probe walks its rays. */
+    rp__raygen scaled = rg;
+    rp_scaled_size(&d, &scaled.width, &scaled.height);
+    if ((err = rp__check_work(ctx, fn, &scaled, d.step)) != 0)
+      return err;
+  }
   rp__ert_grid(d.width, d.height, &gw, &gh);
   memset(out, 0, sizeof(*out));
   job.rows = rp__calloc(ctx, gh, sizeof(probe_row));
