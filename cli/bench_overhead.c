@@ -124,6 +124,32 @@ static void usage_overhead(FILE *f) {
           tf_names[0], tf_names[1], WARMUP_MIN, WARMUP_MAX);
 }
 
+#define CMD "bench overhead"
+
+/* An option of bench overhead that takes a value, checked into o; 0 or
+ * 2 (printed). */
+static int overhead_value(int c, const char *option, const char *arg,
+                          overhead_opts *o) {
+  /* The runtime's target range, rp_runtime_desc.target_ms. */
+  static const cli_range target = {0.0, 60000.0, CLI_OPEN_LO, 0, "ms"};
+  switch (c) {
+  case 'n': return cli_parse_whole(CMD, option, arg, 1, MAX_FRAMES,
+                                   &o->frames);
+  case 'l': return cli_parse_whole(CMD, option, arg, 0, MAX_LOADS,
+                                   &o->loads);
+  case 's': return cli_parse_size(CMD, option, arg, &o->width, &o->height);
+  case 'B': o->backend = arg; return cli_check_backend(CMD, arg);
+  case 'D': return cli_parse_whole(CMD, option, arg, 0, 1024, &o->device);
+  case 'c':
+    return rp_controller_from_name(arg, &o->controller) != 0
+               ? cli_bad_option(CMD, option, arg, "not a controller",
+                                "must be none, last-frame, two-pass, "
+                                "predicted, vtk, ue5 or valve")
+               : 0;
+  default: return cli_parse_float(CMD, option, arg, &target, &o->target_ms);
+  }
+}
+
 static int parse_overhead(int argc, char **argv, overhead_opts *o) {
   static const struct option opts[] = {
       {"frames", required_argument, 0, 'n'},
@@ -146,26 +172,16 @@ static int parse_overhead(int argc, char **argv, overhead_opts *o) {
   o->target_ms = 50;
   optind = 1;
   while ((c = getopt_long(argc, argv, "h", opts, &li)) != -1) {
-    int bad = 0;
+    char option[40];
+    snprintf(option, sizeof option, "--%s", opts[li].name);
     switch (c) {
-    case 'n':
-      bad = cli_parse_u32(optarg, MAX_FRAMES, &o->frames) || o->frames < 1;
-      break;
-    case 'l': bad = cli_parse_u32(optarg, MAX_LOADS, &o->loads); break;
-    case 's': bad = cli_parse_size(optarg, &o->width, &o->height); break;
-    case 'B': o->backend = optarg; break;
-    case 'D': bad = cli_parse_u32(optarg, 1024, &o->device); break;
-    case 'c': bad = rp_controller_from_name(optarg, &o->controller); break;
-    case 't': bad = cli_parse_positive(optarg, &o->target_ms); break;
     case 'S': o->shading = 1; break;
     case 'j': o->json = 1; break;
     case 'h': usage_overhead(stdout); return 1;
-    default: usage_overhead(stderr); return 2;
-    }
-    if (bad) {
-      fprintf(stderr, "raypace bench overhead: bad value '%s' for --%s\n",
-              optarg, opts[li].name);
-      return 2;
+    case '?': usage_overhead(stderr); return 2;
+    default:
+      if (overhead_value(c, option, optarg, o) != 0)
+        return 2;
     }
   }
   if (optind + 1 != argc) {

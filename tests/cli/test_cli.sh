@@ -74,9 +74,9 @@ if cmp -s "$dir/j5.png" "$dir/j5b.png" &&
    cmp -s "$dir/j0.png" "$dir/j0b.png"; then pass=$((pass + 1)); else
   echo "FAIL: jitter images (same seed equal, others differ)"
   fails=$((fails + 1)); fi
-refuse "seed 0" "bad value '0' for --seed" "$rp" render gen:ml:8 --seed 0 \
+refuse "seed 0" "--seed 0 is out of range; must be a whole number in 1..4294967295" "$rp" render gen:ml:8 --seed 0 \
   -o "$dir/c.png"
-refuse "seed -1" "bad value '-1' for --seed" "$rp" render gen:ml:8 \
+refuse "seed -1" "--seed -1 is out of range" "$rp" render gen:ml:8 \
   --seed -1 -o "$dir/c.png"
 
 # Data units: the CT head is int16 HU with its orientation; its default
@@ -98,11 +98,11 @@ refuse "bad tf file" "bad.tf: line 2" "$rp" info gen:ct:24 \
   --tf "$dir/bad.tf"
 refuse "window without level" "go together" "$rp" info gen:ct:24 \
   --window 400
-refuse "zero window" "bad value '0' for --window" "$rp" info gen:ct:24 \
+refuse "zero window" "raypace info: --window 0 is out of range; must be > 0 data units" "$rp" info gen:ct:24 \
   --window 0 --level 40
 check "ct views" "$rp" render gen:ct:24 --size 16x16 --view left \
   --no-shading -o "$dir/v.png"
-refuse "bad view" "bad value 'up' for --view" "$rp" render gen:ct:24 \
+refuse "bad view" "--view up is not a view; must be anterior," "$rp" render gen:ct:24 \
   --view up -o "$dir/v.png"
 refuse "view and camera" "--view excludes --camera" "$rp" render \
   gen:ct:24 --view left --camera 0,0,2 -o "$dir/v.png"
@@ -110,20 +110,20 @@ refuse "view and camera" "--view excludes --camera" "$rp" render \
 refuse "missing file" "no such file" "$rp" info "$dir/does-not-exist.nrrd"
 refuse "bad preset" "known: transparent" "$rp" render gen:ml:8 --tf nope \
   -o "$dir/c.png"
-refuse "bad size" "bad value '0x5'" "$rp" render gen:ml:8 --size 0x5 \
+refuse "bad size" "--size 0x5 is out of range; must be WxH, width and height each in 1..16384" "$rp" render gen:ml:8 --size 0x5 \
   -o "$dir/c.png"
 refuse "bad generator" "unknown" "$rp" info gen:cube
-refuse "zero step" "bad value '0'" "$rp" render gen:ml:8 --step 0 \
+refuse "zero step" "--step 0 is out of range; must be in \[0.001, 10000\] voxels" "$rp" render gen:ml:8 --step 0 \
   -o "$dir/c.png"
-refuse "underflowing step" "bad value '1e-50'" "$rp" render gen:ml:8 \
+refuse "underflowing step" "--step 1e-50 is out of range" "$rp" render gen:ml:8 \
   --step 1e-50 -o "$dir/c.png"
-refuse "overflowing fov" "bad value '1e39'" "$rp" render gen:ml:8 \
+refuse "overflowing fov" "--fov 1e39 is out of range" "$rp" render gen:ml:8 \
   --fov 1e39 -o "$dir/c.png"
-refuse "unknown backend" "not compiled in" "$rp" render gen:ml:8 \
+refuse "unknown backend" "--backend warp is not a backend; must be opencl," "$rp" render gen:ml:8 \
   --backend warp -o "$dir/c.png"
 refuse "no such device" "has one device" "$rp" render gen:ml:8 \
   --backend reference --device 3 -o "$dir/c.png"
-refuse "scale above one" "bad value '1.5'" "$rp" render gen:ml:8 \
+refuse "scale above one" "--scale 1.5 is out of range; must be in \[0.01, 1\]" "$rp" render gen:ml:8 \
   --scale 1.5 -o "$dir/c.png"
 
 check "reference backend" "$rp" render gen:phantom:32 --backend reference \
@@ -172,10 +172,10 @@ if awk -F, 'NR > 1 { mse[$1 "@" $2] = $4 }
      END { exit !(mse["preint@4"] * 2 < mse["plain@4"]) }' "$dir/p.csv"
 then pass=$((pass + 1)); else
   echo "FAIL: bench preint iso"; cat "$dir/p.csv"; fails=$((fails + 1)); fi
-refuse "bench bad frames" "bad value '0' for --frames" "$rp" bench quality \
+refuse "bench bad frames" "bench quality: --frames 0 is out of range; must be a whole number in 1..256" "$rp" bench quality \
   gen:ml:8 --quick --sampling --frames 0
 check "bench help" "$rp" bench quality --help; has "bench help" "--ref-step"
-refuse "bench bad runs" "bad value '0' for --runs" "$rp" bench quality \
+refuse "bench bad runs" "bench quality: --runs 0 is out of range" "$rp" bench quality \
   gen:ml:8 --quick --runs 0
 refuse "bench bad option" "unrecognized option" "$rp" bench quality \
   gen:ml:8 --quick --frobnicate
@@ -371,7 +371,7 @@ if awk -v a="$(split_of noise_rms)" -v b="$want" \
   fails=$((fails + 1)); fi
 refuse "replay split needs predicted" "does not play it" "$rp" replay \
   gen:ml:16 --backend reference --controller vtk --split 3
-refuse "replay split repeats" "bad value '1' for --split" "$rp" replay \
+refuse "replay split repeats" "--split 1 is out of range; must be a whole number in 2..50" "$rp" replay \
   gen:ml:16 --backend reference --split 1
 # bench pacing: each sequence's median is the middle of its three runs'
 # figures, picked here from the JSON by awk for two of them.
@@ -400,7 +400,7 @@ check "bench pacing table" "$rp" bench pacing gen:ml:16 --backend reference \
   --sequences orbit --runs 2 --frames 4 --settle 1 --size 16x16 --quiet
 has "bench pacing met" "  met [R.][O.][D.][L.][M.][T.][E.]$"
 has "bench pacing each run" "^orbit #2 "
-refuse "bench pacing runs" "bad value '0' for --runs" "$rp" bench pacing \
+refuse "bench pacing runs" "--runs 0 is out of range; must be a whole number in 1.." "$rp" bench pacing \
   gen:ml:8 --runs 0
 refuse "bench pacing sequence" "no-such-seq" "$rp" bench pacing gen:ml:8 \
   --backend reference --sequences no-such-seq --runs 1 --quiet
@@ -470,9 +470,9 @@ if command -v gnuplot >/dev/null 2>&1; then
        "89504e470d0a1a0a" ]; then pass=$((pass + 1)); else
     echo "FAIL: pareto.png is not a PNG"; fails=$((fails + 1)); fi
 fi
-refuse "pareto headroom range" "bad value '0.95' in --headrooms" "$rp" \
+refuse "pareto headroom range" "--headrooms 0.1,0.95: 0.95 is out of range; must be in (0, 0.9\] of the target, or default" "$rp" \
   bench pacing gen:ml:8 --pareto --headrooms 0.1,0.95
-refuse "pareto miss range" "bad value 'some' in --miss-rates" "$rp" \
+refuse "pareto miss range" "--miss-rates 0.05,some: some is not a number; must be in (0, 0.5\] of the frames, or none" "$rp" \
   bench pacing gen:ml:8 --pareto --miss-rates 0.05,some
 refuse "pareto swept" "--pareto sweeps --headroom itself" "$rp" \
   bench pacing gen:ml:8 --pareto --headroom 0.1
@@ -486,7 +486,7 @@ refuse "replay sequence" "no-such-seq" "$rp" replay gen:ml:8 \
   --backend reference --sequence no-such-seq
 refuse "replay targets" "exclude each other" "$rp" replay gen:ml:8 \
   --target-ms 5 --target-fraction 0.5
-refuse "replay space" "bad value 'diagonal' for --space" "$rp" replay \
+refuse "replay space" "--space diagonal is not a space; must be ray, image or hybrid" "$rp" replay \
   gen:ml:8 --space diagonal
 refuse "replay min step" "over the base step" "$rp" replay gen:ml:8 \
   --min-step 2
@@ -671,7 +671,7 @@ if "$rp" render gen:ml:8 --size 8x8 --backend opencl -o "$g" \
   has "out of core text" "out of core: .* bricks of 16^3"
   refuse "budget too small" "at least 2" "$rp" render gen:phantom:96 \
     --size 16x16 --backend opencl --budget-mb 0.001 -o "$dir/oc.png"
-  refuse "bad brick size" "brick_size 12" "$rp" render gen:phantom:96 \
+  refuse "bad brick size" "--brick-size 12 is not a power of two; must be 8, 16," "$rp" render gen:phantom:96 \
     --size 16x16 --backend opencl --budget-mb 0.2 --brick-size 12 \
     -o "$dir/oc.png"
   check "replay out of core" "$rp" replay gen:phantom:64 --backend opencl \
