@@ -117,6 +117,86 @@ RP_API void rp_context_destroy(rp_context *ctx);
  *  Valid until the next call on the context. \since 0.1 */
 RP_API const char *rp_last_error(const rp_context *ctx);
 
+/* ---- Limits ------------------------------------------------------------- */
+
+/* The range of every numeric parameter (docs/parameters.md has the table,
+ * with the file fields and CLI options that map to each). Each bound is
+ * checked where the value enters the library, and a value outside it is
+ * refused with RP_EINVAL (RP_ERANGE for a file's field) and a message
+ * naming the field, the value and the range. The bounds are far beyond
+ * any legitimate use; they exist so that every call ends in bounded time
+ * and memory whatever it is given. Ranges are inclusive. */
+
+/** Ray step (rp_render_desc.step, rp_space_desc's steps,
+ *  rp_tf_desc.reference_step), in voxels of the finest spacing. Below
+ *  1/1000 of a voxel an image no longer changes (trilinear data is
+ *  linear between voxels) while a ray of a 512^3 volume takes close to
+ *  10^6 samples; above 10^4 every ray of any volume under 10^4 voxels
+ *  across takes one sample at its entry. \since 0.12 */
+#define RP_STEP_MIN 1e-3f
+#define RP_STEP_MAX 1e4f
+/** Voxel spacing (rp_volume_desc.spacing and every file's spacing), in
+ *  the file's own length unit (mm for CT and MRI: 0.1 to 5 in practice).
+ *  10^-9 holds nanometre voxels given in metres, 10^9 anything in any
+ *  unit; within it the box's extent and its square stay normal floats
+ *  (the issue's 1e-30 and 1e30 did not). The ratio between axes is not
+ *  limited here: a ray's work is (RP_MAX_SAMPLES_PER_RAY). \since 0.12 */
+#define RP_SPACING_MIN 1e-9f
+#define RP_SPACING_MAX 1e9f
+/** Voxels along one axis of a volume (rp_volume_desc.dims, files).
+ *  2^16: voxel positions stay exact in a float's 24 bits with room for
+ *  sub-voxel steps, and a garbled header is refused by its size before
+ *  its byte count (rp_context_desc.max_volume_bytes). \since 0.12 */
+#define RP_VOLUME_MAX_DIM 65536u
+/** Perspective field of view (rp_camera.fov_y_deg), degrees, vertical.
+ *  Past 170 the frustum's edge is 11x its centre's width and a volume
+ *  in view shrinks to a few pixels (at 179.9 to none: a black image);
+ *  below 0.01 degrees the view is narrower than a float camera aims.
+ *  \since 0.12 */
+#define RP_FOV_MIN_DEG 0.01f
+#define RP_FOV_MAX_DEG 170.0f
+/** Orthographic view height (rp_camera.ortho_height) as a multiple of
+ *  the volume's bounding diameter: past these a view holds a millionth
+ *  of a voxel or shows the volume as under one pixel. \since 0.12 */
+#define RP_ORTHO_HEIGHT_MIN 1e-6
+#define RP_ORTHO_HEIGHT_MAX 1e4
+/** How far the eye (rp_camera.eye; rp_camera_orbit's and
+ *  rp_camera_view's distance, which are in radii, twice this unit) may
+ *  be from the volume's centre, in bounding diameters. Farther, a
+ *  perspective volume is under a pixel at any fov in range, and depths
+ *  along a ray lose the precision a step needs. \since 0.12 */
+#define RP_CAMERA_DISTANCE_MAX 1e4
+/** Image scale (rp_render_desc.image_scale, rp_space_desc.min_scale):
+ *  rays per output pixel along each axis. Below 1/100 a 512-pixel image
+ *  is raycast at 5 pixels, and at 1e-9 at one: nothing a user would
+ *  recognise. \since 0.12 */
+#define RP_SCALE_MIN 0.01f
+#define RP_SCALE_MAX 1.0f
+/** Output image size (rp_render_desc.width/height, rp_runtime_desc's
+ *  viewport), pixels. 16384 is the largest 2D image most GPUs hold; the
+ *  pixel bound (8192 x 8192, 256 MiB of RGBA8) keeps a frame's buffers
+ *  (scaled image, output, tile stats) near 1 GiB. Larger prints are
+ *  rendered as tiles. \since 0.12 */
+#define RP_IMAGE_MAX_DIM 16384u
+#define RP_IMAGE_MAX_PIXELS (1u << 26)
+/** Early-ray-termination threshold (rp_render_desc.ert_threshold):
+ *  accumulated opacity at which a ray stops. Under 0.01 a ray stops at
+ *  its first faint sample and the image is its transparent hull.
+ *  \since 0.12 */
+#define RP_ERT_THRESHOLD_MIN 0.01f
+#define RP_ERT_THRESHOLD_MAX 1.0f
+/** The work bound. A render is refused up front (RP_EINVAL, the message
+ *  giving the count and the limit) when one ray may take more samples
+ *  than RP_MAX_SAMPLES_PER_RAY (the volume's box diagonal, in voxels of
+ *  its finest spacing, over the step), or the frame more than
+ *  RP_MAX_SAMPLES_PER_FRAME (rays times that): a frame then takes at
+ *  most minutes on a GPU, never unbounded time. Every ray loop also
+ *  stops at RP_MAX_SAMPLES_PER_RAY. 2^24 samples is a 2^16-voxel axis
+ *  at step 1/256; 2^38 is an 8192^2 image of a 1024^3 volume at step
+ *  1/2. \since 0.12 */
+#define RP_MAX_SAMPLES_PER_RAY (1u << 24)
+#define RP_MAX_SAMPLES_PER_FRAME (1ull << 38)
+
 /* ---- Volumes ----------------------------------------------------------- */
 
 typedef enum rp_voxel_type {
