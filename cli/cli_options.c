@@ -293,6 +293,9 @@ int cli_check_output(const char *cmd, const char *option, const char *path,
   struct stat st;
   if (path[0] == '\0')
     return cli_bad_option(cmd, option, path, "empty", "must name a file");
+  if (stat(path, &st) == 0 && S_ISDIR(st.st_mode))
+    return cli_bad_option(cmd, option, path, "a directory",
+                          "must name a file in it");
   if (exts != NULL) {
     const char *const *e;
     const char *dot = strrchr(path, '.');
@@ -313,9 +316,6 @@ int cli_check_output(const char *cmd, const char *option, const char *path,
                             "must end in %s, the forms written", forms);
     }
   }
-  if (stat(path, &st) == 0 && S_ISDIR(st.st_mode))
-    return cli_bad_option(cmd, option, path, "a directory",
-                          "must name a file in it");
   if (slash == NULL)
     snprintf(dir, sizeof dir, ".");
   else if (slash == path)

@@ -8,22 +8,6 @@
 #include "raypace.h"
 #include "raypace_testing.h"
 
-/* Until include/raypace.h states the library's limits (m12-bounds). */
-#ifndef RP_STEP_MIN
-#define RP_STEP_MIN 1e-3f
-#define RP_STEP_MAX 1e4f
-#define RP_VOLUME_MAX_DIM 65536u
-#define RP_FOV_MIN_DEG 0.01f
-#define RP_FOV_MAX_DEG 170.0f
-#define RP_CAMERA_DISTANCE_MAX 1e4
-#define RP_SCALE_MIN 0.01f
-#define RP_SCALE_MAX 1.0f
-#define RP_IMAGE_MAX_DIM 16384u
-#define RP_IMAGE_MAX_PIXELS (1u << 26)
-#define RP_ERT_THRESHOLD_MIN 0.01f
-#define RP_ERT_THRESHOLD_MAX 1.0f
-#endif
-
 /* Opens a volume from a file path or a generator spec
  * "gen:KIND[:N|:XxYxZ][:u8|u16][:SEED]" (KIND: ml, phantom, noise; a
  * number right after KIND is the size N^3, a later one the seed; default

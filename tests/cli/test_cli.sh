@@ -126,6 +126,133 @@ refuse "no such device" "has one device" "$rp" render gen:ml:8 \
 refuse "scale above one" "--scale 1.5 is out of range; must be in \[0.01, 1\]" "$rp" render gen:ml:8 \
   --scale 1.5 -o "$dir/c.png"
 
+# Every option's value is checked when parsed, before any work: the
+# volume here does not exist, so a message about the option (and not
+# "no such file") shows the check came first. Each names the option,
+# the value as typed, and the range or form it must have.
+nv="$dir/none.nrrd"
+rr() { # rr NAME PATTERN ARGS...: render of the missing volume refused
+  name=$1; pat=$2; shift 2
+  refuse "$name" "$pat" "$rp" render "$nv" -o "$dir/c.png" "$@"
+}
+rr "fov range" "raypace render: --fov 179.9 is out of range; must be in \[0.01, 170\] degrees" --fov 179.9
+rr "fov text" "--fov wide is not a number; must be in \[0.01, 170\]" \
+  --fov wide
+rr "ert range" "--ert-threshold 2 is out of range; must be in \[0.01, 1\]" \
+  --ert-threshold 2
+rr "step tiny" "--step 1e-9 is out of range; must be in \[0.001, 10000\] voxels" --step 1e-9
+rr "scale tiny" "--scale 1e-9 is out of range; must be in \[0.01, 1\]" \
+  --scale 1e-9
+rr "brick size" "--brick-size 7 is out of range; must be 8, 16, 32, 64, 128 or 256" --brick-size 7
+rr "brick size odd" "--brick-size 24 is not a power of two" --brick-size 24
+rr "budget" "--budget-mb 0 is out of range; must be in \[0.001, 1e+09\]" \
+  --budget-mb 0
+rr "device range" "--device 2000 is out of range; must be a whole number in 0..1024" --device 2000
+rr "background" "--background 2,0,0: R 2 is out of range; must be in \[0, 1\]" --background 2,0,0
+rr "background form" "--background 1,1 is not R,G,B; must be 3 numbers" \
+  --background 1,1
+rr "size form" "--size 512 is not WxH; must be WxH, width and height each in 1..16384" --size 512
+rr "size negative" "--size -5x5 is out of range; must be WxH" --size -5x5
+rr "size pixels" "--size 16384x16384 is 268435456 pixels, over the limit; must be WxH, width and height each in 1..16384 and at most 67108864 pixels" --size 16384x16384
+rr "camera behind" "--camera 0,0,-1: DIST -1 is out of range; must be in (0, 20000\] bounding radii; .*add 180 to AZ" --camera 0,0,-1
+rr "camera pole" "--camera 0,100,2: EL 100 is out of range; must be in \[-90, 90\] degrees" --camera 0,100,2
+rr "seed text" "--seed 1.5 is not a whole number; must be a whole number in 1..4294967295" --seed 1.5
+rr "warmup" "--warmup 1e9 is out of range; must be a whole number in 0..10000" --warmup 1e9
+rr "window" "--window nan is not a number; must be > 0 data units" \
+  --window nan --level 0
+rr "ao scheme" "--ao-scheme lazy is not an AO scheme; must be dynamic, static or naive" --ao-scheme lazy
+refuse "output jpg" "-o $dir/x.jpg is a .jpg file; must end in .png or .ppm" \
+  "$rp" render "$nv" -o "$dir/x.jpg"
+refuse "output no dir" "-o $dir/no/x.png is in no directory; '$dir/no' does not exist" "$rp" render "$nv" -o "$dir/no/x.png"
+refuse "output a dir" "-o $dir is a directory" "$rp" render "$nv" -o "$dir"
+if [ ! -e "$dir/x.jpg" ]; then pass=$((pass + 1)); else
+  echo "FAIL: output jpg: a file was written"; fails=$((fails + 1)); fi
+# The device's errors name the options that chose it, not --backend.
+refuse "device missing" "raypace: --backend reference --device 7: no usable device" "$rp" render gen:ml:8 --size 8x8 --backend reference \
+  --device 7 -o "$dir/c.png"
+# Backend mpi outside an MPI job: the launcher is missing, not a driver.
+refuse "mpi without mpirun" "--backend mpi is a device on another MPI rank, and this process was not started by an MPI launcher; start it as 'mpirun -np N raypace render" env -u OMPI_COMM_WORLD_SIZE -u PMI_SIZE -u PMIX_SIZE \
+  "$rp" render "$nv" --backend mpi -o "$dir/c.png"
+refuse "mpi devices without mpirun" "--devices reference,mpi:0 is a device on another MPI rank" env -u OMPI_COMM_WORLD_SIZE -u PMI_SIZE \
+  -u PMIX_SIZE "$rp" replay "$nv" --devices reference,mpi:0
+# Generated volumes: sizes and seeds as typed, never 2^32 - 5.
+refuse "gen negative" "gen:phantom:-5: size N -5 is out of range; must be a whole number in 1..65536" "$rp" info gen:phantom:-5
+refuse "gen axis" "gen:ml:8x0x8: size Y 0 is out of range" "$rp" info \
+  gen:ml:8x0x8
+refuse "gen seed" "gen:noise:8:-1: seed -1 is out of range" "$rp" info \
+  gen:noise:8:-1
+if grep -q 4294967291 "$dir/err"; then
+  echo "FAIL: gen seed: a negative number wrapped"; fails=$((fails + 1))
+else pass=$((pass + 1)); fi
+refuse "gen kind" "gen:cube: generator cube is unknown; must be ml, phantom, noise or ct" "$rp" info gen:cube
+# replay: --frames 0 is refused (it used to play every frame).
+rq() { # rq NAME PATTERN ARGS...: replay of the missing volume refused
+  name=$1; pat=$2; shift 2
+  refuse "$name" "$pat" "$rp" replay "$nv" "$@"
+}
+rq "replay frames 0" "raypace replay: --frames 0 is out of range; must be a whole number in 1..10000000" --frames 0
+rq "replay target" "--target-ms 0 is out of range; must be in (0, 60000\] ms" --target-ms 0
+rq "replay fraction" "--target-fraction 101 is out of range; must be in (0, 100\]" --target-fraction 101
+rq "replay miss rate" "--miss-rate 0.7 is out of range; must be in (0, 0.5\] of the frames, or none" --miss-rate 0.7
+rq "replay headroom" "--headroom 1 is out of range; must be in (0, 0.9\]" \
+  --headroom 1
+rq "replay base step" "--base-step 1e-9 is out of range; must be in \[0.001, 10000\] voxels" --base-step 1e-9
+rq "replay settle" "--settle -1 is out of range; must be a whole number in 0..100000" --settle -1
+rq "replay seed" "--seed 4294967296 is out of range" --seed 4294967296
+rq "replay size" "--size 9000x9000 is 81000000 pixels, over the limit" \
+  --size 9000x9000
+rq "replay brick" "--brick-size 7 is out of range; must be 8, 16" \
+  --brick-size 7
+# --plot to a bad path names the plot, not a CSV never asked for.
+rq "replay plot path" "--plot $dir/no/p.png is in no directory" \
+  --plot "$dir/no/p.png"
+if grep -q "\.csv" "$dir/err"; then
+  echo "FAIL: replay plot path: names a CSV"; fails=$((fails + 1))
+else pass=$((pass + 1)); fi
+rq "replay plot form" "--plot $dir/p.svg is a .svg file; must end in .png" \
+  --plot "$dir/p.svg"
+rq "replay csv path" "--csv $dir/no/r.csv is in no directory" \
+  --csv "$dir/no/r.csv"
+refuse "bench quality plot" "raypace bench quality: --plot $dir/no/q.png is in no directory" "$rp" bench quality "$nv" --plot "$dir/no/q.png"
+refuse "bench quality step" "raypace bench quality: --ref-step 0 is out of range" "$rp" bench quality "$nv" --ref-step 0
+refuse "bench quality camera" "raypace bench quality: --camera 0,0,0: DIST 0 is out of range" "$rp" bench quality "$nv" --camera 0,0,0
+refuse "bench overhead target" "raypace bench overhead: --target-ms -5 is out of range; must be in (0, 60000\] ms" "$rp" bench overhead "$nv" \
+  --target-ms -5
+refuse "bench overhead frames" "raypace bench overhead: --frames 0 is out of range; must be a whole number in 1..10000" "$rp" bench overhead "$nv" \
+  --frames 0
+# bench pacing checks the options it passes on before its first replay,
+# in its own name.
+refuse "bench pacing passed" "raypace bench pacing: --frames 0 is out of range" "$rp" bench pacing "$nv" --frames 0
+refuse "bench pacing fov" "raypace bench pacing: --base-step 0 is out of range" "$rp" bench pacing "$nv" --base-step 0
+
+# A camera and its mirror: an 8^3 volume opaque only at x = 6 and 7.
+# From azimuth 0 (the eye on +z looking down -z, +y up) +x is on the
+# image's right; from azimuth 180 on its left; from 90 (eye on +x) the
+# marker faces the eye, left and right alike. The PPM's bytes are read
+# directly: the sum of R+G+B over each half.
+mk="$dir/marker_8x8x8_uint8.raw"
+: >"$mk"
+i=0
+while [ $i -lt 64 ]; do
+  printf '\000\000\000\000\000\000\377\377' >>"$mk"; i=$((i + 1)); done
+halves() { # halves FILE: "LEFT RIGHT" sums of a 16x8 binary PPM
+  tail -c $((16 * 8 * 3)) "$1" | od -An -v -tu1 -w3 |
+    awk '{ s = $1 + $2 + $3; if ((NR - 1) % 16 < 8) l += s; else r += s }
+         END { print l + 0, r + 0 }'
+}
+for az in 0 180 90; do
+  check "marker $az" "$rp" render "$mk" --backend reference --size 16x8 \
+    --camera $az,0,2.5 --no-jitter --tf minmax-bone -o "$dir/m$az.ppm"
+done
+if [ "$(head -c 2 "$dir/m0.ppm")" = P6 ] &&
+   halves "$dir/m0.ppm" | awk '{ exit !($1 == 0 && $2 > 0) }' &&
+   halves "$dir/m180.ppm" | awk '{ exit !($1 > 0 && $2 == 0) }' &&
+   halves "$dir/m90.ppm" | awk '{ exit !($1 > 0 && $1 == $2) }'; then
+  pass=$((pass + 1)); else
+  echo "FAIL: marker sides (left right): az 0 $(halves "$dir/m0.ppm")," \
+    "180 $(halves "$dir/m180.ppm"), 90 $(halves "$dir/m90.ppm")"
+  fails=$((fails + 1)); fi
+
 check "reference backend" "$rp" render gen:phantom:32 --backend reference \
   --size 40x30 --scale 0.5 -o "$dir/d.png" --json
 has "reference backend named" '"backend":	"reference"'
