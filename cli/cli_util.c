@@ -213,32 +213,29 @@ static int parse_device_field(const char *option, const char *tok,
                               size_t key, const char *v, const char *s,
                               int len, rp_device_desc *d,
                               cli_device_ext *ext) {
-  static const char *const wants[] = {
-      "compute units must be a number in 1..65536",
-      "slowdown must be a number in [1, 10000]",
-      "fail must be the render (from 1) to fail at, or 0",
-      "seed must be a number in 0..4294967295",
-      "noise must be a number in [0, 1] (0: none)"};
-  uint32_t u = 0;
-  char *end;
-  double x = strtod(v, &end);
-  int bad = 0;
+  static const cli_range ranges[] = {
+      {1, 65536, 0, 1, "(compute units of a sub-device)"},
+      {1, 10000, 0, 0, "(times slower)"},
+      {0, UINT32_MAX, 0, 1, "(the render to fail at, from 1; 0: never)"},
+      {0, UINT32_MAX, 0, 1, NULL},
+      {0, 1, 0, 0, "(the log-normal sd of device times; 0: none)"}};
+  char what[200], want[160];
+  const char *problem;
+  double x = 0.0;
+  uint32_t u;
   if (key >= 3 && strcmp(d->backend, "test") != 0) {
     fprintf(stderr, "raypace: %s: '%s' in '%.*s' is for backend test "
                     "only\n", option, tok, len, s);
     return RP_EINVAL;
   }
-  if (key == 0 || key == 2 || key == 3)
-    bad = cli_whole(v, 0, key == 0 ? 65536 : UINT32_MAX, &u) != 0 ||
-          (key == 0 && u == 0);
-  else
-    bad = end == v || *end != '\0' ||
-          !(key == 1 ? x >= 1.0 && x <= 10000.0 : x >= 0.0 && x <= 1.0);
-  if (bad) {
-    fprintf(stderr, "raypace: %s: '%s' in '%.*s': %s\n", option, tok, len,
-            s, wants[key]);
+  if ((problem = cli_number_problem(v, &ranges[key], &x)) != NULL) {
+    snprintf(what, sizeof what, "%s %.*s: %s", option, len, s,
+             device_keys[key]);
+    cli_range_text(&ranges[key], want, sizeof want);
+    cli_bad_option(NULL, what, v, problem, "must be %s", want);
     return RP_EINVAL;
   }
+  u = (uint32_t)x;
   switch (key) {
   case 0: d->compute_units = u; break;
   case 1: ext->faults.slowdown = x; break;
@@ -316,8 +313,10 @@ static int parse_device(const char *option, const char *s, size_t len,
     }
     if (eq == NULL && field == 1) {
       if (cli_whole(tok, 0, 1024, &d->index) != 0) {
-        fprintf(stderr, "raypace: %s: device index '%s' in '%.*s' is not a "
-                        "number in 0..1024\n", option, tok, (int)len, s);
+        char what[200];
+        snprintf(what, sizeof what, "%s %.*s: index", option, (int)len, s);
+        cli_bad_option(NULL, what, tok, "not a device index",
+                       "must be a whole number in 0..1024");
         return RP_EINVAL;
       }
       continue;

@@ -168,9 +168,10 @@ typedef struct cli_device_ext {
  * part to stderr and returns RP_EINVAL. INDEX, if given, comes right
  * after BACKEND; the key=value fields follow in any order, each at most
  * once (cu in 1..65536, slow in [1, 10000], fail >= 0 where 0 is never,
- * seed in 0..2^32-1, noise in [0, 1]). The message reads "raypace:
- * OPTION: ...", as cli_error's do. out[i].backend points to a static
- * string. */
+ * seed in 0..2^32-1, noise in [0, 1]). A bad number reads as
+ * cli_bad_option's ("raypace: OPTION SPEC: KEY VALUE is out of range;
+ * must be ..."), the other errors "raypace: OPTION: ...".
+ * out[i].backend points to a static string. */
 int cli_parse_devices(const char *option, const char *spec,
                       rp_device_desc *out, cli_device_ext *ext,
                       uint32_t max, uint32_t *n);

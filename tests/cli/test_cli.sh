@@ -685,15 +685,15 @@ is_png() { # is_png NAME FILE
 g="$dir/g.png"
 refuse "devices backend" "backend 'cuda' in 'cuda'" "$rp" render gen:ml:8 \
   --devices cuda -o "$g"
-refuse "devices index" "device index 'x' in 'opencl:x'" "$rp" render \
+refuse "devices index" "raypace: --devices opencl:x: index x is not a device index; must be a whole number in 0..1024" "$rp" render \
   gen:ml:8 --devices reference,opencl:x -o "$g"
-refuse "devices cu" "'cu=0' in 'opencl:0:cu=0'" "$rp" render gen:ml:8 \
+refuse "devices cu" "--devices opencl:0:cu=0: cu 0 is out of range; must be a whole number in 1..65536 (compute units" "$rp" render gen:ml:8 \
   --devices opencl:0:cu=0 -o "$g"
-refuse "devices slow" "'slow=0.5'" "$rp" render gen:ml:8 \
+refuse "devices slow" "--devices reference:0:slow=0.5: slow 0.5 is out of range; must be in \[1, 10000\]" "$rp" render gen:ml:8 \
   --devices reference:0:slow=0.5 -o "$g"
-refuse "devices slow nan" "'slow=nan'" "$rp" render gen:ml:8 \
+refuse "devices slow nan" "reference:slow=nan: slow nan is not a number" "$rp" render gen:ml:8 \
   --devices reference:slow=nan -o "$g"
-refuse "devices fail" "'fail=-1'" "$rp" render gen:ml:8 \
+refuse "devices fail" "reference:fail=-1: fail -1 is out of range; must be a whole number in 0..4294967295" "$rp" render gen:ml:8 \
   --devices reference:fail=-1 -o "$g"
 refuse "devices empty" "empty device" "$rp" render gen:ml:8 \
   --devices reference,,reference -o "$g"
@@ -755,7 +755,7 @@ check "test devices" "$rp" render gen:phantom:32 --size 40x24 \
 regions_ok 40 24 "test devices"
 refuse "seed on reference" "'seed=1' in 'reference:seed=1' is for backend" \
   "$rp" render gen:ml:8 --devices reference:seed=1 -o "$g"
-refuse "test noise range" "'noise=2' in 'test:noise=2'" "$rp" render \
+refuse "test noise range" "--devices test:noise=2: noise 2 is out of range; must be in \[0, 1\]" "$rp" render \
   gen:ml:8 --devices test:noise=2 -o "$g"
 check "replay test" "$rp" replay gen:phantom:24 --backend test \
   --sequence tf-switch --frames 12 --settle 2 --size 32x32 --json --quiet \
