@@ -22,7 +22,7 @@
 #define RP__SEQ_MAX_FRAMES 10000000u /* about 46 hours at 60 Hz */
 #define RP__SEQ_MAX_TFS 256
 #define RP__SEQ_MAX_FILE ((size_t)64 << 20)
-#define RP__SEQ_LIMIT 1e6 /* bound on angles, distances and pans */
+#define RP__SEQ_LIMIT 1e6 /* bound on angles and pans */
 #define RP__SEQ_MIN_DISTANCE 1e-4
 #define RP__SEQ_PATH_MAX 160
 
@@ -336,7 +336,8 @@ static int parse_tf(parser *p, const cJSON *v, const char *path,
     return err;
   if (step != NULL) {
     child_path(cp, path, "reference_step");
-    if ((err = want_range(p, step, cp, 1e-6, 1e6, "voxels, > 0", &d)) != 0)
+    if ((err = want_range(p, step, cp, RP_STEP_MIN, RP_STEP_MAX, "voxels",
+                          &d)) != 0)
       return err;
     tf->reference_step = (float)d;
   }
@@ -469,17 +470,17 @@ static int parse_camera(parser *p, const cJSON *v, const char *path,
   }
   if ((c = cJSON_GetObjectItemCaseSensitive(v, "distance")) != NULL) {
     child_path(cp, path, "distance");
-    if ((err = want_range(p, c, cp, RP__SEQ_MIN_DISTANCE, RP__SEQ_LIMIT,
+    if ((err = want_range(p, c, cp, RP__SEQ_MIN_DISTANCE,
+                          2.0 * RP_CAMERA_DISTANCE_MAX,
                           "bounding radii; must be > 0", &key->dist)) != 0)
       return err;
   }
   if ((c = cJSON_GetObjectItemCaseSensitive(v, "fov")) != NULL) {
     child_path(cp, path, "fov");
-    if ((err = want_number(p, c, cp, &key->fov)) != 0)
+    if ((err = want_range(p, c, cp, RP_FOV_MIN_DEG, RP_FOV_MAX_DEG,
+                          "vertical field of view, degrees", &key->fov)) !=
+        0)
       return err;
-    if (!(key->fov > 0.0 && key->fov < 180.0))
-      return fail(p, RP_ERANGE, cp, "%.10g is outside (0, 180) (vertical "
-                  "field of view, degrees)", key->fov);
   }
   if ((c = cJSON_GetObjectItemCaseSensitive(v, "pan")) != NULL) {
     const cJSON *e;
@@ -509,8 +510,11 @@ static int parse_target(parser *p, const cJSON *ms, const cJSON *frac,
   child_path(cp, path, ms != NULL ? "target_ms" : "target_fraction");
   if ((err = want_number(p, ms != NULL ? ms : frac, cp, dst)) != 0)
     return err;
-  if (!(*dst > 0.0))
-    return fail(p, RP_ERANGE, cp, "%.10g must be > 0 (%s)", *dst,
+  /* The runtime's target range (rp_runtime_desc.target_ms), and the
+   * replay's --target-fraction's. */
+  if (!(*dst > 0.0 && *dst <= (ms != NULL ? 60000.0 : 100.0)))
+    return fail(p, RP_ERANGE, cp, "%.10g is outside (0, %g] (%s)", *dst,
+                ms != NULL ? 60000.0 : 100.0,
                 ms != NULL ? "milliseconds"
                            : "fraction of the no-adaptation frame time");
   return 0;

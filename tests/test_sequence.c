@@ -887,14 +887,14 @@ static const bad_case bad_cases[] = {
      RP_ENOTFINITE, "events[0].camera.azimuth: the number is too large "
      "for a double (it reads as -inf)"},
     {DOC("{\"frame\": 0, \"camera\": {\"distance\": 0}}"), RP_ERANGE,
-     "events[0].camera.distance: 0 is outside [0.0001, 1e+06] (bounding "
+     "events[0].camera.distance: 0 is outside [0.0001, 20000] (bounding "
      "radii; must be > 0)"},
     {DOC("{\"frame\": 0, \"camera\": {\"distance\": -2}}"), RP_ERANGE,
      "events[0].camera.distance: -2 is outside"},
     {DOC("{\"frame\": 0, \"camera\": {\"fov\": 180}}"), RP_ERANGE,
-     "events[0].camera.fov: 180 is outside (0, 180)"},
+     "events[0].camera.fov: 180 is outside [0.01, 170] (vertical field"},
     {DOC("{\"frame\": 0, \"camera\": {\"fov\": 0}}"), RP_ERANGE,
-     "events[0].camera.fov: 0 is outside (0, 180)"},
+     "events[0].camera.fov: 0 is outside [0.01, 170]"},
     {DOC("{\"frame\": 0, \"camera\": {\"elevation\": 91}}"), RP_ERANGE,
      "events[0].camera.elevation: 91 is outside [-90, 90]"},
     {DOC("{\"frame\": 0, \"camera\": {\"azimut\": 10}}"), RP_EFORMAT,
@@ -915,9 +915,9 @@ static const bad_case bad_cases[] = {
      "events[0].camera: expected a camera object, got an array"},
     /* Targets and effects. */
     {DOC("{\"frame\": 0, \"target_ms\": 0}"), RP_ERANGE,
-     "events[0].target_ms: 0 must be > 0"},
+     "events[0].target_ms: 0 is outside (0, 60000] (milliseconds)"},
     {DOC("{\"frame\": 0, \"target_fraction\": -0.5}"), RP_ERANGE,
-     "events[0].target_fraction: -0.5 must be > 0"},
+     "events[0].target_fraction: -0.5 is outside (0, 100]"},
     {DOC("{\"frame\": 0, \"target_ms\": 10, \"target_fraction\": 0.5}"),
      RP_EFORMAT, "events[0]: give \"target_ms\" or \"target_fraction\", "
      "not both"},
