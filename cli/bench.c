@@ -128,10 +128,16 @@ static int quality_value(int c, const char *option, const char *arg,
   }
 }
 
-/* The files bench quality writes; 0 or 2 (printed). */
+/* The files bench quality writes and its MPI devices; 0 or 2 (printed). */
 static int quality_files(const quality_opts *o) {
   static const char *const png[] = {".png", NULL};
   if (o->csv != NULL && cli_check_output(CMD, "--csv", o->csv, NULL) != 0)
+    return 2;
+  if (o->backend != NULL && strcmp(o->backend, "mpi") == 0 &&
+      cli_check_mpi(CMD, "--backend", "mpi", o->device) != 0)
+    return 2;
+  if (o->ref_backend != NULL && strcmp(o->ref_backend, "mpi") == 0 &&
+      cli_check_mpi(CMD, "--ref-backend", "mpi", 0) != 0)
     return 2;
   if (o->plot != NULL && cli_check_output(CMD, "--plot", o->plot, png) != 0)
     return 2;

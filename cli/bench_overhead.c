@@ -185,14 +185,18 @@ static int parse_overhead(int argc, char **argv, overhead_opts *o) {
         return 2;
     }
   }
+  if (o->backend != NULL && strcmp(o->backend, "mpi") == 0 &&
+      cli_check_mpi(CMD, "--backend", "mpi", o->device) != 0)
+    return 2;
   if (optind + 1 != argc) {
     usage_overhead(stderr);
     return 2;
   }
   if (o->loads > o->frames) {
-    fprintf(stderr, "raypace bench overhead: --loads %u is more than "
-                    "--frames %u\n", o->loads, o->frames);
-    return 2;
+    char value[16];
+    snprintf(value, sizeof value, "%u", o->loads);
+    return cli_bad_option(CMD, "--loads", value, "more than --frames",
+                          "must be at most --frames (%u)", o->frames);
   }
   o->volume = argv[optind];
   return 0;

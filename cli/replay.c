@@ -53,6 +53,11 @@
 
 #include "replay.h"
 
+/* The command named in option messages: "replay", or the command that
+ * passes its options on (cli_replay_check). */
+static const char *cmd_name = "replay";
+#define CMD cmd_name
+
 /* Frames the still frame spends aiming at the first target. */
 #define STILL_AIM_FRAMES 5
 /* Frames of the first state whose median is the frame without
@@ -166,9 +171,11 @@ static int check_opts(replay_opts *o) {
     return 2;
   }
   if (o->min_step > o->base_step) {
-    fprintf(stderr, "raypace replay: --min-step %g is over the base step "
-                    "%g\n", (double)o->min_step, (double)o->base_step);
-    return 2;
+    char value[32];
+    snprintf(value, sizeof value, "%g", (double)o->min_step);
+    return cli_bad_option(CMD, "--min-step", value, "over the base step",
+                          "must be at most --base-step (%g)",
+                          (double)o->base_step);
   }
   if (o->noise_csv != NULL && (o->no_noise || o->devices_spec != NULL)) {
     fprintf(stderr, "raypace replay: --noise-csv needs the still frame, "
@@ -192,10 +199,6 @@ static int check_opts(replay_opts *o) {
   return 0;
 }
 
-/* The command named in option messages: "replay", or the command that
- * passes its options on (cli_replay_check). */
-static const char *cmd_name = "replay";
-#define CMD cmd_name
 
 /* The ranges of replay's numbers: the library's where it has one. */
 static const cli_range target_range = {0.0, 60000.0, CLI_OPEN_LO, 0, "ms"};

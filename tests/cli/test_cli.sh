@@ -615,7 +615,7 @@ refuse "replay targets" "exclude each other" "$rp" replay gen:ml:8 \
   --target-ms 5 --target-fraction 0.5
 refuse "replay space" "--space diagonal is not a space; must be ray, image or hybrid" "$rp" replay \
   gen:ml:8 --space diagonal
-refuse "replay min step" "over the base step" "$rp" replay gen:ml:8 \
+refuse "replay min step" "--min-step 2 is over the base step; must be at most --base-step (1)" "$rp" replay gen:ml:8 \
   --min-step 2
 # A budget far above any frame's cost, --min-step a quarter of the base
 # step: the predicted controller ends at the finest step (density 4),
@@ -649,7 +649,7 @@ has "overhead share" 'per-frame prediction work'
 check "bench overhead json" "$rp" bench overhead gen:ml:16 --frames 4 \
   --loads 1 --size 32x32 --backend reference --json
 has "overhead json" '"stage":	"train"'
-refuse "bench overhead loads" "loads" "$rp" bench overhead gen:ml:8 \
+refuse "bench overhead loads" "--loads 3 is more than --frames; must be at most --frames (2)" "$rp" bench overhead gen:ml:8 \
   --frames 2 --loads 3 --backend reference
 
 # Device groups (--devices): the list's parser, then renders and a replay.
