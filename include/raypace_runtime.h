@@ -345,11 +345,15 @@ RP_API int rp_runtime_set_volume(rp_runtime *rt, rp_volume *vol);
  *  NULL, RP_ENOMEM. \since 0.1 */
 RP_API int rp_runtime_set_tf(rp_runtime *rt, const rp_tf *tf);
 /** Copied. RP_EINVAL when NULL or when rp_render_reference would refuse
- *  it: a NaN or infinite field, eye == center, fov outside (0, 180), a
+ *  it: a NaN or infinite field, eye == center, fov outside
+ *  [RP_FOV_MIN_DEG, RP_FOV_MAX_DEG] (\since 0.12; (0, 180) before), a
  *  negative ortho_height (the message goes to the context's logger).
- *  \since 0.1 */
+ *  The bounds that depend on the volume (RP_CAMERA_DISTANCE_MAX,
+ *  RP_ORTHO_HEIGHT_MIN/MAX) fail the frame instead. \since 0.1 */
 RP_API int rp_runtime_set_camera(rp_runtime *rt, const rp_camera *cam);
-/** Output size, 1..16384 each (RP_ERANGE otherwise). \since 0.1 */
+/** Output size, 1..RP_IMAGE_MAX_DIM (16384) each and at most
+ *  RP_IMAGE_MAX_PIXELS in all (\since 0.12); RP_ERANGE otherwise.
+ *  \since 0.1 */
 RP_API int rp_runtime_set_viewport(rp_runtime *rt, uint32_t width,
                                    uint32_t height);
 /** Frame-time target, ms, finite and in (0, 60000] (RP_ENOTFINITE,

@@ -3,9 +3,11 @@
  * bricks.h states the layout and why an out-of-core image is the in-core
  * one. */
 #include <math.h>
+#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
+#include "bounds.h"
 #include "bricks.h"
 
 struct rp__bricks {
@@ -176,6 +178,15 @@ int rp__bricks_create(rp_context *ctx, const rp_volume *vol,
   b->count = (uint32_t)count;
   b->slots = slots;
   rp__volume_values(vol, &b->values);
+  {
+    char what[96];
+    snprintf(what, sizeof what, "out-of-core volume: %llu bricks of %zu "
+             "bytes", (unsigned long long)count, b->stored_bytes);
+    if (rp__check_memory(ctx, what, count * b->stored_bytes) != 0) {
+      rp__bricks_destroy(b);
+      return RP_ENOMEM;
+    }
+  }
   b->store = count * b->stored_bytes <= SIZE_MAX
                  ? rp__malloc(ctx, (size_t)count * b->stored_bytes)
                  : NULL;

@@ -6,6 +6,7 @@
 #include <math.h>
 #include <string.h>
 
+#include "bounds.h"
 #include "passes.h"
 #include "raygen.h"
 
@@ -134,8 +135,8 @@ static int check_vec(rp_context *ctx, const char *field, const float v[3]) {
   int a;
   for (a = 0; a < 3; a++)
     if (!isfinite(v[a]))
-      return rp__fail(ctx, RP_EINVAL, "camera: cam->%s[%d] is %g; must be "
-                      "finite", field, a, (double)v[a]);
+      return rp__fail(ctx, RP_EINVAL, "camera: rp_camera.%s[%d] is %g; "
+                      "must be finite", field, a, (double)v[a]);
   return 0;
 }
 
@@ -152,24 +153,54 @@ static rp_camera camera_defaults(const rp_camera *in) {
 
 static int check_camera(rp_context *ctx, const rp_camera *cam) {
   int err;
-  double fov = cam->fov_y_deg;
   if (cam->projection != RP_PERSPECTIVE && cam->projection != RP_ORTHOGRAPHIC)
-    return rp__fail(ctx, RP_EINVAL, "camera: cam->projection is %d; must "
-                    "be RP_PERSPECTIVE or RP_ORTHOGRAPHIC",
+    return rp__fail(ctx, RP_EINVAL, "camera: rp_camera.projection is %d; "
+                    "must be RP_PERSPECTIVE or RP_ORTHOGRAPHIC",
                     (int)cam->projection);
   if ((err = check_vec(ctx, "eye", cam->eye)) != 0 ||
       (err = check_vec(ctx, "center", cam->center)) != 0 ||
       (err = check_vec(ctx, "up", cam->up)) != 0)
     return err;
   /* Both fields are checked whatever the projection: a camera switched
-   * between projections carries both, and garbage in either is a bug. */
-  if (!(fov > 0.0 && fov < 180.0))
-    return rp__fail(ctx, RP_EINVAL, "camera: cam->fov_y_deg is %g; must be "
-                    "in (0, 180) degrees (0: 40)", fov);
+   * between projections carries both, and garbage in either is a bug.
+   * ortho_height's upper bound depends on the volume (raygen_init). */
+  if ((err = rp__check_range(ctx, "camera", "rp_camera.fov_y_deg",
+                             cam->fov_y_deg, 1, RP_FOV_MIN_DEG,
+                             RP_FOV_MAX_DEG, "degrees", "40")) != 0)
+    return err;
   if (!(cam->ortho_height >= 0.0f) || !isfinite(cam->ortho_height))
-    return rp__fail(ctx, RP_EINVAL, "camera: cam->ortho_height is %g; must "
-                    "be finite and > 0 (0: bounding diameter)",
+    return rp__fail(ctx, RP_EINVAL, "camera: rp_camera.ortho_height is %g; "
+                    "must be finite and > 0 (0: bounding diameter)",
                     (double)cam->ortho_height);
+  return 0;
+}
+
+/* The bounds that depend on the volume: the eye within
+ * RP_CAMERA_DISTANCE_MAX diameters of its centre (the world origin), and
+ * a set ortho_height within [RP_ORTHO_HEIGHT_MIN, RP_ORTHO_HEIGHT_MAX]
+ * diameters. */
+static int check_camera_scale(rp_context *ctx, const rp_camera *cam,
+                              const rp_volume *vol) {
+  double diam = box_diameter(vol), e[3], dist;
+  int a;
+  for (a = 0; a < 3; a++)
+    e[a] = cam->eye[a];
+  dist = sqrt(dot3(e, e)) / diam;
+  if (!(dist <= RP_CAMERA_DISTANCE_MAX))
+    return rp__fail(ctx, RP_EINVAL, "camera: rp_camera.eye is (%g, %g, %g), "
+                    "%g bounding diameters (%g world units) from the "
+                    "volume's centre; must be within %g "
+                    "(RP_CAMERA_DISTANCE_MAX)", e[0], e[1], e[2], dist,
+                    diam, RP_CAMERA_DISTANCE_MAX);
+  if (cam->ortho_height != 0.0f) {
+    double h = cam->ortho_height / diam;
+    if (!(h >= RP_ORTHO_HEIGHT_MIN && h <= RP_ORTHO_HEIGHT_MAX))
+      return rp__fail(ctx, RP_EINVAL, "camera: rp_camera.ortho_height is "
+                      "%g, %g bounding diameters (%g world units); must be "
+                      "in [%g, %g] diameters (0: one)",
+                      (double)cam->ortho_height, h, diam,
+                      RP_ORTHO_HEIGHT_MIN, RP_ORTHO_HEIGHT_MAX);
+  }
   return 0;
 }
 
@@ -178,7 +209,8 @@ int rp__camera_check(rp_context *ctx, const rp_camera *cam) {
   int err = check_camera(ctx, &c);
   if (err == 0 && c.eye[0] == c.center[0] && c.eye[1] == c.center[1] &&
       c.eye[2] == c.center[2])
-    return rp__fail(ctx, RP_EINVAL, "camera: cam->center equals cam->eye");
+    return rp__fail(ctx, RP_EINVAL, "camera: rp_camera.center equals "
+                    "rp_camera.eye");
   return err;
 }
 
@@ -189,7 +221,8 @@ int rp__raygen_init(rp_context *ctx, const rp_camera *cam_in,
   const rp_camera *cam = &c;
   double up[3], aspect;
   int a, err;
-  if ((err = check_camera(ctx, cam)) != 0)
+  if ((err = check_camera(ctx, cam)) != 0 ||
+      (err = check_camera_scale(ctx, cam, vol)) != 0)
     return err;
   for (a = 0; a < 3; a++) {
     rg->eye[a] = cam->eye[a];
@@ -199,8 +232,8 @@ int rp__raygen_init(rp_context *ctx, const rp_camera *cam_in,
     up[a] = cam->up[a];
   }
   if (!normalize3(rg->f))
-    return rp__fail(ctx, RP_EINVAL, "camera: cam->center equals cam->eye; "
-                    "the view direction is undefined");
+    return rp__fail(ctx, RP_EINVAL, "camera: rp_camera.center equals "
+                    "rp_camera.eye; the view direction is undefined");
   if (!normalize3(up)) {
     up[0] = 0.0;
     up[1] = 1.0;
@@ -210,8 +243,8 @@ int rp__raygen_init(rp_context *ctx, const rp_camera *cam_in,
       up[2] = 1.0;
     }
   } else if (parallel(rg->f, up)) {
-    return rp__fail(ctx, RP_EINVAL, "camera: cam->up is parallel to the "
-                    "view direction (cam->center - cam->eye)");
+    return rp__fail(ctx, RP_EINVAL, "camera: rp_camera.up is parallel to "
+                    "the view direction (center - eye)");
   }
   cross3(rg->f, up, rg->r);
   normalize3(rg->r);
@@ -330,20 +363,23 @@ void rp__raygen_ray_at(const rp__raygen *rg, double px, double py,
 }
 
 uint64_t rp__lattice_count(double s, double t1, double step) {
-  const double cap = 9007199254740992.0; /* 2^53 */
+  /* The work bound: no ray takes more (rp__check_work refuses a frame
+   * that could ask for more; this keeps every ray loop finite even so). */
+  const uint64_t cap = RP_MAX_SAMPLES_PER_RAY;
   double est = floor((t1 - s) / step);
   uint64_t k;
   if (!(est >= 0.0))
     est = 0.0;
-  if (est >= cap)
-    return (uint64_t)cap;
+  if (est >= (double)cap)
+    return cap;
   /* The quotient is only an estimate: the definition is the predicate
    * s + i*step <= t1 on the positions as computed, which is monotone in
-   * i, so nudge k to the last i that satisfies it. */
+   * i, so nudge k to the last i that satisfies it. Both walks end within
+   * the cap. */
   k = (uint64_t)est;
   while (k > 0 && s + (double)k * step > t1)
     k--;
-  while (k + 1 < (uint64_t)cap && s + (double)(k + 1) * step <= t1)
+  while (k + 1 < cap && s + (double)(k + 1) * step <= t1)
     k++;
   return k + 1;
 }
@@ -359,6 +395,8 @@ int rp__frame_params(rp_context *ctx, const rp_volume *shape,
   if ((err = rp__raygen_init(ctx, cam, shape, d->width, d->height, rg)) != 0)
     return err;
   rp_scaled_size(d, &rg->width, &rg->height);
+  if ((err = rp__check_work(ctx, "render", rg, d->step)) != 0)
+    return err;
   memset(p, 0, sizeof *p);
   for (a = 0; a < 3; a++) {
     p->eye[a] = (float)rg->eye[a];

@@ -8,6 +8,7 @@
 #include <string.h>
 
 #include "ao.h"
+#include "bounds.h"
 #include "frame.h"
 #include "internal.h"
 #include "passes.h"
@@ -520,6 +521,9 @@ static int reserve(rp__engine *e, void **buf, size_t *cap, size_t bytes) {
   void *p;
   if (bytes <= *cap)
     return 0;
+  if (rp__check_memory(e->ctx, "runtime: the frame's image buffer",
+                       bytes) != 0)
+    return RP_ENOMEM;
   p = rp__malloc(e->ctx, bytes);
   if (p == NULL)
     return rp__fail(e->ctx, RP_ENOMEM, "runtime: %zu bytes for the frame",

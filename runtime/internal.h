@@ -116,6 +116,10 @@ int rp__occupancy_check(rp_context *ctx, const char *fn,
 #define RP__RHO_MIN 1e-3
 #define RP__RHO_MAX 1.0
 #define RP__RAISE_LIMIT (1.0 / 0.8)
+/* A caller's rp_space_desc (named `field` in messages) within raypace.h's
+ * step and scale limits: 0 or RP_ERANGE. Zero fields are defaults. */
+int rp__space_check(rp_context *ctx, const char *fn, const char *field,
+                    const rp_space_desc *d);
 
 /* ---- core.c ------------------------------------------------------------ */
 
@@ -166,12 +170,22 @@ int rp__orientation_check(rp_context *ctx, const char *what,
 int rp__volume_adopt(rp_context *ctx, const uint32_t dims[3],
                      rp_voxel_type type, const float spacing[3], void *data,
                      rp_volume **out);
-/* dims product and byte size with overflow checks against the context's
- * max_volume_bytes; the message names `what` (a file or function) and
- * `field` (how the source names the sizes: "field 'dims'", ...). */
+/* dims product and byte size with overflow checks, each axis within
+ * RP_VOLUME_MAX_DIM, the bytes within the context's max_volume_bytes
+ * (RP_ERANGE) and the memory the machine has (RP_ENOMEM, saying how much
+ * was asked: call it before allocating the voxels); the message names
+ * `what` (a file or function) and `field` (how the source names the
+ * sizes: "field 'dims'", ...). */
 int rp__volume_size(rp_context *ctx, const char *what, const char *field,
                     const uint64_t dims[3], rp_voxel_type type,
                     size_t *voxels, size_t *bytes);
+/* A voxel spacing within [RP_SPACING_MIN, RP_SPACING_MAX]: 0, or
+ * RP_ERANGE (RP_ENOTFINITE for NaN or an infinity) with "WHERE:
+ * FIELD[AXIS] is V; must be in [1e-09, 1e+09] ..." (no [AXIS] when axis
+ * is negative). Every path a spacing enters by calls it: the API and
+ * each file format's field. */
+int rp__spacing_check(rp_context *ctx, const char *where, const char *field,
+                      int axis, double v);
 
 /* Voxel (i, j, k) as a double, indices already in range. */
 static inline double rp__voxel(const rp_volume *v, uint32_t i, uint32_t j,

@@ -77,8 +77,8 @@ void rp__ray_jitter(rp__ray *ray, double offset, double step);
 
 /* Number of lattice samples s + i*step (i = 0, 1, ...) that are <= t1,
  * each position computed as s + i*step exactly as the renderer does.
- * Requires s <= t1 and step > 0. Saturates at 2^53 (beyond which i*step
- * no longer names distinct positions). */
+ * Requires s <= t1 and step > 0. Saturates at RP_MAX_SAMPLES_PER_RAY
+ * (the work bound), so that every ray loop ends. */
 uint64_t rp__lattice_count(double s, double t1, double step);
 
 /* The volume at voxel-space position p: each coordinate clamped to

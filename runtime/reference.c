@@ -39,6 +39,7 @@
 #include <math.h>
 
 #include "ao.h"
+#include "bounds.h"
 #include "passes.h"
 
 #define RP__DEFAULT_STEP 1.0f
@@ -295,35 +296,28 @@ void rp_scaled_size(const rp_render_desc *desc, uint32_t *width,
 
 int rp__check_render_desc(rp_context *ctx, const char *fn,
                           const rp_render_desc *desc) {
-  uint64_t bytes;
-  if (desc->width == 0 || desc->height == 0)
-    return rp__fail(ctx, RP_EINVAL, "%s: desc->width and desc->height must "
-                    "be >= 1 (got %ux%u)", fn, (unsigned)desc->width,
-                    (unsigned)desc->height);
-  /* Cannot wrap in 64 bits: both factors are below 2^32. */
-  bytes = (uint64_t)desc->width * desc->height;
-  if (bytes > SIZE_MAX / 4)
-    return rp__fail(ctx, RP_EINVAL, "%s: desc->width x desc->height "
-                    "(%ux%u) RGBA pixels overflow size_t", fn,
-                    (unsigned)desc->width, (unsigned)desc->height);
-  if (!(desc->step > 0.0f && isfinite(desc->step)))
-    return rp__fail(ctx, RP_EINVAL, "%s: desc->step is %g; must be finite "
-                    "and > 0 (0: 1.0)", fn, (double)desc->step);
-  if (!(desc->ert_threshold > 0.0f && desc->ert_threshold <= 1.0f))
-    return rp__fail(ctx, RP_EINVAL, "%s: desc->ert_threshold is %g; must "
-                    "be in (0, 1] (0: 0.99)", fn,
-                    (double)desc->ert_threshold);
-  if (!(desc->image_scale > 0.0f && desc->image_scale <= 1.0f))
-    return rp__fail(ctx, RP_EINVAL, "%s: desc->image_scale is %g; must be "
-                    "in (0, 1] (0: 1)", fn, (double)desc->image_scale);
+  int err;
+  /* The fields as the caller wrote them: zero fields were replaced by
+   * their defaults, which are in range. */
+  if ((err = rp__check_image_size(ctx, fn, "rp_render_desc.width x height",
+                                  desc->width, desc->height)) != 0 ||
+      (err = rp__check_range(ctx, fn, "rp_render_desc.step", desc->step, 1,
+                             RP_STEP_MIN, RP_STEP_MAX, "voxels", "1")) != 0 ||
+      (err = rp__check_range(ctx, fn, "rp_render_desc.ert_threshold",
+                             desc->ert_threshold, 1, RP_ERT_THRESHOLD_MIN,
+                             RP_ERT_THRESHOLD_MAX, "", "0.99")) != 0 ||
+      (err = rp__check_range(ctx, fn, "rp_render_desc.image_scale",
+                             desc->image_scale, 1, RP_SCALE_MIN,
+                             RP_SCALE_MAX, "", "1")) != 0)
+    return err;
   if (desc->jitter != RP_JITTER_ON && desc->jitter != RP_JITTER_OFF)
-    return rp__fail(ctx, RP_EINVAL, "%s: desc->jitter is %d; must be "
-                    "RP_JITTER_DEFAULT (0), RP_JITTER_ON (1), "
+    return rp__fail(ctx, RP_EINVAL, "%s: rp_render_desc.jitter is %d; must "
+                    "be RP_JITTER_DEFAULT (0), RP_JITTER_ON (1), "
                     "RP_JITTER_OFF (2) or RP_JITTER_FIXED (3)", fn,
                     (int)desc->jitter);
   if (desc->effects & ~(uint32_t)RP__KNOWN_EFFECTS)
-    return rp__fail(ctx, RP_EINVAL, "%s: desc->effects has unknown bits "
-                    "0x%x", fn,
+    return rp__fail(ctx, RP_EINVAL, "%s: rp_render_desc.effects has "
+                    "unknown bits 0x%x", fn,
                     (unsigned)(desc->effects & ~(uint32_t)RP__KNOWN_EFFECTS));
   return 0;
 }
@@ -469,6 +463,8 @@ int rp_render_reference(rp_context *ctx, const rp_volume *vol,
     return err;
   /* Rays on the scaled grid, frustum of the full output. */
   rp_scaled_size(&d, &rg.width, &rg.height);
+  if ((err = rp__check_work(ctx, "rp_render_reference", &rg, d.step)) != 0)
+    return err;
   all.x1 = rg.width;
   all.y1 = rg.height;
   if (ao != NULL)

@@ -23,13 +23,13 @@
 #include <string.h>
 
 #include "ao.h"
+#include "bounds.h"
 #include "frame.h"
 #include "internal.h"
 #include "passes.h"
 #include "raypace_pace.h"
 #include "raypace_runtime.h"
 
-#define MAX_VIEWPORT 16384u /* per axis, as the header states */
 
 struct rp_runtime {
   rp_context *ctx; /* the engine's; the setters use a scratch copy */
@@ -422,9 +422,13 @@ static int check_desc(rp_context *ctx, const rp_runtime_desc *d) {
   if (d->target_ms < 0.0 || d->target_ms > 60000.0)
     return rp__fail(ctx, RP_ERANGE, "%s: desc->target_ms is %g; must be "
                     "in (0, 60000] (0: 1000 / 60)", fn, d->target_ms);
-  if (d->width > MAX_VIEWPORT || d->height > MAX_VIEWPORT)
-    return rp__fail(ctx, RP_ERANGE, "%s: viewport %ux%u; at most %u "
-                    "each", fn, d->width, d->height, MAX_VIEWPORT);
+  if (rp__check_image_size(ctx, fn, "rp_runtime_desc.width x height",
+                           d->width != 0 ? d->width : 512,
+                           d->height != 0 ? d->height : 512) != 0)
+    return RP_ERANGE;
+  if ((err = rp__space_check(ctx, fn, "rp_runtime_desc.space",
+                             &d->space)) != 0)
+    return err;
   if (d->effects & ~(uint32_t)RP__KNOWN_EFFECTS)
     return rp__fail(ctx, RP_EINVAL, "%s: desc->effects has unknown bits "
                     "0x%x", fn, d->effects);
@@ -736,8 +740,9 @@ int rp_runtime_set_viewport(rp_runtime *rt, uint32_t width,
   uint32_t wh[2];
   if (rt == NULL)
     return RP_EINVAL;
-  if (width < 1 || height < 1 || width > MAX_VIEWPORT ||
-      height > MAX_VIEWPORT)
+  /* No message: this may run on any thread, and ctx is the loop's. */
+  if (rp__check_image_size(NULL, "rp_runtime_set_viewport",
+                           "width x height", width, height) != 0)
     return RP_ERANGE;
   wh[0] = width;
   wh[1] = height;

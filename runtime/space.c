@@ -46,7 +46,32 @@ static rp_space_desc space_defaults(const rp_space_desc *in) {
   if (!(d.min_step > 0.0f) || !isfinite(d.min_step) ||
       d.min_step > d.base_step || d.space == RP_SPACE_IMAGE)
     d.min_step = d.base_step;
+  /* Within raypace.h's limits, so that no density maps to a render the
+   * device refuses (rp__space_check refuses such a desc up front where
+   * a caller gives one). */
+  d.base_step = fminf(fmaxf(d.base_step, RP_STEP_MIN), RP_STEP_MAX);
+  d.max_step = fminf(fmaxf(d.max_step, d.base_step), RP_STEP_MAX);
+  d.min_step = fminf(fmaxf(d.min_step, RP_STEP_MIN), d.base_step);
+  d.min_scale = fmaxf(d.min_scale, RP_SCALE_MIN);
   return d;
+}
+
+int rp__space_check(rp_context *ctx, const char *fn, const char *field,
+                    const rp_space_desc *d) {
+  static const char *const names[3] = {"base_step", "max_step", "min_step"};
+  const float steps[3] = {d->base_step, d->max_step, d->min_step};
+  int i;
+  for (i = 0; i < 3; i++)
+    if (steps[i] != 0.0f &&
+        !(steps[i] >= RP_STEP_MIN && steps[i] <= RP_STEP_MAX))
+      return rp__fail(ctx, RP_ERANGE, "%s: %s.%s is %g; must be in [%g, "
+                      "%g] voxels (0: the default)", fn, field, names[i],
+                      (double)steps[i], RP_STEP_MIN, RP_STEP_MAX);
+  if (d->min_scale != 0.0f && !(d->min_scale >= RP_SCALE_MIN))
+    return rp__fail(ctx, RP_ERANGE, "%s: %s.min_scale is %g; must be at "
+                    "least %g (above 1 means 1; 0: 0.125)", fn, field,
+                    (double)d->min_scale, RP_SCALE_MIN);
+  return 0;
 }
 
 /* The largest reduction -ln(rho) each factor can take. */

@@ -81,10 +81,12 @@ static int validate(rp_context *ctx, const rp_tf_desc *d) {
     return rp__fail(ctx, RP_ENOTFINITE, "transfer function: field "
                     "'reference_step': value %g is not finite",
                     (double)d->reference_step);
-  if (d->reference_step < 0.0f)
+  if (d->reference_step != 0.0f &&
+      !(d->reference_step >= RP_STEP_MIN && d->reference_step <= RP_STEP_MAX))
     return rp__fail(ctx, RP_ERANGE, "transfer function: field "
-                    "'reference_step': value %g must be > 0",
-                    (double)d->reference_step);
+                    "'reference_step' (rp_tf_desc.reference_step): value "
+                    "%g must be in [%g, %g] voxels (0: 1)",
+                    (double)d->reference_step, RP_STEP_MIN, RP_STEP_MAX);
   if (d->lut_size != 0 && (d->lut_size < 2 || d->lut_size > RP__LUT_MAX))
     return rp__fail(ctx, RP_ERANGE, "transfer function: field 'lut_size': "
                     "value %d is outside [2, %d]", d->lut_size, RP__LUT_MAX);

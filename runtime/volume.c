@@ -1,8 +1,10 @@
 /* Volumes in memory: creation, validation, range, info. */
 #include <math.h>
+#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
+#include "bounds.h"
 #include "internal.h"
 
 size_t rp__voxel_size(rp_voxel_type type) {
@@ -31,11 +33,15 @@ const char *rp_voxel_type_name(rp_voxel_type type) {
   }
 }
 
-int rp__volume_size(rp_context *ctx, const char *what, const char *field,
-                    const uint64_t dims[3], rp_voxel_type type,
-                    size_t *voxels, size_t *bytes) {
+/* rp__volume_size's checks; `memory` adds the check against the memory
+ * the machine has, which only a caller that has not yet allocated the
+ * voxels can make. */
+static int volume_size(rp_context *ctx, const char *what, const char *field,
+                       const uint64_t dims[3], rp_voxel_type type,
+                       int memory, size_t *voxels, size_t *bytes) {
   uint64_t n = 1, b;
   size_t vs = rp__voxel_size(type);
+  char ask[200];
   int a;
   if (vs == 0)
     return rp__fail(ctx, RP_EUNSUPPORTED, "%s: field 'type': value %d is "
@@ -51,6 +57,11 @@ int rp__volume_size(rp_context *ctx, const char *what, const char *field,
                       (unsigned long long)dims[1],
                       (unsigned long long)dims[2]);
   }
+  for (a = 0; a < 3; a++)
+    if (dims[a] > RP_VOLUME_MAX_DIM)
+      return rp__fail(ctx, RP_ERANGE, "%s: %s: axis %d is %llu voxels; "
+                      "must be in [1, %u] (RP_VOLUME_MAX_DIM)", what, field,
+                      a, (unsigned long long)dims[a], RP_VOLUME_MAX_DIM);
   if (__builtin_mul_overflow(n, (uint64_t)vs, &b) || b > SIZE_MAX ||
       b > ctx->desc.max_volume_bytes)
     return rp__fail(ctx, RP_ERANGE, "%s: %s: %llu x %llu x %llu "
@@ -59,26 +70,43 @@ int rp__volume_size(rp_context *ctx, const char *what, const char *field,
                     (unsigned long long)dims[0], (unsigned long long)dims[1],
                     (unsigned long long)dims[2], rp_voxel_type_name(type),
                     (unsigned long long)ctx->desc.max_volume_bytes);
-  if (dims[0] > UINT32_MAX || dims[1] > UINT32_MAX || dims[2] > UINT32_MAX)
-    return rp__fail(ctx, RP_ERANGE, "%s: %s: an axis exceeds "
-                    "2^32 - 1 voxels", what, field);
+  snprintf(ask, sizeof ask, "%s: %llu x %llu x %llu %s voxels", what,
+           (unsigned long long)dims[0], (unsigned long long)dims[1],
+           (unsigned long long)dims[2], rp_voxel_type_name(type));
+  if (memory && rp__check_memory(ctx, ask, b) != 0)
+    return RP_ENOMEM;
   *voxels = (size_t)n;
   *bytes = (size_t)b;
   return 0;
 }
 
-static int check_spacing(rp_context *ctx, const float in[3], float out[3]) {
-  int a;
+int rp__volume_size(rp_context *ctx, const char *what, const char *field,
+                    const uint64_t dims[3], rp_voxel_type type,
+                    size_t *voxels, size_t *bytes) {
+  return volume_size(ctx, what, field, dims, type, 1, voxels, bytes);
+}
+
+int rp__spacing_check(rp_context *ctx, const char *where, const char *field,
+                      int axis, double v) {
+  char name[96];
+  snprintf(name, sizeof name, axis >= 0 ? "%s[%d]" : "%s", field, axis);
+  if (v >= RP_SPACING_MIN && v <= RP_SPACING_MAX)
+    return 0;
+  rp__check_range(ctx, where, name, v, 0, RP_SPACING_MIN, RP_SPACING_MAX,
+                  "(a length: mm for CT and MRI)", NULL);
+  return isfinite(v) ? RP_ERANGE : RP_ENOTFINITE;
+}
+
+/* `where` and `field` name the spacing as its caller took it. */
+static int check_spacing(rp_context *ctx, const char *where,
+                         const char *field, const float in[3], float out[3]) {
+  int a, err;
   for (a = 0; a < 3; a++) {
     float s = in != NULL ? in[a] : 0.0f;
     if (s == 0.0f)
       s = 1.0f;
-    if (!isfinite(s))
-      return rp__fail(ctx, RP_ENOTFINITE, "field 'spacing[%d]': value %g is "
-                      "not finite", a, (double)s);
-    if (s < 0.0f)
-      return rp__fail(ctx, RP_ERANGE, "field 'spacing[%d]': value %g must "
-                      "be > 0", a, (double)s);
+    if ((err = rp__spacing_check(ctx, where, field, a, s)) != 0)
+      return err;
     out[a] = s;
   }
   return 0;
@@ -236,8 +264,9 @@ int rp__volume_adopt(rp_context *ctx, const uint32_t dims[3],
   rp_volume *v;
   uint64_t d64[3] = {dims[0], dims[1], dims[2]};
   size_t voxels = 0, bytes = 0;
-  int err = rp__volume_size(ctx, "volume", "field 'dims'", d64, type,
-                            &voxels, &bytes);
+  /* The voxels are allocated already: no memory check. */
+  int err = volume_size(ctx, "volume", "field 'dims'", d64, type, 0,
+                        &voxels, &bytes);
   if (err != 0) {
     rp__free(ctx, data);
     return err;
@@ -257,7 +286,7 @@ int rp__volume_adopt(rp_context *ctx, const uint32_t dims[3],
   v->voxel_count = voxels;
   v->data = data;
   store_for_devices(v);
-  err = check_spacing(ctx, spacing, v->spacing);
+  err = check_spacing(ctx, "volume", "spacing", spacing, v->spacing);
   if (err == 0)
     err = compute_range(ctx, v);
   if (err == 0)
@@ -275,6 +304,7 @@ int rp_volume_create(rp_context *ctx, const rp_volume_desc *desc,
   uint64_t d64[3];
   size_t voxels = 0, bytes = 0;
   rp_orientation orient;
+  float spacing[3];
   void *copy;
   int err;
   if (ctx == NULL)
@@ -287,6 +317,10 @@ int rp_volume_create(rp_context *ctx, const rp_volume_desc *desc,
                     "NULL");
   err = rp__orientation_check(ctx, "rp_volume_create", &desc->orientation,
                               &orient);
+  if (err != 0)
+    return err;
+  err = check_spacing(ctx, "rp_volume_create", "rp_volume_desc.spacing",
+                      desc->spacing, spacing);
   if (err != 0)
     return err;
   d64[0] = desc->dims[0], d64[1] = desc->dims[1], d64[2] = desc->dims[2];

@@ -350,6 +350,24 @@ static int read_stack(rp_context *ctx, const char *what, const slice *s,
   return 0;
 }
 
+/* The spacings within RP_SPACING_MIN/MAX, each named by the tag it came
+ * from, before any pixel data is read. */
+static int check_spacings(rp_context *ctx, const char *what,
+                          const rp__dicom_meta *m, double step) {
+  static const char *const tags[2] = {
+      "PixelSpacing (0028,0030) between columns",
+      "PixelSpacing (0028,0030) between rows"};
+  int a, rc;
+  for (a = 0; a < 2 && m->has_pixel_spacing; a++)
+    if ((rc = rp__spacing_check(ctx, what, tags[a], -1,
+                                m->pixel_spacing[1 - a])) != 0)
+      return rc;
+  return rp__spacing_check(ctx, what, "the slice step (ImagePositionPatient "
+                           "along the normal; one slice: "
+                           "SpacingBetweenSlices or SliceThickness)", -1,
+                           step);
+}
+
 /* The volume of a sorted stack: n slices (or one multi-frame file, then
  * `one` is its source), the step between slices along the normal. */
 static int make_volume(rp_context *ctx, const char *what, const slice *s,
@@ -382,6 +400,8 @@ static int make_volume(rp_context *ctx, const char *what, const slice *s,
       o.origin[i] = m->position[i];
     }
   }
+  if ((rc = check_spacings(ctx, what, m, step)) != 0)
+    return rc;
   rc = read_stack(ctx, what, s, n, one, &st);
   rp__free(ctx, st.raw);
   if (rc != 0) {

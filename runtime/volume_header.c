@@ -287,11 +287,13 @@ int rp__header_spacing(rp_context *ctx, const char *name, const char *field,
                     "%s: field '%s': axis %d value '%s' is not a positive "
                     "float",
                     name, field, axis, rp__text_shown(sv, text));
-  f = (float)v;
-  if (!(f > 0.0f))
+  if (v < RP_SPACING_MIN || v > RP_SPACING_MAX)
     return rp__fail(ctx, RP_ERANGE,
-                    "%s: field '%s': axis %d value '%s' is too small", name,
-                    field, axis, rp__text_shown(sv, text));
+                    "%s: field '%s': axis %d value '%s' is out of range; a "
+                    "voxel spacing must be in [%g, %g] (RP_SPACING_MIN/MAX)",
+                    name, field, axis, rp__text_shown(sv, text),
+                    RP_SPACING_MIN, RP_SPACING_MAX);
+  f = (float)v;
   *out = f;
   return 0;
 }
@@ -536,10 +538,12 @@ int rp__volume_header_check(rp_context *ctx, const char *name,
   size_t voxels;
   int i;
   for (i = 0; i < 3; i++)
-    if (!isfinite(hdr->spacing[i]) || !(hdr->spacing[i] > 0.0f))
+    if (!(hdr->spacing[i] >= RP_SPACING_MIN &&
+          hdr->spacing[i] <= RP_SPACING_MAX))
       return rp__fail(ctx, RP_ERANGE,
-                      "%s: %s: axis %d value %g must be positive and finite",
-                      name, fields->spacing, i, (double)hdr->spacing[i]);
+                      "%s: %s: axis %d value %g must be in [%g, %g]",
+                      name, fields->spacing, i, (double)hdr->spacing[i],
+                      RP_SPACING_MIN, RP_SPACING_MAX);
   if (memchr(hdr->data_file, '\0', sizeof hdr->data_file) == NULL)
     return rp__fail(ctx, RP_EINVAL, "%s: data file name is not terminated",
                     name);

@@ -426,10 +426,10 @@ static int from_matrix(rp_context *ctx, const char *what,
     for (i = 0; i < 3; i++)
       len += m->m[i][j] * m->m[i][j];
     len = sqrt(len);
-    if (!(len > 0.0) || !isfinite(len) || len > FLT_MAX)
-      return rp__fail(ctx, RP_ERANGE, "%s: column %d has length %g (a "
-                      "voxel size must be positive and finite)", what, j,
-                      len);
+    if (!(len >= RP_SPACING_MIN && len <= RP_SPACING_MAX))
+      return rp__fail(ctx, RP_ERANGE, "%s: column %d has length %g; a "
+                      "voxel size must be in [%g, %g] (RP_SPACING_MIN/MAX)",
+                      what, j, len, RP_SPACING_MIN, RP_SPACING_MAX);
     spacing[j] = (float)len;
     for (i = 0; i < 3; i++)
       raw.direction[3 * j + i] = lps[i] * m->m[i][j] / len;

@@ -230,7 +230,7 @@ static void test_off_and_errors(void **state) {
   assert_int_equal(rp_render_reference(s.ctx, s.vol, s.tf, NULL, NULL,
                                        &s.cam, &d, a, NULL),
                    RP_EINVAL);
-  assert_non_null(strstr(rp_last_error(s.ctx), "desc->jitter is 7"));
+  assert_non_null(strstr(rp_last_error(s.ctx), "rp_render_desc.jitter is 7"));
   slab_close(&s);
 }
 
