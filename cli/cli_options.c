@@ -99,22 +99,35 @@ int cli_parse_real(const char *cmd, const char *option, const char *s,
   return cli_bad_option(cmd, option, s, problem, "must be %s", want);
 }
 
+/* What is wrong with `s` as a float in r: the range is checked on the
+ * float the value becomes, as the library checks it (the float limits,
+ * such as RP_STEP_MIN = 1e-3f, are not the decimal numbers they print
+ * as), and a value a float cannot hold is refused (1e-50 would become
+ * 0, which the library reads as "the default"). */
+static const char *float_problem(const char *s, const cli_range *r,
+                                 float *out) {
+  cli_range any = *r;
+  double v = 0.0;
+  const char *problem;
+  any.lo = -INFINITY, any.hi = INFINITY, any.open = 0;
+  if ((problem = cli_number_problem(s, &any, &v)) != NULL)
+    return problem;
+  if (!isfinite((float)v) || (v != 0.0 && (float)v == 0.0f))
+    return "out of range";
+  if (!cli_in_range(r, (double)(float)v))
+    return "out of range";
+  *out = (float)v;
+  return NULL;
+}
+
 int cli_parse_float(const char *cmd, const char *option, const char *s,
                     const cli_range *r, float *out) {
-  double v = 0.0;
-  int rc = cli_parse_real(cmd, option, s, r, &v);
-  if (rc != 0)
-    return rc;
-  /* A value the range holds but a float does not (1e-50 would become 0,
-   * which the library reads as "the default"). */
-  if (!isfinite((float)v) || (v != 0.0 && (float)v == 0.0f)) {
-    char want[160];
-    cli_range_text(r, want, sizeof want);
-    return cli_bad_option(cmd, option, s, "out of a float's range",
-                          "must be %s", want);
-  }
-  *out = (float)v;
-  return 0;
+  char want[160];
+  const char *problem = float_problem(s, r, out);
+  if (problem == NULL)
+    return 0;
+  cli_range_text(r, want, sizeof want);
+  return cli_bad_option(cmd, option, s, problem, "must be %s", want);
 }
 
 int cli_parse_whole(const char *cmd, const char *option, const char *s,
@@ -141,7 +154,6 @@ int cli_parse_tuple(const char *cmd, const char *option, const char *s,
     const cli_range *r = &fields[i].range;
     char *comma = strchr(p, ',');
     const char *bad;
-    double d = 0.0;
     if ((comma == NULL) != (i == n - 1)) {
       snprintf(problem, sizeof problem, "not %s", form);
       return cli_bad_option(cmd, option, s, problem, "must be %d numbers "
@@ -149,18 +161,13 @@ int cli_parse_tuple(const char *cmd, const char *option, const char *s,
     }
     if (comma != NULL)
       *comma = '\0';
-    bad = cli_number_problem(p, r, &d);
-    if (bad == NULL && (!isfinite((float)d) ||
-                        (d != 0.0 && (float)d == 0.0f)))
-      bad = "out of a float's range";
-    if (bad != NULL) {
+    if ((bad = float_problem(p, r, &v[i])) != NULL) {
       snprintf(what, sizeof what, "%s %s: %s", option, s, fields[i].name);
       cli_range_text(r, want, sizeof want);
       return cli_bad_option(cmd, what, p, bad, "must be %s%s%s", want,
                             fields[i].hint != NULL ? "; " : "",
                             fields[i].hint != NULL ? fields[i].hint : "");
     }
-    v[i] = (float)d;
     p = comma + 1;
   }
   memcpy(out, v, (size_t)n * sizeof *out);

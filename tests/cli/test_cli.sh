@@ -167,6 +167,18 @@ refuse "output no dir" "-o $dir/no/x.png is in no directory; '$dir/no' does not 
 refuse "output a dir" "-o $dir is a directory" "$rp" render "$nv" -o "$dir"
 if [ ! -e "$dir/x.jpg" ]; then pass=$((pass + 1)); else
   echo "FAIL: output jpg: a file was written"; fails=$((fails + 1)); fi
+# Each range's ends are accepted, by the option and by the library
+# after it (the float limits such as 1e-3f are checked as the floats the
+# values become).
+for a in "--fov 0.01" "--fov 170" "--step 0.001" "--step 10000" \
+    "--scale 0.01" "--ert-threshold 0.01" "--ert-threshold 1" \
+    "--camera -360,-90,20000" "--camera 360,90,0.0001" "--size 16384x1" \
+    "--background 0,0.5,1" "--seed 4294967295" "--warmup 0" \
+    "--size 1x16384 --scale 1"; do
+  # shellcheck disable=SC2086
+  check "range end $a" "$rp" render gen:ml:8 --backend reference \
+    --size 8x8 $a -o "$dir/e.png"
+done
 # The device's errors name the options that chose it, not --backend.
 refuse "device missing" "raypace: --backend reference --device 7: no usable device" "$rp" render gen:ml:8 --size 8x8 --backend reference \
   --device 7 -o "$dir/c.png"
