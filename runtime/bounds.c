@@ -16,12 +16,9 @@
 
 #include "bounds.h"
 
-/* The shortest %g form that reads back as the same float (or double):
- * 179.9f prints as "179.9", not "179.899994", and the float just below
- * 0.001f as "0.000999999931", not "0.001". */
-static const char *num_text(char buf[40], double v, int is_float) {
+const char *rp__num_text(char buf[40], double v, int is_float) {
   int p;
-  for (p = 1; p <= 17; p++) {
+  for (p = 6; p <= 17; p++) { /* %g's 6 digits, more if needed */
     double back;
     snprintf(buf, 40, "%.*g", p, v);
     back = strtod(buf, NULL);
@@ -39,7 +36,7 @@ int rp__check_range(rp_context *ctx, const char *where, const char *field,
     return 0;
   return rp__fail(ctx, RP_EINVAL, "%s%s%s is %s; must be in [%g, %g]%s%s%s%s%s", where,
                   where[0] != '\0' ? ": " : "", field,
-                  num_text(num, v, is_float), lo, hi,
+                  rp__num_text(num, v, is_float), lo, hi,
                   unit[0] != '\0' ? " " : "", unit,
                   zero != NULL ? " (0: " : "", zero != NULL ? zero : "",
                   zero != NULL ? ")" : "");

@@ -6,6 +6,11 @@
 
 #include "raygen.h"
 
+/* The shortest %g form of v that reads back as the same float (is_float)
+ * or double: 179.9f prints as "179.9", not "179.899994", and the float
+ * just below 0.001f as "0.0009999999", not "0.001". */
+const char *rp__num_text(char buf[40], double v, int is_float);
+
 /* 0 when lo <= v <= hi; otherwise records "WHERE: FIELD is V; must be in
  * [LO, HI] UNIT (0: ZERO)" and returns RP_EINVAL (NaN included). `where` may be "" and `zero` NULL (no default); V is
  * printed in the fewest digits that read back as the same float when

@@ -194,11 +194,12 @@ static int check_camera_scale(rp_context *ctx, const rp_camera *cam,
                     diam, RP_CAMERA_DISTANCE_MAX);
   if (cam->ortho_height != 0.0f) {
     double h = cam->ortho_height / diam;
+    char num[40];
     if (!(h >= RP_ORTHO_HEIGHT_MIN && h <= RP_ORTHO_HEIGHT_MAX))
       return rp__fail(ctx, RP_EINVAL, "camera: rp_camera.ortho_height is "
-                      "%g, %g bounding diameters (%g world units); must be "
+                      "%s, %g bounding diameters (%g world units); must be "
                       "in [%g, %g] diameters (0: one)",
-                      (double)cam->ortho_height, h, diam,
+                      rp__num_text(num, cam->ortho_height, 1), h, diam,
                       RP_ORTHO_HEIGHT_MIN, RP_ORTHO_HEIGHT_MAX);
   }
   return 0;

@@ -22,6 +22,7 @@
 #include <math.h>
 #include <string.h>
 
+#include "bounds.h"
 #include "internal.h"
 #include "raypace_pace.h"
 
@@ -60,17 +61,19 @@ int rp__space_check(rp_context *ctx, const char *fn, const char *field,
                     const rp_space_desc *d) {
   static const char *const names[3] = {"base_step", "max_step", "min_step"};
   const float steps[3] = {d->base_step, d->max_step, d->min_step};
+  char num[40];
   int i;
   for (i = 0; i < 3; i++)
     if (steps[i] != 0.0f &&
         !(steps[i] >= RP_STEP_MIN && steps[i] <= RP_STEP_MAX))
-      return rp__fail(ctx, RP_ERANGE, "%s: %s.%s is %g; must be in [%g, "
+      return rp__fail(ctx, RP_ERANGE, "%s: %s.%s is %s; must be in [%g, "
                       "%g] voxels (0: the default)", fn, field, names[i],
-                      (double)steps[i], RP_STEP_MIN, RP_STEP_MAX);
+                      rp__num_text(num, steps[i], 1), RP_STEP_MIN,
+                      RP_STEP_MAX);
   if (d->min_scale != 0.0f && !(d->min_scale >= RP_SCALE_MIN))
-    return rp__fail(ctx, RP_ERANGE, "%s: %s.min_scale is %g; must be at "
+    return rp__fail(ctx, RP_ERANGE, "%s: %s.min_scale is %s; must be at "
                     "least %g (above 1 means 1; 0: 0.125)", fn, field,
-                    (double)d->min_scale, RP_SCALE_MIN);
+                    rp__num_text(num, d->min_scale, 1), RP_SCALE_MIN);
   return 0;
 }
 

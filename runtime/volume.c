@@ -92,7 +92,10 @@ int rp__spacing_check(rp_context *ctx, const char *where, const char *field,
   snprintf(name, sizeof name, axis >= 0 ? "%s[%d]" : "%s", field, axis);
   if (v >= RP_SPACING_MIN && v <= RP_SPACING_MAX)
     return 0;
-  rp__check_range(ctx, where, name, v, 0, RP_SPACING_MIN, RP_SPACING_MAX,
+  /* A float the caller gave reads as that float ("1e-09"), a double
+   * from a file as itself. */
+  rp__check_range(ctx, where, name, v, (double)(float)v == v,
+                  RP_SPACING_MIN, RP_SPACING_MAX,
                   "(a length: mm for CT and MRI)", NULL);
   return isfinite(v) ? RP_ERANGE : RP_ENOTFINITE;
 }
