@@ -556,7 +556,10 @@ static int bench_quality(int argc, char **argv) {
     cli_error(b.ctx, "context", err);
     goto out;
   }
-  if (cli_open_volume(b.ctx, o.volume, &b.vol) != 0)
+  /* The reference's step is the finest the bench renders. */
+  if (cli_open_volume(b.ctx, o.volume, &b.vol) != 0 ||
+      cli_check_work(CMD, "--ref-step", b.vol, o.ref_step, o.width,
+                     o.height, 1.0f) != 0)
     goto out;
   {
     /* A preset or a TF file, as render takes them. */

@@ -285,6 +285,51 @@ int cli_parse_window(const char *cmd, cli_tf *tf, int is_width,
   return 0;
 }
 
+/* ---- The work bound -------------------------------------------------- */
+
+int cli_check_work(const char *cmd, const char *step_option,
+                   const rp_volume *vol, float step, uint32_t width,
+                   uint32_t height, float scale) {
+  rp_volume_info in;
+  rp_render_desc rd = {0};
+  char problem[320], value[32];
+  double d2 = 0.0, finest = INFINITY, per_ray, frame;
+  uint32_t sw, sh;
+  int a;
+  rp_volume_get_info(vol, &in);
+  for (a = 0; a < 3; a++) {
+    double e = (double)in.dims[a] * in.spacing[a];
+    d2 += e * e;
+    finest = fmin(finest, in.spacing[a]);
+  }
+  /* As the library counts (RP_MAX_SAMPLES_PER_RAY): the box diagonal in
+   * voxels of the finest spacing over the step. */
+  per_ray = sqrt(d2) / finest / step + 1.0;
+  rd.width = width, rd.height = height, rd.image_scale = scale;
+  rp_scaled_size(&rd, &sw, &sh);
+  frame = per_ray * sw * sh;
+  snprintf(value, sizeof value, "%g", (double)step);
+  if (per_ray > (double)RP_MAX_SAMPLES_PER_RAY) {
+    snprintf(problem, sizeof problem, "too fine for this volume (%ux%ux%u,"
+             " a diagonal of %.4g voxels of its finest spacing): a ray may "
+             "take %.4g samples, at most %u (RP_MAX_SAMPLES_PER_RAY)",
+             in.dims[0], in.dims[1], in.dims[2], sqrt(d2) / finest,
+             per_ray, (unsigned)RP_MAX_SAMPLES_PER_RAY);
+    return cli_bad_option(cmd, step_option, value, problem, "use a "
+                          "coarser %s", step_option);
+  }
+  if (frame > (double)RP_MAX_SAMPLES_PER_FRAME) {
+    snprintf(problem, sizeof problem, "too fine for this volume (%ux%ux%u)"
+             " at %ux%u rays: the frame may take %.4g samples, at most "
+             "%.4g (RP_MAX_SAMPLES_PER_FRAME)", in.dims[0], in.dims[1],
+             in.dims[2], sw, sh, frame, (double)RP_MAX_SAMPLES_PER_FRAME);
+    return cli_bad_option(cmd, step_option, value, problem, "use a "
+                          "coarser %s, or a smaller --size or --scale",
+                          step_option);
+  }
+  return 0;
+}
+
 /* ---- Files written --------------------------------------------------- */
 
 /* 1 when `path` ends in `ext` (".png"), whatever its case. */

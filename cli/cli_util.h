@@ -93,6 +93,14 @@ int cli_parse_budget_mb(const char *cmd, const char *option, const char *s,
                         cli_memory *mem);
 int cli_parse_brick_size(const char *cmd, const char *option, const char *s,
                          cli_memory *mem);
+/* The work bound (RP_MAX_SAMPLES_PER_RAY, RP_MAX_SAMPLES_PER_FRAME) for
+ * `step` (named by step_option, "--step") on vol at width x height and
+ * image scale `scale` (0: 1), checked once the volume is open and
+ * before any device work, naming the options rather than the library's
+ * fields. */
+int cli_check_work(const char *cmd, const char *step_option,
+                   const rp_volume *vol, float step, uint32_t width,
+                   uint32_t height, float scale);
 /* A file the command will write: in an existing, writable directory,
  * not a directory itself, and (exts non-NULL: a NULL-terminated list
  * such as ".png") ending in one of exts, whatever the case. */

@@ -77,18 +77,22 @@ typedef struct scene {
   double histogram_s, occupancy_s; /* how long H and the occupancy took */
 } scene;
 
-/* Builds `sc`; 0, or 1 with the error printed. `h_what` names a failure
- * to build H in the message (the commands have always named it
- * differently). scene_close frees what was built, either way. */
-static int scene_open(scene *sc, const char *volume, const cli_tf *tf,
-                      const char *h_what) {
-  double t0;
+/* The context and the volume of `sc`; 0, or 1 with the error printed.
+ * scene_close frees what was made, either way. */
+static int scene_load(scene *sc, const char *volume) {
   int err;
   memset(sc, 0, sizeof *sc);
   if ((err = rp_context_create(NULL, &sc->ctx)) != 0)
     return cli_error(sc->ctx, "context", err);
-  if (cli_open_volume(sc->ctx, volume, &sc->vol) != 0)
-    return 1;
+  return cli_open_volume(sc->ctx, volume, &sc->vol);
+}
+
+/* The rest of `sc` on its volume: the TF, H and the occupancy; 0, or 1
+ * with the error printed. `h_what` names a failure to build H in the
+ * message (the commands have always named it differently). */
+static int scene_build(scene *sc, const cli_tf *tf, const char *h_what) {
+  double t0;
+  int err;
   if (cli_make_tf(sc->ctx, sc->vol, tf, &sc->tf) != 0)
     return 1;
   t0 = cli_now();
@@ -269,7 +273,8 @@ static int cmd_info(int argc, char **argv) {
   int rc;
   if ((rc = parse_info(argc, argv, &o)) != 0)
     return rc == 1 ? 0 : rc;
-  if ((rc = scene_open(&sc, o.volume, &o.tfo, "histograms")) == 0) {
+  if ((rc = scene_load(&sc, o.volume)) == 0 &&
+      (rc = scene_build(&sc, &o.tfo, "histograms")) == 0) {
     o.tf = cli_tf_name(sc.vol, &o.tfo);
     rc = o.json ? info_json(&o, &sc) : info_text(&o, &sc);
   }
@@ -838,7 +843,12 @@ static int cmd_render(int argc, char **argv) {
   int rc;
   if ((rc = cli_parse_render(argc, argv, &o)) != 0)
     return rc == 1 ? 0 : rc;
-  if ((rc = scene_open(&sc, o.volume, &o.tfo, "occupancy")) == 0) {
+  /* The work bound is checked on the volume, before any other work. */
+  if ((rc = scene_load(&sc, o.volume)) == 0 &&
+      (rc = cli_check_work("render", "--step", sc.vol,
+                           o.step > 0 ? o.step : 1.0f, o.width, o.height,
+                           o.scale)) == 0 &&
+      (rc = scene_build(&sc, &o.tfo, "occupancy")) == 0) {
     o.tf = cli_tf_name(sc.vol, &o.tfo);
     render_setup(&o, sc.vol, &cam, &rd);
     rc = o.ndevices > 0 ? render_group(&sc, &o, &cam, &rd)

@@ -884,7 +884,12 @@ static int open_scene(replay *r) {
   r->frames = rp_sequence_frames(r->seq);
   if (r->o.frames > 0 && r->o.frames < r->frames)
     r->frames = r->o.frames;
-  if (cli_open_volume(r->ctx, r->o.volume, &r->vol) != 0)
+  /* The finest step any controller may render at. */
+  if (cli_open_volume(r->ctx, r->o.volume, &r->vol) != 0 ||
+      cli_check_work(CMD, r->o.min_step > 0 ? "--min-step" : "--base-step",
+                     r->vol, r->o.min_step > 0 ? r->o.min_step
+                                               : r->o.base_step,
+                     r->o.width, r->o.height, 1.0f) != 0)
     return 1;
   r->tf_count = rp_sequence_tf_count(r->seq);
   r->tfs = calloc((size_t)r->tf_count, sizeof(*r->tfs));

@@ -179,6 +179,13 @@ for a in "--fov 0.01" "--fov 170" "--step 0.001" "--step 10000" \
   check "range end $a" "$rp" render gen:ml:8 --backend reference \
     --size 8x8 $a -o "$dir/e.png"
 done
+# The work bound, once the volume is open and before any device work:
+# named by the step's option, with the counts and the limit.
+refuse "work bound" "raypace render: --step 0.001 is too fine for this volume (8x8x8) at 8192x8192 rays: the frame may take .* samples, at most .* (RP_MAX_SAMPLES_PER_FRAME); use a coarser --step, or a smaller --size or --scale" "$rp" render gen:ml:8 --size 8192x8192 \
+  --step 0.001 -o "$dir/c.png"
+refuse "work bound replay" "raypace replay: --min-step 0.001 is too fine" \
+  "$rp" replay gen:ml:8 --size 8192x8192 --min-step 0.001
+refuse "work bound bench" "raypace bench quality: --ref-step 0.001 is too fine" "$rp" bench quality gen:ml:8 --size 8192x8192 --ref-step 0.001
 # The device's errors name the options that chose it, not --backend.
 refuse "device missing" "raypace: --backend reference --device 7: no usable device" "$rp" render gen:ml:8 --size 8x8 --backend reference \
   --device 7 -o "$dir/c.png"
