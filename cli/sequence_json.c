@@ -22,7 +22,14 @@
 #define RP__SEQ_MAX_FRAMES 10000000u /* about 46 hours at 60 Hz */
 #define RP__SEQ_MAX_TFS 256
 #define RP__SEQ_MAX_FILE ((size_t)64 << 20)
-#define RP__SEQ_LIMIT 1e6 /* bound on angles and pans */
+#define RP__SEQ_LIMIT 1e6 /* bound on angles */
+/* Bound on distances and pans, in bounding radii: with both at it the eye
+ * is sqrt(3) 1e4 radii from the volume, within the library's
+ * RP_CAMERA_DISTANCE_MAX (1e4 diameters), so that no keyframe that parses
+ * puts the eye where the library refuses it. (An orthographic view's
+ * height, distance x tan(fov / 2) diameters, may still fall outside
+ * RP_ORTHO_HEIGHT_MIN/MAX at the extremes; that frame fails, saying so.) */
+#define RP__SEQ_MAX_RADII 1e4
 #define RP__SEQ_MIN_DISTANCE 1e-4
 #define RP__SEQ_PATH_MAX 160
 
@@ -470,16 +477,15 @@ static int parse_camera(parser *p, const cJSON *v, const char *path,
   }
   if ((c = cJSON_GetObjectItemCaseSensitive(v, "distance")) != NULL) {
     child_path(cp, path, "distance");
-    if ((err = want_range(p, c, cp, RP__SEQ_MIN_DISTANCE,
-                          2.0 * RP_CAMERA_DISTANCE_MAX,
+    if ((err = want_range(p, c, cp, RP__SEQ_MIN_DISTANCE, RP__SEQ_MAX_RADII,
                           "bounding radii; must be > 0", &key->dist)) != 0)
       return err;
   }
   if ((c = cJSON_GetObjectItemCaseSensitive(v, "fov")) != NULL) {
     child_path(cp, path, "fov");
     if ((err = want_range(p, c, cp, RP_FOV_MIN_DEG, RP_FOV_MAX_DEG,
-                          "vertical field of view, degrees", &key->fov)) !=
-        0)
+                          "vertical field of view, degrees; "
+                          "RP_FOV_MIN_DEG/MAX_DEG", &key->fov)) != 0)
       return err;
   }
   if ((c = cJSON_GetObjectItemCaseSensitive(v, "pan")) != NULL) {
@@ -490,7 +496,7 @@ static int parse_camera(parser *p, const cJSON *v, const char *path,
       return wrong_type(p, cp, "an array of 2 numbers [right, up]", c);
     cJSON_ArrayForEach(e, c) {
       index_path(ip, cp, (size_t)i);
-      if ((err = want_range(p, e, ip, -RP__SEQ_LIMIT, RP__SEQ_LIMIT,
+      if ((err = want_range(p, e, ip, -RP__SEQ_MAX_RADII, RP__SEQ_MAX_RADII,
                             "bounding radii", &key->pan[i])) != 0)
         return err;
       i++;

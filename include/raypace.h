@@ -122,8 +122,9 @@ RP_API const char *rp_last_error(const rp_context *ctx);
 /* The range of every numeric parameter (docs/parameters.md has the table,
  * with the file fields and CLI options that map to each). Each bound is
  * checked where the value enters the library, and a value outside it is
- * refused with RP_EINVAL (RP_ERANGE for a file's field) and a message
- * naming the field, the value and the range. The bounds are far beyond
+ * refused with RP_EINVAL (a render desc or camera field) or RP_ERANGE (a
+ * volume's, a file's or a runtime desc's) and a message naming the
+ * field, the value and the range. The bounds are far beyond
  * any legitimate use; they exist so that every call ends in bounded time
  * and memory whatever it is given. Ranges are inclusive. */
 
@@ -187,11 +188,12 @@ RP_API const char *rp_last_error(const rp_context *ctx);
 #define RP_ERT_THRESHOLD_MAX 1.0f
 /** The work bound. A render is refused up front (RP_EINVAL, the message
  *  giving the count and the limit) when one ray may take more samples
- *  than RP_MAX_SAMPLES_PER_RAY (the volume's box diagonal, in voxels of
- *  its finest spacing, over the step), or the frame more than
- *  RP_MAX_SAMPLES_PER_FRAME (rays times that): a frame then takes at
- *  most minutes on a GPU, never unbounded time. Every ray loop also
- *  stops at RP_MAX_SAMPLES_PER_RAY. 2^24 samples is a 2^16-voxel axis
+ *  than RP_MAX_SAMPLES_PER_RAY: floor(D / step) + 1, D the volume's box
+ *  diagonal in voxels of its finest spacing; or the frame more than
+ *  RP_MAX_SAMPLES_PER_FRAME: the scaled image's rays times that. So a
+ *  volume whose spacings differ by 10^9 is refused here. A frame takes at
+ *  most minutes on a GPU, never unbounded time. The reference's and the
+ *  OpenCL kernel's ray loops also stop at RP_MAX_SAMPLES_PER_RAY. 2^24 samples is a 2^16-voxel axis
  *  at step 1/256; 2^38 is an 8192^2 image of a 1024^3 volume at step
  *  1/2. \since 0.12 */
 #define RP_MAX_SAMPLES_PER_RAY (1u << 24)
@@ -226,16 +228,20 @@ typedef struct rp_orientation {
 typedef struct rp_volume rp_volume;
 
 typedef struct rp_volume_desc {
-  uint32_t dims[3];      /* voxels along x, y, z; all must be >= 1 */
+  uint32_t dims[3];      /* voxels along x, y, z; each in
+                            [1, RP_VOLUME_MAX_DIM] */
   rp_voxel_type type;    /* required */
-  float spacing[3];      /* voxel size; 0: 1.0 */
+  float spacing[3];      /* voxel size, in [RP_SPACING_MIN,
+                            RP_SPACING_MAX]; 0: 1.0 */
   const void *data;      /* x fastest, native endianness; copied */
   rp_orientation orientation; /* all zero: not known. \since 0.11 */
 } rp_volume_desc;
 
 /** Creates a volume from memory (the voxels are copied; the caller keeps
- *  its buffer). Float volumes must hold no NaN or infinity.
- *  \since 0.1 */
+ *  its buffer). Float volumes must hold no NaN or infinity. RP_ERANGE
+ *  for dims or a spacing outside the Limits; RP_ENOMEM, saying how much
+ *  was asked, for more bytes than the machine has available (\since
+ *  0.12), before anything is allocated. \since 0.1 */
 RP_API int rp_volume_create(rp_context *ctx, const rp_volume_desc *desc,
                             rp_volume **out);
 
@@ -376,7 +382,8 @@ typedef enum rp_tf_range {
 typedef struct rp_tf_desc {
   const rp_tf_point *points; /* strictly increasing x; at least one */
   int count;
-  float reference_step;      /* Delta_0 in voxels; 0: 1.0 */
+  float reference_step;      /* Delta_0 in voxels, in [RP_STEP_MIN,
+                                RP_STEP_MAX]; 0: 1.0 */
   int lut_size;              /* entries; 0: 1024 (min 2, max 65536) */
   /* \since 0.11. With RP_TF_DATA the range is the points' own span in
    * data units and `range` must be RP_TF_RANGE_MINMAX (0). */
@@ -494,8 +501,12 @@ typedef struct rp_camera {
   float eye[3];
   float center[3];
   float up[3];         /* zero: +y (or +z when looking along y) */
-  float fov_y_deg;     /* perspective vertical field of view; 0: 40 */
-  float ortho_height;  /* orthographic view height; 0: bounding diameter */
+  float fov_y_deg;     /* perspective vertical field of view, in
+                          [RP_FOV_MIN_DEG, RP_FOV_MAX_DEG]; 0: 40 */
+  float ortho_height;  /* orthographic view height; 0: bounding diameter;
+                          else within RP_ORTHO_HEIGHT_MIN/MAX diameters.
+                          The eye lies within RP_CAMERA_DISTANCE_MAX
+                          diameters of the volume's centre. */
 } rp_camera;
 
 /** Anatomical views: where the eye is, seen from the patient. \since 0.11 */
@@ -560,12 +571,17 @@ typedef enum rp_jitter {
 } rp_jitter;
 
 typedef struct rp_render_desc {
-  uint32_t width, height;  /* output pixels; required */
-  float step;              /* Delta in voxels (finest spacing); 0: 1.0 */
+  uint32_t width, height;  /* output pixels; required; each at most
+                              RP_IMAGE_MAX_DIM, width x height at most
+                              RP_IMAGE_MAX_PIXELS */
+  float step;              /* Delta in voxels (finest spacing), in
+                              [RP_STEP_MIN, RP_STEP_MAX]; 0: 1.0 */
   uint32_t effects;        /* RP_EFFECT_* bits; 0: none */
-  float ert_threshold;     /* accumulated alpha to stop at; 0: 0.99 */
+  float ert_threshold;     /* accumulated alpha to stop at, in
+                              [RP_ERT_THRESHOLD_MIN, 1]; 0: 0.99 */
   float image_scale;       /* rays per output pixel along each axis, in
-                              (0, 1]; 0: 1. Rays form a scaled image of
+                              [RP_SCALE_MIN, 1]; 0: 1. Rays form a
+                              scaled image of
                               rp_scaled_size() pixels over the same
                               frustum; the output is upscaled from it. */
   rp_jitter jitter;        /* 0: on. \since 0.11 */
@@ -850,7 +866,9 @@ typedef enum rp_space {
   RP_SPACE_HYBRID = 2  /* both */
 } rp_space;
 
-/** Bounds of the tuning spaces; zero fields take the defaults. */
+/** Bounds of the tuning spaces; zero fields take the defaults. The steps
+ *  lie in [RP_STEP_MIN, RP_STEP_MAX] and min_scale at or above
+ *  RP_SCALE_MIN (rp_runtime_create refuses others with RP_ERANGE). */
 typedef struct rp_space_desc {
   rp_space space;
   float base_step;   /* step at rho = 1, voxels; 0: 1.0 */

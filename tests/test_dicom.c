@@ -585,6 +585,31 @@ static void test_volume_limit(void **state) {
   rp_context_destroy(ctx);
 }
 
+/* PixelSpacing outside RP_SPACING_MIN/MAX is refused before any pixel is
+ * read, naming the folder, the tag, the value and the range; the limit
+ * itself loads. */
+static void test_spacing_limits(void **state) {
+  rp_context *ctx = rp_test_context();
+  series s = oblique_ct();
+  const char *dir = fresh_dir("spacing");
+  const char *parts[] = {dir, "PixelSpacing (0028,0030) between columns",
+                         "is 1e-12", "[1e-09, 1e+09]", NULL};
+  rp_volume *vol;
+  rp_volume_info info;
+  (void)state;
+  s.ps[1] = 1e-12;
+  write_series(&s, dir);
+  expect_refused(ctx, dir, RP_ERANGE, parts);
+  s.ps[1] = 1e-9;
+  dir = fresh_dir("spacing_edge");
+  write_series(&s, dir);
+  vol = load_ok(ctx, dir);
+  rp_volume_get_info(vol, &info);
+  assert_true(info.spacing[0] == RP_SPACING_MIN);
+  rp_volume_destroy(vol);
+  rp_context_destroy(ctx);
+}
+
 int main(void) {
   const struct CMUnitTest tests[] = {
       cmocka_unit_test(test_oblique_ct_int16),
@@ -600,6 +625,7 @@ int main(void) {
       cmocka_unit_test(test_corrupt_rle),
       cmocka_unit_test(test_empty_and_foreign),
       cmocka_unit_test(test_volume_limit),
+      cmocka_unit_test(test_spacing_limits),
   };
   return cmocka_run_group_tests(tests, NULL, NULL);
 }

@@ -887,12 +887,12 @@ static const bad_case bad_cases[] = {
      RP_ENOTFINITE, "events[0].camera.azimuth: the number is too large "
      "for a double (it reads as -inf)"},
     {DOC("{\"frame\": 0, \"camera\": {\"distance\": 0}}"), RP_ERANGE,
-     "events[0].camera.distance: 0 is outside [0.0001, 20000] (bounding "
+     "events[0].camera.distance: 0 is outside [0.0001, 10000] (bounding "
      "radii; must be > 0)"},
     {DOC("{\"frame\": 0, \"camera\": {\"distance\": -2}}"), RP_ERANGE,
      "events[0].camera.distance: -2 is outside"},
     {DOC("{\"frame\": 0, \"camera\": {\"fov\": 180}}"), RP_ERANGE,
-     "events[0].camera.fov: 180 is outside [0.01, 170] (vertical field"},
+     "events[0].camera.fov: 180 is outside [0.01, 170]"},
     {DOC("{\"frame\": 0, \"camera\": {\"fov\": 0}}"), RP_ERANGE,
      "events[0].camera.fov: 0 is outside [0.01, 170]"},
     {DOC("{\"frame\": 0, \"camera\": {\"elevation\": 91}}"), RP_ERANGE,

@@ -578,6 +578,37 @@ static void test_nifti_real_ct(void **state) {
   rp_context_destroy(ctx);
 }
 
+/* A voxel size outside RP_SPACING_MIN/MAX, from pixdim or from an sform
+ * column, is refused naming the file, the field and the value; the
+ * limit itself loads. */
+static void test_nifti_spacing_limits(void **state) {
+  rp_context *ctx = rp_test_context();
+  nifti_image *nim = make_image(DT_UINT8, RP_U8, 1);
+  rp_volume *v;
+  rp_volume_info info;
+  (void)state;
+  nim->pixdim[2] = nim->dy = 1e-30;
+  rp_test_load_fails(ctx, write_image(nim, "nii_tiny.nii"), RP_ERANGE,
+                     "nii_tiny.nii", "pixdim", "axis 2", "1e-30",
+                     "[1e-09, 1e+09]", NULL);
+  nim->pixdim[2] = nim->dy = 1e-9;
+  v = rp_test_load_ok(ctx, write_image(nim, "nii_edge.nii"));
+  rp_volume_get_info(v, &info);
+  assert_true(info.spacing[1] == RP_SPACING_MIN);
+  rp_volume_destroy(v);
+  nim->pixdim[2] = nim->dy = 1.0;
+  nim->sform_code = NIFTI_XFORM_SCANNER_ANAT;
+  memset(&nim->sto_xyz, 0, sizeof nim->sto_xyz);
+  nim->sto_xyz.m[0][0] = 1e12;
+  nim->sto_xyz.m[1][1] = 1.0;
+  nim->sto_xyz.m[2][2] = 1.0;
+  nim->sto_xyz.m[3][3] = 1.0;
+  rp_test_load_fails(ctx, write_image(nim, "nii_huge.nii"), RP_ERANGE,
+                     "nii_huge.nii", "sform", "column 0", "1e+12", NULL);
+  nifti_image_free(nim);
+  rp_context_destroy(ctx);
+}
+
 int main(void) {
   const struct CMUnitTest tests[] = {
       cmocka_unit_test(test_nifti_types),
@@ -589,6 +620,7 @@ int main(void) {
       cmocka_unit_test(test_nifti2_handmade),
       cmocka_unit_test(test_nifti_malformed),
       cmocka_unit_test(test_nifti_limit),
+      cmocka_unit_test(test_nifti_spacing_limits),
       cmocka_unit_test(test_nifti_real_ct),
   };
   return cmocka_run_group_tests(tests, NULL, NULL);
