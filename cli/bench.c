@@ -67,19 +67,23 @@ static void usage_quality(FILE *f) {
           "each space reaches at equal time budgets.\n\n"
           "  --tf PRESET|FILE      transfer function: a preset or a file of\n"
           "                        'x r g b a' lines (default minmax-bone)\n"
-          "  --camera AZ,EL,DIST   orbit (default 30,20,2.5)\n"
-          "  --size WxH            output size (default 512x512)\n"
+          "  --camera AZ,EL,DIST   orbit, as in raypace render (default "
+          "30,20,2.5)\n"
+          "  --size WxH            output size, as in raypace render "
+          "(default\n                        512x512)\n"
           "  --backend NAME        opencl, vulkan or reference; default: the"
           "\n                        first with a device\n"
-          "  --device N            device index within the backend\n"
+          "  --device N            device index within the backend, 0..1024\n"
           "  --ref-backend NAME    render the reference on another backend\n"
           "                        (e.g. reference); default: the same device"
           "\n"
           "  --runs N              timed frames per setting, median reported"
-          "\n                        (default 5)\n"
-          "  --ref-step D          reference step in voxels (default 0.1;\n"
-          "                        0.05 with --sampling)\n"
-          "  --base-step D         step at rho = 1 (default 1)\n"
+          "\n                        1..1000 (default 5)\n"
+          "  --ref-step D          reference step in voxels, in [0.001,\n"
+          "                        10000] (default 0.1; 0.05 with "
+          "--sampling)\n"
+          "  --base-step D         step at rho = 1, in [0.001, 10000] "
+          "(default 1)\n"
           "  --shading             gradient shading\n"
           "  --csv FILE            write the sweep as CSV\n"
           "  --plot FILE           PNG of PSNR over time, one line per space"
@@ -93,7 +97,51 @@ static void usage_quality(FILE *f) {
           "                        mean of --frames jittered frames); the\n"
           "                        reference is neither jittered nor\n"
           "                        pre-integrated\n"
-          "  --frames N            jittered frames averaged (default 8)\n");
+          "  --frames N            jittered frames averaged, 1..256 (default "
+          "8)\n");
+}
+
+#define CMD "bench quality"
+
+/* An option of bench quality that takes a value, checked into o; 0 or
+ * 2 (printed). */
+static int quality_value(int c, const char *option, const char *arg,
+                         quality_opts *o) {
+  static const cli_range step = {RP_STEP_MIN, RP_STEP_MAX, 0, 0, "voxels"};
+  uint32_t v = 0;
+  switch (c) {
+  case 'c': return cli_parse_orbit(CMD, option, arg, o->orbit);
+  case 's': return cli_parse_size(CMD, option, arg, &o->width, &o->height);
+  case 'B': o->backend = arg; return cli_check_backend(CMD, arg);
+  case 'R':
+    o->ref_backend = arg;
+    return cli_check_backend(CMD, arg);
+  case 'D': return cli_parse_whole(CMD, option, arg, 0, 1024, &o->device);
+  case 'n':
+    if (cli_parse_whole(CMD, option, arg, 1, MAX_RUNS, &v) != 0)
+      return 2;
+    o->runs = (int)v;
+    return 0;
+  case 'r': return cli_parse_float(CMD, option, arg, &step, &o->ref_step);
+  case 'b': return cli_parse_float(CMD, option, arg, &step, &o->base_step);
+  default: return cli_parse_whole(CMD, option, arg, 1, 256, &o->frames);
+  }
+}
+
+/* The files bench quality writes and its MPI devices; 0 or 2 (printed). */
+static int quality_files(const quality_opts *o) {
+  static const char *const png[] = {".png", NULL};
+  if (o->csv != NULL && cli_check_output(CMD, "--csv", o->csv, NULL) != 0)
+    return 2;
+  if (o->backend != NULL && strcmp(o->backend, "mpi") == 0 &&
+      cli_check_mpi(CMD, "--backend", "mpi", o->device) != 0)
+    return 2;
+  if (o->ref_backend != NULL && strcmp(o->ref_backend, "mpi") == 0 &&
+      cli_check_mpi(CMD, "--ref-backend", "mpi", 0) != 0)
+    return 2;
+  if (o->plot != NULL && cli_check_output(CMD, "--plot", o->plot, png) != 0)
+    return 2;
+  return 0;
 }
 
 static int parse_quality(int argc, char **argv, quality_opts *o) {
@@ -127,46 +175,28 @@ static int parse_quality(int argc, char **argv, quality_opts *o) {
   o->frames = 8;
   optind = 1;
   while ((c = getopt_long(argc, argv, "h", opts, &li)) != -1) {
-    int bad = 0;
+    char option[40];
+    snprintf(option, sizeof option, "--%s", opts[li].name);
     switch (c) {
     case 't': o->tf = optarg; break;
-    case 'c': bad = cli_parse_floats(optarg, o->orbit, 3); break;
-    case 's':
-      bad = cli_parse_size(optarg, &o->width, &o->height);
-      have_size = 1;
-      break;
-    case 'B': o->backend = optarg; break;
-    case 'R': o->ref_backend = optarg; break;
-    case 'D': bad = cli_parse_u32(optarg, 1024, &o->device); break;
-    case 'n': {
-      uint32_t v = 0;
-      bad = cli_parse_u32(optarg, MAX_RUNS, &v) || v < 1;
-      o->runs = (int)v;
-      have_runs = 1;
-      break;
-    }
-    case 'r':
-      bad = cli_parse_positive(optarg, &o->ref_step);
-      have_ref_step = 1;
-      break;
-    case 'b': bad = cli_parse_positive(optarg, &o->base_step); break;
     case 'S': o->shading = 1; break;
     case 'C': o->csv = optarg; break;
     case 'P': o->plot = optarg; break;
     case 'j': o->json = 1; break;
     case 'q': o->quick = 1; break;
     case 'J': o->sampling = 1; break;
-    case 'F': bad = cli_parse_u32(optarg, 256, &o->frames) || o->frames < 1;
-      break;
     case 'h': usage_quality(stdout); return 1;
-    default: usage_quality(stderr); return 2;
-    }
-    if (bad) {
-      fprintf(stderr, "raypace bench quality: bad value '%s' for --%s\n",
-              optarg, opts[li].name);
-      return 2;
+    case '?': usage_quality(stderr); return 2;
+    default:
+      if (quality_value(c, option, optarg, o) != 0)
+        return 2;
+      have_size |= c == 's';
+      have_runs |= c == 'n';
+      have_ref_step |= c == 'r';
     }
   }
+  if (quality_files(o) != 0)
+    return 2;
   if (optind + 1 != argc) {
     usage_quality(stderr);
     return 2;
@@ -526,7 +556,10 @@ static int bench_quality(int argc, char **argv) {
     cli_error(b.ctx, "context", err);
     goto out;
   }
-  if (cli_open_volume(b.ctx, o.volume, &b.vol) != 0)
+  /* The reference's step is the finest the bench renders. */
+  if (cli_open_volume(b.ctx, o.volume, &b.vol) != 0 ||
+      cli_check_work(CMD, "--ref-step", b.vol, o.ref_step, o.width,
+                     o.height, 1.0f) != 0)
     goto out;
   {
     /* A preset or a TF file, as render takes them. */

@@ -107,21 +107,48 @@ static void usage_overhead(FILE *f) {
           "\na transfer function switch (%s / %s) every 10th and the volume"
           "\nposted again --loads times, and reports each stage's median and"
           "\nmaximum time and its share of the median frame time.\n\n"
-          "  --frames N            frames measured (default 60), after a\n"
-          "                        warm-up of %d to %d frames that ends when"
-          "\n                        the density settles\n"
+          "  --frames N            frames measured, 1..10000 (default 60),\n"
+          "                        after a warm-up of %d to %d frames that"
+          "\n                        ends when the density settles\n"
           "  --loads N             of those, how many post the volume again"
-          "\n                        (default 3)\n"
+          "\n                        0..100 (default 3)\n"
           "  --size WxH            output size (default 512x512)\n"
           "  --backend NAME        opencl, vulkan or reference; default: the"
           "\n                        first with a device\n"
-          "  --device N            device index within the backend\n"
+          "  --device N            device index within the backend, 0..1024\n"
           "  --controller NAME     frame-time controller (default predicted)"
           "\n"
-          "  --target-ms T         frame-time target (default 50)\n"
+          "  --target-ms T         frame-time target in ms, in (0, 60000]\n"
+          "                        (default 50)\n"
           "  --shading             gradient shading\n"
           "  --json                one JSON object on stdout\n",
           tf_names[0], tf_names[1], WARMUP_MIN, WARMUP_MAX);
+}
+
+#define CMD "bench overhead"
+
+/* An option of bench overhead that takes a value, checked into o; 0 or
+ * 2 (printed). */
+static int overhead_value(int c, const char *option, const char *arg,
+                          overhead_opts *o) {
+  /* The runtime's target range, rp_runtime_desc.target_ms. */
+  static const cli_range target = {0.0, 60000.0, CLI_OPEN_LO, 0, "ms"};
+  switch (c) {
+  case 'n': return cli_parse_whole(CMD, option, arg, 1, MAX_FRAMES,
+                                   &o->frames);
+  case 'l': return cli_parse_whole(CMD, option, arg, 0, MAX_LOADS,
+                                   &o->loads);
+  case 's': return cli_parse_size(CMD, option, arg, &o->width, &o->height);
+  case 'B': o->backend = arg; return cli_check_backend(CMD, arg);
+  case 'D': return cli_parse_whole(CMD, option, arg, 0, 1024, &o->device);
+  case 'c':
+    return rp_controller_from_name(arg, &o->controller) != 0
+               ? cli_bad_option(CMD, option, arg, "not a controller",
+                                "must be none, last-frame, two-pass, "
+                                "predicted, vtk, ue5 or valve")
+               : 0;
+  default: return cli_parse_float(CMD, option, arg, &target, &o->target_ms);
+  }
 }
 
 static int parse_overhead(int argc, char **argv, overhead_opts *o) {
@@ -146,36 +173,30 @@ static int parse_overhead(int argc, char **argv, overhead_opts *o) {
   o->target_ms = 50;
   optind = 1;
   while ((c = getopt_long(argc, argv, "h", opts, &li)) != -1) {
-    int bad = 0;
+    char option[40];
+    snprintf(option, sizeof option, "--%s", opts[li].name);
     switch (c) {
-    case 'n':
-      bad = cli_parse_u32(optarg, MAX_FRAMES, &o->frames) || o->frames < 1;
-      break;
-    case 'l': bad = cli_parse_u32(optarg, MAX_LOADS, &o->loads); break;
-    case 's': bad = cli_parse_size(optarg, &o->width, &o->height); break;
-    case 'B': o->backend = optarg; break;
-    case 'D': bad = cli_parse_u32(optarg, 1024, &o->device); break;
-    case 'c': bad = rp_controller_from_name(optarg, &o->controller); break;
-    case 't': bad = cli_parse_positive(optarg, &o->target_ms); break;
     case 'S': o->shading = 1; break;
     case 'j': o->json = 1; break;
     case 'h': usage_overhead(stdout); return 1;
-    default: usage_overhead(stderr); return 2;
-    }
-    if (bad) {
-      fprintf(stderr, "raypace bench overhead: bad value '%s' for --%s\n",
-              optarg, opts[li].name);
-      return 2;
+    case '?': usage_overhead(stderr); return 2;
+    default:
+      if (overhead_value(c, option, optarg, o) != 0)
+        return 2;
     }
   }
+  if (o->backend != NULL && strcmp(o->backend, "mpi") == 0 &&
+      cli_check_mpi(CMD, "--backend", "mpi", o->device) != 0)
+    return 2;
   if (optind + 1 != argc) {
     usage_overhead(stderr);
     return 2;
   }
   if (o->loads > o->frames) {
-    fprintf(stderr, "raypace bench overhead: --loads %u is more than "
-                    "--frames %u\n", o->loads, o->frames);
-    return 2;
+    char value[16];
+    snprintf(value, sizeof value, "%u", o->loads);
+    return cli_bad_option(CMD, "--loads", value, "more than --frames",
+                          "must be at most --frames (%u)", o->frames);
   }
   o->volume = argv[optind];
   return 0;

@@ -273,6 +273,18 @@ static int check_pareto(const pacing_opts *o) {
   return 0;
 }
 
+/* The options passed to each replay, checked as replay checks them
+ * before the first run; and --plot. 0 or 2 (printed). */
+static int check_passed(const pacing_opts *o) {
+  static const char *const png[] = {".png", NULL};
+  char *args[CLI_PACING_MAX_ARGS];
+  int n = cli_pacing_args(o, o->seqs[0], "all", NULL, 0, args);
+  if (o->plot != NULL &&
+      cli_check_output("bench pacing", "--plot", o->plot, png) != 0)
+    return 2;
+  return cli_replay_check("bench pacing", n, args);
+}
+
 /* 0, 1 after --help (printed), or 2 (printed). */
 static int parse_opts(int argc, char **argv, pacing_opts *o) {
   static const struct option opts[] = {
@@ -315,11 +327,9 @@ static int parse_opts(int argc, char **argv, pacing_opts *o) {
       strcpy(o->seq_list, optarg);
       break;
     case 'r':
-      if (cli_parse_u32(optarg, MAX_RUNS, &o->runs) != 0 || o->runs == 0) {
-        fprintf(stderr, "raypace bench pacing: bad value '%s' for --runs "
-                        "(1..%d)\n", optarg, MAX_RUNS);
+      if (cli_parse_whole("bench pacing", "--runs", optarg, 1, MAX_RUNS,
+                          &o->runs) != 0)
         return 2;
-      }
       break;
     case 'j': o->json = 1; break;
     case 'Q': o->quiet = 1; break;
@@ -350,9 +360,9 @@ static int parse_opts(int argc, char **argv, pacing_opts *o) {
   }
   /* Each replay parses its own options: optind is not ours after. */
   o->volume = argv[optind];
-  if (check_pareto(o) != 0)
+  if (check_pareto(o) != 0 || sequences_of(o) != 0)
     return 2;
-  return sequences_of(o);
+  return check_passed(o);
 }
 
 int cli_pacing_args(const pacing_opts *o, const char *seq,

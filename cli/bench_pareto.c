@@ -137,8 +137,6 @@ static int parse_settings(const char *list, const char *option,
   for (;;) {
     size_t len = strcspn(p, ",");
     setting *s = &out[*n];
-    float v = 0.0f;
-    int bad;
     if (*n == MAX_SET || len == 0 || len >= sizeof s->text) {
       fprintf(stderr, "raypace bench pacing: %s '%s': %s\n", option, list,
               *n == MAX_SET ? "more than 16 settings"
@@ -150,18 +148,21 @@ static int parse_settings(const char *list, const char *option,
     s->text[len] = '\0';
     if (strcmp(s->text, headroom ? "default" : "none") == 0) {
       s->value = headroom ? 0.0 : -1.0;
-      bad = 0;
     } else {
-      bad = cli_parse_positive(s->text, &v) ||
-            v > (headroom ? 0.9f : 0.5f);
+      /* replay's ranges for --headroom and --miss-rate. */
+      cli_range r = {0.0, 0.5, CLI_OPEN_LO, 0, "of the frames"};
+      const char *problem;
+      char what[320], want[96];
+      if (headroom)
+        r.hi = 0.9, r.unit = "of the target";
       /* As typed, not as the float replay parses it to: the JSON's. */
-      s->value = strtod(s->text, NULL);
-    }
-    if (bad) {
-      fprintf(stderr, "raypace bench pacing: bad value '%s' in %s (%s)\n",
-              s->text, option, headroom ? "'default' or in (0, 0.9]"
-                                        : "'none' or in (0, 0.5]");
-      return 2;
+      if ((problem = cli_number_problem(s->text, &r, &s->value)) != NULL) {
+        snprintf(what, sizeof what, "%s %s:", option, list);
+        cli_range_text(&r, want, sizeof want);
+        return cli_bad_option("bench pacing", what, s->text, problem,
+                              "must be %s, or %s", want,
+                              headroom ? "default" : "none");
+      }
     }
     (*n)++;
     if (p[len] == '\0')

@@ -1,6 +1,8 @@
 #include "cli_util.h"
 
 #include <cjson/cJSON.h>
+#include <ctype.h>
+#include <errno.h>
 #include <math.h>
 #include <signal.h>
 #include <stdio.h>
@@ -23,127 +25,118 @@ double cli_now(void) {
   return (double)ts.tv_sec + ts.tv_nsec * 1e-9;
 }
 
-int cli_parse_size(const char *s, uint32_t *w, uint32_t *h) {
-  unsigned long a, b;
-  char *end;
-  a = strtoul(s, &end, 10);
-  if (end == s || (*end != 'x' && *end != 'X'))
-    return -1;
-  s = end + 1;
-  b = strtoul(s, &end, 10);
-  if (end == s || *end != '\0' || a < 1 || b < 1 || a > 16384 || b > 16384)
-    return -1;
-  *w = (uint32_t)a;
-  *h = (uint32_t)b;
-  return 0;
+/* The number `tok` of generator spec `spec` as field `what` in lo..hi;
+ * 0, or 1 with the error printed. */
+static int generator_number(const char *spec, const char *what,
+                            const char *tok, uint32_t lo, uint32_t hi,
+                            uint32_t *out) {
+  char option[320];
+  snprintf(option, sizeof option, "%s: %s", spec, what);
+  return cli_parse_whole(NULL, option, tok, lo, hi, out) != 0;
 }
 
-int cli_parse_u32(const char *s, uint32_t max, uint32_t *out) {
-  char *end;
-  unsigned long v = strtoul(s, &end, 10);
-  if (end == s || *end != '\0' || v > max || s[0] == '-')
-    return -1;
-  *out = (uint32_t)v;
-  return 0;
-}
-
-int cli_parse_floats(const char *s, float *out, int n) {
-  int i;
-  for (i = 0; i < n; i++) {
-    char *end;
-    double v = strtod(s, &end);
-    /* Checked after the cast too: 1e-50 would become 0 (which the library
-     * reads as "default") and 1e39 infinity. */
-    if (end == s || !isfinite(v) || !isfinite((float)v) ||
-        (v != 0.0 && (float)v == 0.0f))
-      return -1;
-    out[i] = (float)v;
-    s = end;
-    if (i + 1 < n) {
-      if (*s != ',')
-        return -1;
-      s++;
+/* A generator spec's size field, N or XxYxZ, each in 1..RP_VOLUME_MAX_DIM;
+ * 0, or 1 with the error printed. */
+static int generator_dims(const char *spec, const char *tok,
+                          uint32_t dims[3]) {
+  char buf[64], *p = buf, *x;
+  int a;
+  if (strchr(tok, 'x') == NULL) {
+    if (generator_number(spec, "size N", tok, 1, RP_VOLUME_MAX_DIM,
+                         &dims[0]) != 0)
+      return 1;
+    dims[1] = dims[2] = dims[0];
+    return 0;
+  }
+  if (strlen(tok) >= sizeof buf)
+    return cli_bad_option(NULL, spec, NULL, "a size too long",
+                          "must be XxYxZ") != 0;
+  strcpy(buf, tok);
+  for (a = 0; a < 3; a++, p = x + 1) {
+    static const char *const names[] = {"size X", "size Y", "size Z"};
+    x = strchr(p, 'x');
+    if ((x == NULL) != (a == 2)) {
+      char problem[96];
+      snprintf(problem, sizeof problem, "'%s', not XxYxZ", tok);
+      return cli_bad_option(NULL, spec, NULL, problem, "must be three "
+                            "sizes joined by x, each in 1..%u",
+                            (unsigned)RP_VOLUME_MAX_DIM) != 0;
     }
+    if (x != NULL)
+      *x = '\0';
+    if (generator_number(spec, names[a], p, 1, RP_VOLUME_MAX_DIM,
+                         &dims[a]) != 0)
+      return 1;
   }
-  return *s == '\0' ? 0 : -1;
-}
-
-int cli_parse_positive(const char *s, float *out) {
-  float v;
-  if (cli_parse_floats(s, &v, 1) != 0 || !(v > 0.0f))
-    return -1;
-  *out = v;
   return 0;
 }
 
-static int parse_generator(rp_context *ctx, const char *spec,
-                           rp_volume **out) {
-  rp_generate_desc d = {0};
+/* gen:KIND[:N|:XxYxZ][:u8|u16][:SEED] into d; 0, or 1 with the error
+ * printed, naming the spec and its field. */
+static int parse_generator(const char *spec, rp_generate_desc *d) {
+  static const char form[] = "gen:KIND[:N|:XxYxZ][:u8|u16][:SEED]";
   char buf[256], *tok, *save = NULL;
-  int field = 0, err;
-  if (strlen(spec) >= sizeof buf) {
-    fprintf(stderr, "raypace: generator spec too long\n");
-    return 1;
-  }
+  int field = 0;
+  if (strlen(spec) >= sizeof buf)
+    return cli_bad_option(NULL, "generator spec", NULL, "too long",
+                          "must be %s", form) != 0;
   strcpy(buf, spec + 4);
-  d.dims[0] = d.dims[1] = d.dims[2] = 128;
-  d.type = RP_U8;
-  d.seed = 1;
+  d->dims[0] = d->dims[1] = d->dims[2] = 128;
+  d->type = RP_U8;
+  d->seed = 1;
   for (tok = strtok_r(buf, ":", &save); tok != NULL;
        tok = strtok_r(NULL, ":", &save), field++) {
-    unsigned x, y, z;
-    char extra;
+    uint32_t seed;
     if (field == 0) {
       if (strcmp(tok, "ml") == 0 || strcmp(tok, "marschner-lobb") == 0)
-        d.kind = RP_GEN_MARSCHNER_LOBB;
+        d->kind = RP_GEN_MARSCHNER_LOBB;
       else if (strcmp(tok, "phantom") == 0)
-        d.kind = RP_GEN_PHANTOM;
+        d->kind = RP_GEN_PHANTOM;
       else if (strcmp(tok, "noise") == 0)
-        d.kind = RP_GEN_NOISE;
+        d->kind = RP_GEN_NOISE;
       else if (strcmp(tok, "ct") == 0) {
-        d.kind = RP_GEN_CT_HEAD;
-        d.type = RP_S16;
+        d->kind = RP_GEN_CT_HEAD;
+        d->type = RP_S16;
       } else {
-        fprintf(stderr, "raypace: generator '%s' is unknown (ml, phantom, "
-                        "noise, ct)\n", tok);
-        return 1;
+        char option[320];
+        snprintf(option, sizeof option, "%s: generator", spec);
+        return cli_bad_option(NULL, option, tok, "unknown", "must be ml, "
+                              "phantom, noise or ct (%s)", form) != 0;
       }
-    } else if (sscanf(tok, "%ux%ux%u%c", &x, &y, &z, &extra) == 3) {
-      d.dims[0] = x, d.dims[1] = y, d.dims[2] = z;
-    } else if (sscanf(tok, "%u%c", &x, &extra) == 1 && field == 1) {
-      d.dims[0] = d.dims[1] = d.dims[2] = x;
     } else if (strcmp(tok, "u8") == 0) {
-      d.type = RP_U8;
+      d->type = RP_U8;
     } else if (strcmp(tok, "u16") == 0) {
-      d.type = RP_U16;
-    } else if (sscanf(tok, "%u%c", &x, &extra) == 1) {
-      d.seed = x;
+      d->type = RP_U16;
+    } else if (field == 1 || strchr(tok, 'x') != NULL) {
+      if (generator_dims(spec, tok, d->dims) != 0)
+        return 1;
+    } else if (isdigit((unsigned char)tok[0]) || tok[0] == '-' ||
+               tok[0] == '+') {
+      if (generator_number(spec, "seed", tok, 0, UINT32_MAX, &seed) != 0)
+        return 1;
+      d->seed = seed;
     } else {
-      fprintf(stderr, "raypace: generator field '%s' is not XxYxZ, u8, "
-                      "u16 or a seed\n", tok);
-      return 1;
+      char option[320];
+      snprintf(option, sizeof option, "%s: field", spec);
+      return cli_bad_option(NULL, option, tok, "unknown", "must be N or "
+                            "XxYxZ (the size), u8, u16 or a seed (%s)",
+                            form) != 0;
     }
   }
-  err = rp_volume_generate(ctx, &d, out);
-  return err != 0 ? cli_error(ctx, spec, err) : 0;
+  return 0;
 }
 
 int cli_open_volume(rp_context *ctx, const char *spec, rp_volume **out) {
+  rp_generate_desc d = {0};
   int err;
-  if (strncmp(spec, "gen:", 4) == 0)
-    return parse_generator(ctx, spec, out);
-  err = rp_volume_load(ctx, spec, out);
+  if (strncmp(spec, "gen:", 4) == 0) {
+    if (parse_generator(spec, &d) != 0)
+      return 1;
+    err = rp_volume_generate(ctx, &d, out);
+  } else {
+    err = rp_volume_load(ctx, spec, out);
+  }
   return err != 0 ? cli_error(ctx, spec, err) : 0;
-}
-
-int cli_parse_budget_mb(const char *s, uint64_t *bytes) {
-  char *end;
-  double mb = strtod(s, &end);
-  /* Up to a petabyte: beyond any device, and exact in a double. */
-  if (end == s || *end != '\0' || !(mb > 0.0 && mb <= 1e9))
-    return 1;
-  *bytes = (uint64_t)(mb * 1048576.0);
-  return *bytes == 0;
 }
 
 void cli_print_bricks(const rp_device *dev, const char *prefix) {
@@ -160,9 +153,34 @@ void cli_print_bricks(const rp_device *dev, const char *prefix) {
          st.last_upload_ns * 1e-6);
 }
 
+/* What the user typed for the device that failed with err, for the
+ * message: the backend and index for a device that is not there, the
+ * memory options too for any other failure. */
+static void device_what(char *buf, size_t n, const char *option,
+                        const char *backend, uint32_t index,
+                        const cli_memory *mem, int err) {
+  size_t len = 0;
+  buf[0] = '\0';
+  if (backend != NULL)
+    len += (size_t)snprintf(buf + len, n - len, "%s %s", option, backend);
+  if (index != 0 && len < n)
+    len += (size_t)snprintf(buf + len, n - len, "%s--device %u",
+                            len ? " " : "", index);
+  if (err != RP_ENODEV && mem != NULL && mem->budget_arg != NULL &&
+      len < n)
+    len += (size_t)snprintf(buf + len, n - len, "%s--budget-mb %s",
+                            len ? " " : "", mem->budget_arg);
+  if (err != RP_ENODEV && mem != NULL && mem->brick_size != 0 && len < n)
+    len += (size_t)snprintf(buf + len, n - len, "%s--brick-size %u",
+                            len ? " " : "", mem->brick_size);
+  if (len == 0)
+    snprintf(buf, n, "device (the first with a driver)");
+}
+
 int cli_open_device(rp_context *ctx, const char *option, const char *backend,
                     uint32_t index, const cli_memory *mem, rp_device **dev) {
   rp_device_desc dd = {0};
+  char what[512];
   int err;
   dd.backend = backend;
   dd.index = index;
@@ -178,7 +196,10 @@ int cli_open_device(rp_context *ctx, const char *option, const char *backend,
     dd.budget_bytes = 0; /* the reference holds the whole volume */
     err = rp_device_create(ctx, &dd, dev);
   }
-  return err != 0 ? cli_error(ctx, option, err) : 0;
+  if (err == 0)
+    return 0;
+  device_what(what, sizeof what, option, backend, index, mem, err);
+  return cli_error(ctx, what, err);
 }
 
 /* The key=value fields of a device spec, in the order of this list. */
@@ -192,32 +213,29 @@ static int parse_device_field(const char *option, const char *tok,
                               size_t key, const char *v, const char *s,
                               int len, rp_device_desc *d,
                               cli_device_ext *ext) {
-  static const char *const wants[] = {
-      "compute units must be a number in 1..65536",
-      "slowdown must be a number in [1, 10000]",
-      "fail must be the render (from 1) to fail at, or 0",
-      "seed must be a number in 0..4294967295",
-      "noise must be a number in [0, 1] (0: none)"};
-  uint32_t u = 0;
-  char *end;
-  double x = strtod(v, &end);
-  int bad = 0;
+  static const cli_range ranges[] = {
+      {1, 65536, 0, 1, "(compute units of a sub-device)"},
+      {1, 10000, 0, 0, "(times slower)"},
+      {0, UINT32_MAX, 0, 1, "(the render to fail at, from 1; 0: never)"},
+      {0, UINT32_MAX, 0, 1, NULL},
+      {0, 1, 0, 0, "(the log-normal sd of device times; 0: none)"}};
+  char what[200], want[160];
+  const char *problem;
+  double x = 0.0;
+  uint32_t u;
   if (key >= 3 && strcmp(d->backend, "test") != 0) {
     fprintf(stderr, "raypace: %s: '%s' in '%.*s' is for backend test "
                     "only\n", option, tok, len, s);
     return RP_EINVAL;
   }
-  if (key == 0 || key == 2 || key == 3)
-    bad = cli_parse_u32(v, key == 0 ? 65536 : UINT32_MAX, &u) != 0 ||
-          (key == 0 && u == 0);
-  else
-    bad = end == v || *end != '\0' ||
-          !(key == 1 ? x >= 1.0 && x <= 10000.0 : x >= 0.0 && x <= 1.0);
-  if (bad) {
-    fprintf(stderr, "raypace: %s: '%s' in '%.*s': %s\n", option, tok, len,
-            s, wants[key]);
+  if ((problem = cli_number_problem(v, &ranges[key], &x)) != NULL) {
+    snprintf(what, sizeof what, "%s %.*s: %s", option, len, s,
+             device_keys[key]);
+    cli_range_text(&ranges[key], want, sizeof want);
+    cli_bad_option(NULL, what, v, problem, "must be %s", want);
     return RP_EINVAL;
   }
+  u = (uint32_t)x;
   switch (key) {
   case 0: d->compute_units = u; break;
   case 1: ext->faults.slowdown = x; break;
@@ -294,9 +312,11 @@ static int parse_device(const char *option, const char *s, size_t len,
       continue;
     }
     if (eq == NULL && field == 1) {
-      if (cli_parse_u32(tok, 1024, &d->index) != 0) {
-        fprintf(stderr, "raypace: %s: device index '%s' in '%.*s' is not a "
-                        "number in 0..1024\n", option, tok, (int)len, s);
+      if (cli_whole(tok, 0, 1024, &d->index) != 0) {
+        char what[200];
+        snprintf(what, sizeof what, "%s %.*s: index", option, (int)len, s);
+        cli_bad_option(NULL, what, tok, "not a device index",
+                       "must be a whole number in 0..1024");
         return RP_EINVAL;
       }
       continue;
@@ -502,18 +522,6 @@ int cli_make_tf(rp_context *ctx, const rp_volume *vol, const cli_tf *tf,
   return err != 0 ? cli_error(ctx, "--window/--level", err) : 0;
 }
 
-int cli_parse_window(cli_tf *tf, int is_width, const char *s) {
-  char *end;
-  double v = strtod(s, &end);
-  if (end == s || *end != '\0' || !isfinite(v) || (is_width && !(v > 0.0)))
-    return 1;
-  if (is_width)
-    tf->window = v, tf->windowed |= 1;
-  else
-    tf->level = v, tf->windowed |= 2;
-  return 0;
-}
-
 int cli_print_json(cJSON *root) {
   char *text = cJSON_Print(root);
   int ok = text != NULL;
@@ -522,4 +530,33 @@ int cli_print_json(cJSON *root) {
   free(text);
   cJSON_Delete(root);
   return ok ? 0 : 1;
+}
+
+int cli_write_ppm(const char *path, const uint8_t *rgba, uint32_t width,
+                  uint32_t height, const float background[3]) {
+  FILE *f = fopen(path, "wb");
+  size_t i, n = (size_t)width * height;
+  int c, ok;
+  if (f == NULL) {
+    fprintf(stderr, "raypace: %s: cannot write: %s\n", path,
+            strerror(errno));
+    return 1;
+  }
+  fprintf(f, "P6\n%u %u\n255\n", width, height);
+  /* out = C + (1 - A) bg on the 0..255 scale, as rp_write_png. */
+  for (i = 0; i < n; i++) {
+    const uint8_t *px = rgba + 4 * i;
+    for (c = 0; c < 3; c++) {
+      double v = px[c] + (255.0 - px[3]) * background[c];
+      fputc((int)floor((v > 255.0 ? 255.0 : v) + 0.5), f);
+    }
+  }
+  ok = !ferror(f);
+  ok = fclose(f) == 0 && ok;
+  if (!ok) {
+    fprintf(stderr, "raypace: %s: write failed: %s\n", path,
+            strerror(errno));
+    remove(path);
+  }
+  return !ok;
 }

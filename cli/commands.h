@@ -60,6 +60,10 @@ typedef struct cli_replay_point {
  * before the summaries); returns the command's exit status. */
 int cli_replay_points(int argc, char **argv, cli_replay_point *points,
                       int *n);
+/* Parses `raypace replay`'s options in argv (argv[0] = "replay") and
+ * checks them as a replay would, doing nothing else; the messages name
+ * `cmd` ("bench pacing", which passes options on). 0, or 2 (printed). */
+int cli_replay_check(const char *cmd, int argc, char **argv);
 /* raypace bench pacing VOLUME ...: cli/bench_pacing.c */
 int cli_cmd_bench_pacing(int argc, char **argv);
 /* raypace bench quality VOLUME ...: cli/bench.c */

@@ -10,6 +10,7 @@
 #include <string.h>
 
 #include "cli_util.h"
+#include "render_opts.h"
 #include "raypace_ao.h"
 #include "commands.h"
 #include "raypace.h"
@@ -56,99 +57,6 @@ static void usage_info(FILE *f) {
           "  --json         one JSON object on stdout\n");
 }
 
-static void usage_render(FILE *f) {
-  const char *const *p;
-  fprintf(f,
-          "usage: raypace render VOLUME -o OUT.png [options]\n\n"
-          "  --tf PRESET|FILE      transfer function: a preset (below) or a\n"
-          "                        file of 'x r g b a' lines (rp_tf_load);\n"
-          "                        default ct-bone for signed (HU) data,\n"
-          "                        else minmax-bone\n"
-          "  --window W --level L  place the TF on [L - W/2, L + W/2] in\n"
-          "                        data units (HU for CT)\n"
-          "  --view NAME           anterior, posterior, left, right,\n"
-          "                        superior or inferior (superior up; the\n"
-          "                        default, anterior, for a volume whose\n"
-          "                        file gives its orientation)\n"
-          "  --camera AZ,EL,DIST   orbit: azimuth and elevation in degrees,\n"
-          "                        distance in bounding radii (default "
-          "30,20,2.5)\n"
-          "  --ortho               orthographic projection\n"
-          "  --fov DEG             vertical field of view (default 40)\n"
-          "  --size WxH            image size (default 512x512)\n"
-          "  --step D              sample step in voxels (default 1)\n"
-          "  --no-shading          no gradient shading (on by default)\n"
-          "  --shading             accepted for older scripts\n"
-          "  --ao                  ambient occlusion (computed first, on the\n"
-          "                        rendering device(s), with a progress bar)\n"
-          "  --ao-scheme NAME      with --devices: dynamic (default), static\n"
-          "                        or naive\n"
-          "  --no-ert              no early ray termination\n"
-          "  --no-skip             no empty-space skipping\n"
-          "  --preint              pre-integrated classification: each\n"
-          "                        sample takes the segment from the one\n"
-          "                        before, so a coarse --step keeps thin,\n"
-          "                        steep features (docs/sampling.md)\n"
-          "  --ert-threshold A     stop rays at this opacity (default 0.99)"
-          "\n"
-          "  --no-jitter           no per-pixel jitter of the ray starts\n"
-          "                        (every ray's samples on one lattice from\n"
-          "                        the box entry: rings on surfaces)\n"
-          "  --seed N              jitter seed, 1 to 4294967295 (default:\n"
-          "                        the library's)\n"
-          "  --background R,G,B    PNG background in [0,1] (default 0,0,0)\n"
-          "  --backend NAME        opencl, vulkan, reference (the scalar\n"
-          "                        oracle), test (the reference's image, a\n"
-          "                        device time from a formula: testing) or\n"
-          "                        mpi (under mpirun: device N is rank\n"
-          "                        N + 1's); default: the first with a\n"
-          "                        device (never reference, test or mpi)\n"
-          "  --device N            device index within the backend (default "
-          "0)\n"
-          "  --scale S             image scale in (0, 1]: rays per output\n"
-          "                        pixel per axis (default 1)\n"
-          "  --devices LIST        render on several devices at once, the\n"
-          "                        image split by predicted cost (not with\n"
-          "                        --backend/--device); LIST is SPEC[,SPEC.."
-          ".],\n"
-          "                        SPEC BACKEND[:INDEX][:cu=N][:slow=S]"
-          "[:fail=F]\n"
-          "                        [:seed=N][:noise=X]:\n"
-          "                        cu a sub-device of N compute units (the\n"
-          "                        first part of an equal split: two cu=1\n"
-          "                        share one core; opencl:1 and opencl:2\n"
-          "                        are PoCL's two one-core parts), slow a\n"
-          "                        device S times slower, fail the render "
-          "it\n"
-          "                        fails at (testing device loss), seed\n"
-          "                        and noise the test backend's noise\n"
-          "                        (0: none; default 0.02); mpi:I is\n"
-          "                        MPI rank I + 1 under mpirun (rank 0 runs\n"
-          "                        the command, the others serve devices)\n"
-          "  --overlay-split       with --devices: tint each device's region"
-          "\n"
-          "                        in its own colour, 1-pixel borders\n"
-          "  --warmup N            render N frames first (with --devices: "
-          "the\n"
-          "                        devices' costs are learned from them, so"
-          "\n"
-          "                        the shares follow their speeds; default "
-          "0)\n"
-          "  --budget-mb MB        device memory the volume may take; a\n"
-          "                        larger volume is rendered out of core,\n"
-          "                        from bricks (default: the device's "
-          "largest\n"
-          "                        buffer)\n"
-          "  --brick-size N        out-of-core brick edge in voxels, a power"
-          "\n"
-          "                        of two in [8, 256] (default 16)\n"
-          "  --json                print a JSON summary on stdout\n\n"
-          "presets:");
-  for (p = rp_tf_preset_names(); *p != NULL; p++)
-    fprintf(f, " %s", *p);
-  fprintf(f, "\n");
-}
-
 static cJSON *json_u32s(const uint32_t *v, int n) {
   cJSON *a = cJSON_CreateArray();
   int i;
@@ -169,18 +77,22 @@ typedef struct scene {
   double histogram_s, occupancy_s; /* how long H and the occupancy took */
 } scene;
 
-/* Builds `sc`; 0, or 1 with the error printed. `h_what` names a failure
- * to build H in the message (the commands have always named it
- * differently). scene_close frees what was built, either way. */
-static int scene_open(scene *sc, const char *volume, const cli_tf *tf,
-                      const char *h_what) {
-  double t0;
+/* The context and the volume of `sc`; 0, or 1 with the error printed.
+ * scene_close frees what was made, either way. */
+static int scene_load(scene *sc, const char *volume) {
   int err;
   memset(sc, 0, sizeof *sc);
   if ((err = rp_context_create(NULL, &sc->ctx)) != 0)
     return cli_error(sc->ctx, "context", err);
-  if (cli_open_volume(sc->ctx, volume, &sc->vol) != 0)
-    return 1;
+  return cli_open_volume(sc->ctx, volume, &sc->vol);
+}
+
+/* The rest of `sc` on its volume: the TF, H and the occupancy; 0, or 1
+ * with the error printed. `h_what` names a failure to build H in the
+ * message (the commands have always named it differently). */
+static int scene_build(scene *sc, const cli_tf *tf, const char *h_what) {
+  double t0;
+  int err;
   if (cli_make_tf(sc->ctx, sc->vol, tf, &sc->tf) != 0)
     return 1;
   t0 = cli_now();
@@ -226,11 +138,8 @@ static int parse_info(int argc, char **argv, info_opts *o) {
     case 't': o->tfo.spec = optarg; break;
     case 'W':
     case 'l':
-      if (cli_parse_window(&o->tfo, c == 'W', optarg) != 0) {
-        fprintf(stderr, "raypace info: bad value '%s' for --%s\n", optarg,
-                opts[li].name);
+      if (cli_parse_window("info", &o->tfo, c == 'W', optarg) != 0)
         return 2;
-      }
       break;
     case 'H': o->hist = 1; break;
     case 'j': o->json = 1; break;
@@ -364,7 +273,8 @@ static int cmd_info(int argc, char **argv) {
   int rc;
   if ((rc = parse_info(argc, argv, &o)) != 0)
     return rc == 1 ? 0 : rc;
-  if ((rc = scene_open(&sc, o.volume, &o.tfo, "histograms")) == 0) {
+  if ((rc = scene_load(&sc, o.volume)) == 0 &&
+      (rc = scene_build(&sc, &o.tfo, "histograms")) == 0) {
     o.tf = cli_tf_name(sc.vol, &o.tfo);
     rc = o.json ? info_json(&o, &sc) : info_text(&o, &sc);
   }
@@ -374,166 +284,6 @@ static int cmd_info(int argc, char **argv) {
 
 /* ---- render -------------------------------------------------------------- */
 
-typedef struct render_opts {
-  const char *volume, *out, *tf, *backend; /* tf: set with the volume */
-  cli_tf tfo;
-  const char *view; /* an rp_view name; NULL: anterior for a volume whose
-                       orientation is known, else the orbit */
-  int orbit_given;
-  float orbit[3], background[3], fov, step, ert_threshold, scale;
-  uint32_t device;
-  uint32_t width, height;
-  int ortho, shading, ert, skip, json, ao, no_jitter, preint;
-  uint32_t seed;
-  int device_given, overlay;
-  rp_ao_scheme ao_scheme;
-  uint32_t warmup;
-  const char *devices_spec;
-  rp_device_desc devices[RP_GROUP_MAX_DEVICES];
-  cli_device_ext device_ext[RP_GROUP_MAX_DEVICES]; /* devices[i].next */
-  uint32_t ndevices;
-  cli_memory mem;
-} render_opts;
-
-static int parse_render(int argc, char **argv, render_opts *o) {
-  static const struct option opts[] = {
-      {"tf", required_argument, 0, 't'},
-      {"window", required_argument, 0, 'W'},
-      {"level", required_argument, 0, 'l'},
-      {"view", required_argument, 0, 'v'},
-      {"no-shading", no_argument, 0, 'n'},
-      {"camera", required_argument, 0, 'c'},
-      {"ortho", no_argument, 0, 'O'},
-      {"fov", required_argument, 0, 'f'},
-      {"size", required_argument, 0, 's'},
-      {"step", required_argument, 0, 'd'},
-      {"shading", no_argument, 0, 'S'},
-      {"ao", no_argument, 0, 'A'},
-      {"ao-scheme", required_argument, 0, 'C'},
-      {"no-ert", no_argument, 0, 'E'},
-      {"no-skip", no_argument, 0, 'K'},
-      {"preint", no_argument, 0, 'P'},
-      {"ert-threshold", required_argument, 0, 'a'},
-      {"no-jitter", no_argument, 0, 'J'},
-      {"seed", required_argument, 0, 'N'},
-      {"background", required_argument, 0, 'b'},
-      {"backend", required_argument, 0, 'B'},
-      {"device", required_argument, 0, 'D'},
-      {"scale", required_argument, 0, 'x'},
-      {"devices", required_argument, 0, 'L'},
-      {"overlay-split", no_argument, 0, 'V'},
-      {"warmup", required_argument, 0, 'w'},
-      {"json", no_argument, 0, 'j'},
-      {"budget-mb", required_argument, 0, 'M'},
-      {"brick-size", required_argument, 0, 'Z'},
-      {"output", required_argument, 0, 'o'},
-      {"help", no_argument, 0, 'h'},
-      {0, 0, 0, 0}};
-  int c, li = 0;
-  memset(o, 0, sizeof *o);
-  o->backend = NULL;
-  o->orbit[0] = 30, o->orbit[1] = 20, o->orbit[2] = 2.5f;
-  o->width = o->height = 512;
-  o->ert = o->skip = 1;
-  o->shading = 1;
-  optind = 1;
-  while ((c = getopt_long(argc, argv, "ho:", opts, &li)) != -1) {
-    int bad = 0;
-    switch (c) {
-    case 't': o->tfo.spec = optarg; break;
-    case 'W':
-    case 'l': bad = cli_parse_window(&o->tfo, c == 'W', optarg); break;
-    case 'v':
-      o->view = optarg;
-      bad = rp_view_from_name(optarg) == 0;
-      break;
-    case 'n': o->shading = 0; break;
-    case 'c':
-      bad = cli_parse_floats(optarg, o->orbit, 3);
-      o->orbit_given = 1;
-      break;
-    case 'O': o->ortho = 1; break;
-    case 'f': bad = cli_parse_positive(optarg, &o->fov); break;
-    case 's': bad = cli_parse_size(optarg, &o->width, &o->height); break;
-    case 'd': bad = cli_parse_positive(optarg, &o->step); break;
-    case 'S': o->shading = 1; break;
-    case 'A': o->ao = 1; break;
-    case 'C':
-      if (strcmp(optarg, "dynamic") == 0)
-        o->ao_scheme = RP_AO_DYNAMIC;
-      else if (strcmp(optarg, "static") == 0)
-        o->ao_scheme = RP_AO_STATIC;
-      else if (strcmp(optarg, "naive") == 0)
-        o->ao_scheme = RP_AO_STATIC_NAIVE;
-      else
-        bad = 1;
-      break;
-    case 'E': o->ert = 0; break;
-    case 'K': o->skip = 0; break;
-    case 'P': o->preint = 1; break;
-    case 'a': bad = cli_parse_positive(optarg, &o->ert_threshold); break;
-    case 'J': o->no_jitter = 1; break;
-    case 'N':
-      bad = cli_parse_u32(optarg, UINT32_MAX, &o->seed) || o->seed == 0;
-      break;
-    case 'b': bad = cli_parse_floats(optarg, o->background, 3); break;
-    case 'B':
-      o->backend = optarg;
-      o->device_given = 1;
-      break;
-    case 'D':
-      bad = cli_parse_u32(optarg, 1024, &o->device);
-      o->device_given = 1;
-      break;
-    case 'x':
-      bad = cli_parse_positive(optarg, &o->scale) || o->scale > 1.0f;
-      break;
-    case 'L':
-      /* The parser names the bad part itself. */
-      if (cli_parse_devices("--devices", optarg, o->devices, o->device_ext,
-                            RP_GROUP_MAX_DEVICES, &o->ndevices) != 0)
-        return 2;
-      o->devices_spec = optarg;
-      break;
-    case 'V': o->overlay = 1; break;
-    case 'w': bad = cli_parse_u32(optarg, 10000, &o->warmup); break;
-    case 'j': o->json = 1; break;
-    case 'M': bad = cli_parse_budget_mb(optarg, &o->mem.budget_bytes); break;
-    case 'Z': bad = cli_parse_u32(optarg, 256, &o->mem.brick_size); break;
-    case 'o': o->out = optarg; break;
-    case 'h': usage_render(stdout); return 1;
-    default: usage_render(stderr); return 2;
-    }
-    if (bad) {
-      fprintf(stderr, "raypace render: bad value '%s' for --%s\n", optarg,
-              opts[li].name);
-      return 2;
-    }
-  }
-  if (o->devices_spec != NULL && o->device_given) {
-    fprintf(stderr, "raypace render: --devices excludes --backend and "
-                    "--device\n");
-    return 2;
-  }
-  for (c = 0; c < (int)o->ndevices; c++) {
-    o->devices[c].budget_bytes = o->mem.budget_bytes;
-    o->devices[c].brick_size = o->mem.brick_size;
-  }
-  if (o->view != NULL && o->orbit_given) {
-    fprintf(stderr, "raypace render: --view excludes --camera\n");
-    return 2;
-  }
-  if (o->overlay && o->devices_spec == NULL) {
-    fprintf(stderr, "raypace render: --overlay-split needs --devices\n");
-    return 2;
-  }
-  if (optind + 1 != argc || o->out == NULL) {
-    usage_render(stderr);
-    return 2;
-  }
-  o->volume = argv[optind];
-  return 0;
-}
 
 /* The camera and render desc the options ask for. */
 static void render_setup(const render_opts *o, const rp_volume *vol,
@@ -617,8 +367,12 @@ static frame_totals sum_tiles(const frame_buffers *fb) {
  * error printed. */
 static int write_output(rp_context *ctx, const render_opts *o,
                         const frame_buffers *fb) {
-  int err = rp_write_png(ctx, o->out, fb->out, o->width, o->height,
+  int err;
+  if (o->ppm)
+    return cli_write_ppm(o->out, fb->out, o->width, o->height,
                          o->background);
+  err = rp_write_png(ctx, o->out, fb->out, o->width, o->height,
+                     o->background);
   return err != 0 ? cli_error(ctx, o->out, err) : 0;
 }
 
@@ -1087,9 +841,14 @@ static int cmd_render(int argc, char **argv) {
   rp_camera cam;
   rp_render_desc rd;
   int rc;
-  if ((rc = parse_render(argc, argv, &o)) != 0)
+  if ((rc = cli_parse_render(argc, argv, &o)) != 0)
     return rc == 1 ? 0 : rc;
-  if ((rc = scene_open(&sc, o.volume, &o.tfo, "occupancy")) == 0) {
+  /* The work bound is checked on the volume, before any other work. */
+  if ((rc = scene_load(&sc, o.volume)) == 0 &&
+      (rc = cli_check_work("render", "--step", sc.vol,
+                           o.step > 0 ? o.step : 1.0f, o.width, o.height,
+                           o.scale)) == 0 &&
+      (rc = scene_build(&sc, &o.tfo, "occupancy")) == 0) {
     o.tf = cli_tf_name(sc.vol, &o.tfo);
     render_setup(&o, sc.vol, &cam, &rd);
     rc = o.ndevices > 0 ? render_group(&sc, &o, &cam, &rd)
@@ -1146,11 +905,12 @@ static int serve(int rank) {
  * up serve it their devices as backend "mpi"; started any other way,
  * rp_mpi_init does nothing and this is one process. */
 int main(int argc, char **argv) {
-  int rank = 0, rc;
-  if (rp_mpi_init(&argc, &argv, &rank, NULL) != 0) {
+  int rank = 0, size = 1, rc;
+  if (rp_mpi_init(&argc, &argv, &rank, &size) != 0) {
     rp_mpi_finalize();
     return 1;
   }
+  cli_set_mpi_world(size);
   rc = rank > 0 ? serve(rank) : run_command(argc, argv);
   rp_mpi_finalize();
   return rc;

@@ -53,6 +53,11 @@
 
 #include "replay.h"
 
+/* The command named in option messages: "replay", or the command that
+ * passes its options on (cli_replay_check). */
+static const char *cmd_name = "replay";
+#define CMD cmd_name
+
 /* Frames the still frame spends aiming at the first target. */
 #define STILL_AIM_FRAMES 5
 /* Frames of the first state whose median is the frame without
@@ -78,22 +83,25 @@ static void usage(FILE *f) {
       "vtk,\n"
       "                        ue5, valve, several joined by commas, or\n"
       "                        all (default all)\n"
-      "  --target-ms T         frame-time target in ms; the sequence's "
-      "own\n"
-      "                        target changes scale with it\n"
+      "  --target-ms T         frame-time target in ms, in (0, 60000]; the"
+      "\n                        sequence's own target changes scale "
+      "with it\n"
       "  --target-fraction F   target as a fraction of the frame time "
       "without\n"
-      "                        adaptation, measured at the start\n"
+      "                        adaptation, measured at the start, in\n"
+      "                        (0, 100]\n"
       "                        (default: the sequence's target)\n"
       "  --space S             ray, image or hybrid (default hybrid)\n"
-      "  --base-step D         step at density 1, voxels (default 1)\n"
+      "  --base-step D         step at density 1, voxels, in [0.001, 10000]"
+      "\n                        (default 1)\n"
       "  --min-step D          finest step, voxels: a step under the base\n"
       "                        step (density above 1) where the budget\n"
       "                        allows; image space stops at 1 (default:\n"
       "                        the base step)\n"
-      "  --size WxH            output size (default 384x384)\n"
+      "  --size WxH            output size, each side 1..16384, at most\n"
+      "                        67108864 pixels (default 384x384)\n"
       "  --backend NAME        opencl, vulkan, reference, test or mpi\n"
-      "  --device N            device index within the backend\n"
+      "  --device N            device index within the backend, 0..1024\n"
       "  --devices LIST        render every frame on several devices at "
       "once\n"
       "                        (a device group; not with --backend/"
@@ -104,10 +112,12 @@ static void usage(FILE *f) {
       "\n                        in 'raypace render'"
       "\n"
       "                        (mpi:I: MPI rank I + 1, under mpirun)\n"
-      "  --settle N            unrecorded frames before the sequence "
-      "(default 10)\n"
-      "  --frames N            play only the first N frames\n"
-      "  --seed N              ERT pre-pass seed (default 1)\n"
+      "  --settle N            unrecorded frames before the sequence, "
+      "0..100000\n                        (default 10)\n"
+      "  --frames N            play only the first N frames, 1..10000000\n"
+      "                        (more than the sequence has: all of it)\n"
+      "  --seed N              ERT pre-pass seed, 0..4294967295 (default 1)"
+      "\n"
       "  --miss-rate Q         predicted: the share of frames allowed over\n"
       "                        the target, in (0, 0.5] (default 0.05), or\n"
       "                        'none' to aim at the target itself\n"
@@ -142,7 +152,8 @@ static void usage(FILE *f) {
       "  --json                one JSON summary object per controller, "
       "one\n"
       "                        per line\n"
-      "  --budget-mb MB        device memory the volume may take; a larger"
+      "  --budget-mb MB        device memory the volume may take, in\n"
+      "                        [0.001, 1e9]; a larger"
       "\n"
       "                        volume is rendered out of core, from bricks\n"
       "  --brick-size N        out-of-core brick edge in voxels (8..256, a\n"
@@ -154,21 +165,17 @@ static void usage(FILE *f) {
 
 /* The options' combinations; 0, or 2 (printed). */
 static int check_opts(replay_opts *o) {
-  uint32_t i;
   if (o->target_ms > 0 && o->target_fraction > 0) {
     fprintf(stderr, "raypace replay: --target-ms and --target-fraction "
                     "exclude each other\n");
     return 2;
   }
   if (o->min_step > o->base_step) {
-    fprintf(stderr, "raypace replay: --min-step %g is over the base step "
-                    "%g\n", (double)o->min_step, (double)o->base_step);
-    return 2;
-  }
-  if (o->devices_spec != NULL && o->device_given) {
-    fprintf(stderr, "raypace replay: --devices excludes --backend and "
-                    "--device\n");
-    return 2;
+    char value[32];
+    snprintf(value, sizeof value, "%g", (double)o->min_step);
+    return cli_bad_option(CMD, "--min-step", value, "over the base step",
+                          "must be at most --base-step (%g)",
+                          (double)o->base_step);
   }
   if (o->noise_csv != NULL && (o->no_noise || o->devices_spec != NULL)) {
     fprintf(stderr, "raypace replay: --noise-csv needs the still frame, "
@@ -189,64 +196,134 @@ static int check_opts(replay_opts *o) {
                     "--devices)\n");
     return 2;
   }
-  for (i = 0; i < o->ndevices; i++) {
-    o->devices[i].budget_bytes = o->mem.budget_bytes;
-    o->devices[i].brick_size = o->mem.brick_size;
-  }
   return 0;
 }
 
-/* --headroom (c 'H') and --miss-rate ('R'); 1 for a bad value. */
-static int parse_aim(int c, const char *arg, replay_opts *o) {
-  float v = 0.0f;
-  if (c == 'H') {
-    if (cli_parse_positive(arg, &v) || v > 0.9f)
-      return 1;
-    o->headroom = v;
-    return 0;
-  }
+
+/* The ranges of replay's numbers: the library's where it has one. */
+static const cli_range target_range = {0.0, 60000.0, CLI_OPEN_LO, 0, "ms"};
+static const cli_range fraction_range = {0.0, 100.0, CLI_OPEN_LO, 0,
+                                         "times the frame without "
+                                         "adaptation"};
+static const cli_range step_range = {RP_STEP_MIN, RP_STEP_MAX, 0, 0,
+                                     "voxels"};
+static const cli_range headroom_range = {0.0, 0.9, CLI_OPEN_LO, 0,
+                                         "of the target"};
+static const cli_range miss_range = {0.0, 0.5, CLI_OPEN_LO, 0,
+                                     "of the frames"};
+
+/* --miss-rate: (0, 0.5] or "none"; 0 or 2 (printed). */
+static int parse_miss_rate(const char *option, const char *arg,
+                           replay_opts *o) {
+  char want[96];
+  double v = 0.0;
+  const char *problem;
   /* "none" for the rule before the contract: aim at the target. */
   if (strcmp(arg, "none") == 0) {
     o->miss_rate = -1.0;
     return 0;
   }
-  if (cli_parse_positive(arg, &v) || v > 0.5f)
-    return 1;
-  o->miss_rate = v;
-  return 0;
+  if ((problem = cli_number_problem(arg, &miss_range, &v)) == NULL) {
+    o->miss_rate = v;
+    return 0;
+  }
+  cli_range_text(&miss_range, want, sizeof want);
+  return cli_bad_option(CMD, option, arg, problem, "must be %s, or none "
+                        "to aim at the target itself", want);
+}
+
+/* A target: --target-ms or --target-fraction; 0 or 2 (printed). */
+static int parse_target(const char *option, const char *arg,
+                        const cli_range *r, double *out) {
+  float v = 0.0f;
+  int rc = cli_parse_float(CMD, option, arg, r, &v);
+  *out = v;
+  return rc;
+}
+
+/* The files replay writes, and the devices named; 0 or 2 (printed). */
+static int check_files(replay_opts *o) {
+  static const char *const png[] = {".png", NULL};
+  if ((o->csv != NULL && cli_check_output(CMD, "--csv", o->csv, NULL)) ||
+      (o->noise_csv != NULL &&
+       cli_check_output(CMD, "--noise-csv", o->noise_csv, NULL)) ||
+      (o->trace != NULL &&
+       cli_check_output(CMD, "--trace", o->trace, NULL)) ||
+      (o->plot != NULL && cli_check_output(CMD, "--plot", o->plot, png)))
+    return 2;
+  cli_device_opts d;
+  CLI_DEVICE_OPTS_OF(o, &d);
+  return cli_check_devices(CMD, &d);
+}
+
+static const struct option opts[] = {
+    {"sequence", required_argument, 0, 'q'},
+    {"controller", required_argument, 0, 'c'},
+    {"target-ms", required_argument, 0, 't'},
+    {"target-fraction", required_argument, 0, 'F'},
+    {"space", required_argument, 0, 'p'},
+    {"base-step", required_argument, 0, 'd'},
+    {"min-step", required_argument, 0, 'm'},
+    {"size", required_argument, 0, 's'},
+    {"backend", required_argument, 0, 'B'},
+    {"device", required_argument, 0, 'D'},
+    {"devices", required_argument, 0, 'L'},
+    {"settle", required_argument, 0, 'S'},
+    {"frames", required_argument, 0, 'n'},
+    {"seed", required_argument, 0, 'e'},
+    {"miss-rate", required_argument, 0, 'R'},
+    {"headroom", required_argument, 0, 'H'},
+    {"split", required_argument, 0, 'X'},
+    {"no-noise", no_argument, 0, 'N'},
+    {"noise-csv", required_argument, 0, 'W'},
+    {"csv", required_argument, 0, 'C'},
+    {"trace", required_argument, 0, 'T'},
+    {"plot", required_argument, 0, 'P'},
+    {"json", no_argument, 0, 'j'},
+    {"quiet", no_argument, 0, 'Q'},
+    {"budget-mb", required_argument, 0, 'M'},
+    {"brick-size", required_argument, 0, 'Z'},
+    {"list", no_argument, 0, 'l'},
+    {"help", no_argument, 0, 'h'},
+    {0, 0, 0, 0}};
+
+/* An option that takes a number or a name: checked into o; 0 or 2
+ * (printed). */
+static int parse_value(int c, const char *option, const char *arg,
+                       replay_opts *o) {
+  switch (c) {
+  case 't': return parse_target(option, arg, &target_range, &o->target_ms);
+  case 'F':
+    return parse_target(option, arg, &fraction_range, &o->target_fraction);
+  case 'p':
+    return rp_space_from_name(arg, &o->space) != 0
+               ? cli_bad_option(CMD, option, arg, "not a space",
+                                "must be ray, image or hybrid")
+               : 0;
+  case 'd':
+    return cli_parse_float(CMD, option, arg, &step_range, &o->base_step);
+  case 'm':
+    return cli_parse_float(CMD, option, arg, &step_range, &o->min_step);
+  case 's': return cli_parse_size(CMD, option, arg, &o->width, &o->height);
+  case 'S': return cli_parse_whole(CMD, option, arg, 0, 100000, &o->settle);
+  /* 0 would read as "every frame": refused rather than surprising. */
+  case 'n':
+    return cli_parse_whole(CMD, option, arg, 1, 10000000, &o->frames);
+  case 'e': return cli_parse_whole(CMD, option, arg, 0, UINT32_MAX, &o->seed);
+  case 'R': return parse_miss_rate(option, arg, o);
+  case 'H':
+    return cli_parse_real(CMD, option, arg, &headroom_range, &o->headroom);
+  case 'X':
+    return cli_parse_whole(CMD, option, arg, 2, REPLAY_SPLIT_MAX, &o->split);
+  default: {
+    cli_device_opts d;
+    CLI_DEVICE_OPTS_OF(o, &d);
+    return cli_parse_device_option(CMD, c, option, arg, &d);
+  }
+  }
 }
 
 static int parse_opts(int argc, char **argv, replay_opts *o) {
-  static const struct option opts[] = {
-      {"sequence", required_argument, 0, 'q'},
-      {"controller", required_argument, 0, 'c'},
-      {"target-ms", required_argument, 0, 't'},
-      {"target-fraction", required_argument, 0, 'F'},
-      {"space", required_argument, 0, 'p'},
-      {"base-step", required_argument, 0, 'd'},
-      {"min-step", required_argument, 0, 'm'},
-      {"size", required_argument, 0, 's'},
-      {"backend", required_argument, 0, 'B'},
-      {"device", required_argument, 0, 'D'},
-      {"devices", required_argument, 0, 'L'},
-      {"settle", required_argument, 0, 'S'},
-      {"frames", required_argument, 0, 'n'},
-      {"seed", required_argument, 0, 'e'},
-      {"miss-rate", required_argument, 0, 'R'},
-      {"headroom", required_argument, 0, 'H'},
-      {"split", required_argument, 0, 'X'},
-      {"no-noise", no_argument, 0, 'N'},
-      {"noise-csv", required_argument, 0, 'W'},
-      {"csv", required_argument, 0, 'C'},
-      {"trace", required_argument, 0, 'T'},
-      {"plot", required_argument, 0, 'P'},
-      {"json", no_argument, 0, 'j'},
-      {"quiet", no_argument, 0, 'Q'},
-      {"budget-mb", required_argument, 0, 'M'},
-      {"brick-size", required_argument, 0, 'Z'},
-      {"list", no_argument, 0, 'l'},
-      {"help", no_argument, 0, 'h'},
-      {0, 0, 0, 0}};
   int c, li = 0;
   memset(o, 0, sizeof *o);
   o->sequence = "tf-switch";
@@ -260,47 +337,10 @@ static int parse_opts(int argc, char **argv, replay_opts *o) {
    * pacing parses a replay's options once per run). */
   optind = 0;
   while ((c = getopt_long(argc, argv, "h", opts, &li)) != -1) {
-    int bad = 0;
-    float v = 0.0f;
+    char option[40];
     switch (c) {
     case 'q': o->sequence = optarg; break;
     case 'c': o->controller = optarg; break;
-    case 't':
-      bad = cli_parse_positive(optarg, &v);
-      o->target_ms = v;
-      break;
-    case 'F':
-      bad = cli_parse_positive(optarg, &v) || v > 100.0f;
-      o->target_fraction = v;
-      break;
-    case 'p': bad = rp_space_from_name(optarg, &o->space) != 0; break;
-    case 'd': bad = cli_parse_positive(optarg, &o->base_step); break;
-    case 'm': bad = cli_parse_positive(optarg, &o->min_step); break;
-    case 's': bad = cli_parse_size(optarg, &o->width, &o->height); break;
-    case 'B':
-      o->backend = optarg;
-      o->device_given = 1;
-      break;
-    case 'D':
-      bad = cli_parse_u32(optarg, 1024, &o->device);
-      o->device_given = 1;
-      break;
-    case 'L':
-      /* The parser names the bad part itself. */
-      if (cli_parse_devices("--devices", optarg, o->devices, o->device_ext,
-                            RP_GROUP_MAX_DEVICES, &o->ndevices) != 0)
-        return 2;
-      o->devices_spec = optarg;
-      break;
-    case 'S': bad = cli_parse_u32(optarg, 100000, &o->settle); break;
-    case 'n': bad = cli_parse_u32(optarg, 10000000, &o->frames); break;
-    case 'e': bad = cli_parse_u32(optarg, UINT32_MAX, &o->seed); break;
-    case 'H':
-    case 'R': bad = parse_aim(c, optarg, o); break;
-    case 'X':
-      bad = cli_parse_u32(optarg, REPLAY_SPLIT_MAX, &o->split) ||
-            o->split < 2;
-      break;
     case 'N': o->no_noise = 1; break;
     case 'W': o->noise_csv = optarg; break;
     case 'C': o->csv = optarg; break;
@@ -308,19 +348,16 @@ static int parse_opts(int argc, char **argv, replay_opts *o) {
     case 'P': o->plot = optarg; break;
     case 'j': o->json = 1; break;
     case 'Q': o->quiet = 1; break;
-    case 'M': bad = cli_parse_budget_mb(optarg, &o->mem.budget_bytes); break;
-    case 'Z': bad = cli_parse_u32(optarg, 256, &o->mem.brick_size); break;
     case 'l': o->list = 1; break;
     case 'h': usage(stdout); return 1;
-    default: usage(stderr); return 2;
-    }
-    if (bad) {
-      fprintf(stderr, "raypace replay: bad value '%s' for --%s\n", optarg,
-              opts[li].name);
-      return 2;
+    case '?': usage(stderr); return 2;
+    default:
+      snprintf(option, sizeof option, "--%s", opts[li].name);
+      if (parse_value(c, option, optarg, o) != 0)
+        return 2;
     }
   }
-  if (check_opts(o) != 0)
+  if (check_opts(o) != 0 || check_files(o) != 0)
     return 2;
   if (o->list)
     return optind == argc ? 0 : (usage(stderr), 2);
@@ -847,7 +884,12 @@ static int open_scene(replay *r) {
   r->frames = rp_sequence_frames(r->seq);
   if (r->o.frames > 0 && r->o.frames < r->frames)
     r->frames = r->o.frames;
-  if (cli_open_volume(r->ctx, r->o.volume, &r->vol) != 0)
+  /* The finest step any controller may render at. */
+  if (cli_open_volume(r->ctx, r->o.volume, &r->vol) != 0 ||
+      cli_check_work(CMD, r->o.min_step > 0 ? "--min-step" : "--base-step",
+                     r->vol, r->o.min_step > 0 ? r->o.min_step
+                                               : r->o.base_step,
+                     r->o.width, r->o.height, 1.0f) != 0)
     return 1;
   r->tf_count = rp_sequence_tf_count(r->seq);
   r->tfs = calloc((size_t)r->tf_count, sizeof(*r->tfs));
@@ -1041,6 +1083,15 @@ out:
 int cli_cmd_replay(int argc, char **argv) {
   const replay_sink none = {NULL, NULL, NULL};
   return replay_main(argc, argv, &none);
+}
+
+int cli_replay_check(const char *cmd, int argc, char **argv) {
+  replay_opts o;
+  int rc;
+  cmd_name = cmd;
+  rc = parse_opts(argc, argv, &o);
+  cmd_name = "replay";
+  return rc == 1 ? 0 : rc;
 }
 
 int cli_replay_goals(int argc, char **argv, cli_pacing_goals *goals) {

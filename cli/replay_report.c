@@ -3,6 +3,7 @@
  * the run, and the outputs: a table and goal line or JSON, per-frame CSV,
  * the still frame's CSV and gnuplot plots. */
 #include <cjson/cJSON.h>
+#include <errno.h>
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -238,15 +239,17 @@ int replay_summarise(rp_controller_kind kind, const frame_row *rows,
  * three figures (NaN without). The
  * last two columns name the frame's own
  * events ("none" without) and the classes it counts in ("smooth"
- * without), joined by '+'. */
-static int write_csv(const char *path, const summary *sums,
-                     frame_row *const *rows, int nctl, uint32_t n,
-                     uint32_t ndev) {
+ * without), joined by '+'. `what` names the option that asked for the
+ * file in an error. */
+static int write_csv(const char *path, const char *what,
+                     const summary *sums, frame_row *const *rows, int nctl,
+                     uint32_t n, uint32_t ndev) {
   FILE *f = fopen(path, "w");
   int k;
   uint32_t i, j;
   if (f == NULL) {
-    fprintf(stderr, "raypace replay: cannot write '%s'\n", path);
+    fprintf(stderr, "raypace replay: %s: cannot write '%s': %s\n", what,
+            path, strerror(errno));
     return 1;
   }
   fprintf(f, "controller,frame,target_ms,measured_ms,predicted_ms,"
@@ -746,7 +749,9 @@ int replay_report(const replay_result *r, const summary *sums,
   }
   csv = o->csv != NULL ? o->csv : o->plot != NULL ? csv_tmp : NULL;
   if (csv != NULL &&
-      write_csv(csv, sums, rows, nctl, r->frames, o->ndevices) != 0)
+      write_csv(csv, csv == csv_tmp ? "--plot (its data, removed after)"
+                                    : "--csv",
+                sums, rows, nctl, r->frames, o->ndevices) != 0)
     return 1;
   if (o->plot != NULL) {
     char title[256];

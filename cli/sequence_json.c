@@ -343,7 +343,8 @@ static int parse_tf(parser *p, const cJSON *v, const char *path,
     return err;
   if (step != NULL) {
     child_path(cp, path, "reference_step");
-    if ((err = want_range(p, step, cp, 1e-6, 1e6, "voxels, > 0", &d)) != 0)
+    if ((err = want_range(p, step, cp, RP_STEP_MIN, RP_STEP_MAX, "voxels",
+                          &d)) != 0)
       return err;
     tf->reference_step = (float)d;
   }
@@ -515,8 +516,11 @@ static int parse_target(parser *p, const cJSON *ms, const cJSON *frac,
   child_path(cp, path, ms != NULL ? "target_ms" : "target_fraction");
   if ((err = want_number(p, ms != NULL ? ms : frac, cp, dst)) != 0)
     return err;
-  if (!(*dst > 0.0))
-    return fail(p, RP_ERANGE, cp, "%.10g must be > 0 (%s)", *dst,
+  /* The runtime's target range (rp_runtime_desc.target_ms), and the
+   * replay's --target-fraction's. */
+  if (!(*dst > 0.0 && *dst <= (ms != NULL ? 60000.0 : 100.0)))
+    return fail(p, RP_ERANGE, cp, "%.10g is outside (0, %g] (%s)", *dst,
+                ms != NULL ? 60000.0 : 100.0,
                 ms != NULL ? "milliseconds"
                            : "fraction of the no-adaptation frame time");
   return 0;

@@ -915,9 +915,9 @@ static const bad_case bad_cases[] = {
      "events[0].camera: expected a camera object, got an array"},
     /* Targets and effects. */
     {DOC("{\"frame\": 0, \"target_ms\": 0}"), RP_ERANGE,
-     "events[0].target_ms: 0 must be > 0"},
+     "events[0].target_ms: 0 is outside (0, 60000] (milliseconds)"},
     {DOC("{\"frame\": 0, \"target_fraction\": -0.5}"), RP_ERANGE,
-     "events[0].target_fraction: -0.5 must be > 0"},
+     "events[0].target_fraction: -0.5 is outside (0, 100]"},
     {DOC("{\"frame\": 0, \"target_ms\": 10, \"target_fraction\": 0.5}"),
      RP_EFORMAT, "events[0]: give \"target_ms\" or \"target_fraction\", "
      "not both"},

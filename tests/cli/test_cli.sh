@@ -74,9 +74,9 @@ if cmp -s "$dir/j5.png" "$dir/j5b.png" &&
    cmp -s "$dir/j0.png" "$dir/j0b.png"; then pass=$((pass + 1)); else
   echo "FAIL: jitter images (same seed equal, others differ)"
   fails=$((fails + 1)); fi
-refuse "seed 0" "bad value '0' for --seed" "$rp" render gen:ml:8 --seed 0 \
+refuse "seed 0" "--seed 0 is out of range; must be a whole number in 1..4294967295" "$rp" render gen:ml:8 --seed 0 \
   -o "$dir/c.png"
-refuse "seed -1" "bad value '-1' for --seed" "$rp" render gen:ml:8 \
+refuse "seed -1" "--seed -1 is out of range" "$rp" render gen:ml:8 \
   --seed -1 -o "$dir/c.png"
 
 # Data units: the CT head is int16 HU with its orientation; its default
@@ -98,11 +98,11 @@ refuse "bad tf file" "bad.tf: line 2" "$rp" info gen:ct:24 \
   --tf "$dir/bad.tf"
 refuse "window without level" "go together" "$rp" info gen:ct:24 \
   --window 400
-refuse "zero window" "bad value '0' for --window" "$rp" info gen:ct:24 \
+refuse "zero window" "raypace info: --window 0 is out of range; must be > 0 data units" "$rp" info gen:ct:24 \
   --window 0 --level 40
 check "ct views" "$rp" render gen:ct:24 --size 16x16 --view left \
   --no-shading -o "$dir/v.png"
-refuse "bad view" "bad value 'up' for --view" "$rp" render gen:ct:24 \
+refuse "bad view" "--view up is not a view; must be anterior," "$rp" render gen:ct:24 \
   --view up -o "$dir/v.png"
 refuse "view and camera" "--view excludes --camera" "$rp" render \
   gen:ct:24 --view left --camera 0,0,2 -o "$dir/v.png"
@@ -110,21 +110,167 @@ refuse "view and camera" "--view excludes --camera" "$rp" render \
 refuse "missing file" "no such file" "$rp" info "$dir/does-not-exist.nrrd"
 refuse "bad preset" "known: transparent" "$rp" render gen:ml:8 --tf nope \
   -o "$dir/c.png"
-refuse "bad size" "bad value '0x5'" "$rp" render gen:ml:8 --size 0x5 \
+refuse "bad size" "--size 0x5 is out of range; must be WxH, width and height each in 1..16384" "$rp" render gen:ml:8 --size 0x5 \
   -o "$dir/c.png"
 refuse "bad generator" "unknown" "$rp" info gen:cube
-refuse "zero step" "bad value '0'" "$rp" render gen:ml:8 --step 0 \
+refuse "zero step" "--step 0 is out of range; must be in \[0.001, 10000\] voxels" "$rp" render gen:ml:8 --step 0 \
   -o "$dir/c.png"
-refuse "underflowing step" "bad value '1e-50'" "$rp" render gen:ml:8 \
+refuse "underflowing step" "--step 1e-50 is out of range" "$rp" render gen:ml:8 \
   --step 1e-50 -o "$dir/c.png"
-refuse "overflowing fov" "bad value '1e39'" "$rp" render gen:ml:8 \
+refuse "overflowing fov" "--fov 1e39 is out of range" "$rp" render gen:ml:8 \
   --fov 1e39 -o "$dir/c.png"
-refuse "unknown backend" "not compiled in" "$rp" render gen:ml:8 \
+refuse "unknown backend" "--backend warp is not a backend; must be opencl," "$rp" render gen:ml:8 \
   --backend warp -o "$dir/c.png"
 refuse "no such device" "has one device" "$rp" render gen:ml:8 \
   --backend reference --device 3 -o "$dir/c.png"
-refuse "scale above one" "bad value '1.5'" "$rp" render gen:ml:8 \
+refuse "scale above one" "--scale 1.5 is out of range; must be in \[0.01, 1\]" "$rp" render gen:ml:8 \
   --scale 1.5 -o "$dir/c.png"
+
+# Every option's value is checked when parsed, before any work: the
+# volume here does not exist, so a message about the option (and not
+# "no such file") shows the check came first. Each names the option,
+# the value as typed, and the range or form it must have.
+nv="$dir/none.nrrd"
+rr() { # rr NAME PATTERN ARGS...: render of the missing volume refused
+  name=$1; pat=$2; shift 2
+  refuse "$name" "$pat" "$rp" render "$nv" -o "$dir/c.png" "$@"
+}
+rr "fov range" "raypace render: --fov 179.9 is out of range; must be in \[0.01, 170\] degrees" --fov 179.9
+rr "fov text" "--fov wide is not a number; must be in \[0.01, 170\]" \
+  --fov wide
+rr "ert range" "--ert-threshold 2 is out of range; must be in \[0.01, 1\]" \
+  --ert-threshold 2
+rr "step tiny" "--step 1e-9 is out of range; must be in \[0.001, 10000\] voxels" --step 1e-9
+rr "scale tiny" "--scale 1e-9 is out of range; must be in \[0.01, 1\]" \
+  --scale 1e-9
+rr "brick size" "--brick-size 7 is out of range; must be 8, 16, 32, 64, 128 or 256" --brick-size 7
+rr "brick size odd" "--brick-size 24 is not a power of two" --brick-size 24
+rr "budget" "--budget-mb 0 is out of range; must be in \[0.001, 1e+09\]" \
+  --budget-mb 0
+rr "device range" "--device 2000 is out of range; must be a whole number in 0..1024" --device 2000
+rr "background" "--background 2,0,0: R 2 is out of range; must be in \[0, 1\]" --background 2,0,0
+rr "background form" "--background 1,1 is not R,G,B; must be 3 numbers" \
+  --background 1,1
+rr "size form" "--size 512 is not WxH; must be WxH, width and height each in 1..16384" --size 512
+rr "size negative" "--size -5x5 is out of range; must be WxH" --size -5x5
+rr "size pixels" "--size 16384x16384 is 268435456 pixels, over the limit; must be WxH, width and height each in 1..16384 and at most 67108864 pixels" --size 16384x16384
+rr "camera behind" "--camera 0,0,-1: DIST -1 is out of range; must be in (0, 20000\] bounding radii; .*add 180 to AZ" --camera 0,0,-1
+rr "camera pole" "--camera 0,100,2: EL 100 is out of range; must be in \[-90, 90\] degrees" --camera 0,100,2
+rr "seed text" "--seed 1.5 is not a whole number; must be a whole number in 1..4294967295" --seed 1.5
+rr "warmup" "--warmup 1e9 is out of range; must be a whole number in 0..10000" --warmup 1e9
+rr "window" "--window nan is not a number; must be > 0 data units" \
+  --window nan --level 0
+rr "ao scheme" "--ao-scheme lazy is not an AO scheme; must be dynamic, static or naive" --ao-scheme lazy
+refuse "output jpg" "-o $dir/x.jpg is a .jpg file; must end in .png or .ppm" \
+  "$rp" render "$nv" -o "$dir/x.jpg"
+refuse "output no dir" "-o $dir/no/x.png is in no directory; '$dir/no' does not exist" "$rp" render "$nv" -o "$dir/no/x.png"
+refuse "output a dir" "-o $dir is a directory" "$rp" render "$nv" -o "$dir"
+if [ ! -e "$dir/x.jpg" ]; then pass=$((pass + 1)); else
+  echo "FAIL: output jpg: a file was written"; fails=$((fails + 1)); fi
+# Each range's ends are accepted, by the option and by the library
+# after it (the float limits such as 1e-3f are checked as the floats the
+# values become).
+for a in "--fov 0.01" "--fov 170" "--step 0.001" "--step 10000" \
+    "--scale 0.01" "--ert-threshold 0.01" "--ert-threshold 1" \
+    "--camera -360,-90,20000" "--camera 360,90,0.0001" "--size 16384x1" \
+    "--background 0,0.5,1" "--seed 4294967295" "--warmup 0" \
+    "--size 1x16384 --scale 1"; do
+  # shellcheck disable=SC2086
+  check "range end $a" "$rp" render gen:ml:8 --backend reference \
+    --size 8x8 $a -o "$dir/e.png"
+done
+# The work bound, once the volume is open and before any device work:
+# named by the step's option, with the counts and the limit.
+refuse "work bound" "raypace render: --step 0.001 is too fine for this volume (8x8x8) at 8192x8192 rays: the frame may take .* samples, at most .* (RP_MAX_SAMPLES_PER_FRAME); use a coarser --step, or a smaller --size or --scale" "$rp" render gen:ml:8 --size 8192x8192 \
+  --step 0.001 -o "$dir/c.png"
+refuse "work bound replay" "raypace replay: --min-step 0.001 is too fine" \
+  "$rp" replay gen:ml:8 --size 8192x8192 --min-step 0.001
+refuse "work bound bench" "raypace bench quality: --ref-step 0.001 is too fine" "$rp" bench quality gen:ml:8 --size 8192x8192 --ref-step 0.001
+# The device's errors name the options that chose it, not --backend.
+refuse "device missing" "raypace: --backend reference --device 7: no usable device" "$rp" render gen:ml:8 --size 8x8 --backend reference \
+  --device 7 -o "$dir/c.png"
+# Backend mpi outside an MPI job: the launcher is missing, not a driver.
+refuse "mpi without mpirun" "--backend mpi is a device on another MPI rank, and this process was not started by an MPI launcher; start it as 'mpirun -np N raypace render" env -u OMPI_COMM_WORLD_SIZE -u PMI_SIZE -u PMIX_SIZE \
+  "$rp" render "$nv" --backend mpi -o "$dir/c.png"
+refuse "mpi devices without mpirun" "--devices reference,mpi:0 is a device on another MPI rank" env -u OMPI_COMM_WORLD_SIZE -u PMI_SIZE \
+  -u PMIX_SIZE "$rp" replay "$nv" --devices reference,mpi:0
+# Generated volumes: sizes and seeds as typed, never 2^32 - 5.
+refuse "gen negative" "gen:phantom:-5: size N -5 is out of range; must be a whole number in 1..65536" "$rp" info gen:phantom:-5
+refuse "gen axis" "gen:ml:8x0x8: size Y 0 is out of range" "$rp" info \
+  gen:ml:8x0x8
+refuse "gen seed" "gen:noise:8:-1: seed -1 is out of range" "$rp" info \
+  gen:noise:8:-1
+if grep -q 4294967291 "$dir/err"; then
+  echo "FAIL: gen seed: a negative number wrapped"; fails=$((fails + 1))
+else pass=$((pass + 1)); fi
+refuse "gen kind" "gen:cube: generator cube is unknown; must be ml, phantom, noise or ct" "$rp" info gen:cube
+# replay: --frames 0 is refused (it used to play every frame).
+rq() { # rq NAME PATTERN ARGS...: replay of the missing volume refused
+  name=$1; pat=$2; shift 2
+  refuse "$name" "$pat" "$rp" replay "$nv" "$@"
+}
+rq "replay frames 0" "raypace replay: --frames 0 is out of range; must be a whole number in 1..10000000" --frames 0
+rq "replay target" "--target-ms 0 is out of range; must be in (0, 60000\] ms" --target-ms 0
+rq "replay fraction" "--target-fraction 101 is out of range; must be in (0, 100\]" --target-fraction 101
+rq "replay miss rate" "--miss-rate 0.7 is out of range; must be in (0, 0.5\] of the frames, or none" --miss-rate 0.7
+rq "replay headroom" "--headroom 1 is out of range; must be in (0, 0.9\]" \
+  --headroom 1
+rq "replay base step" "--base-step 1e-9 is out of range; must be in \[0.001, 10000\] voxels" --base-step 1e-9
+rq "replay settle" "--settle -1 is out of range; must be a whole number in 0..100000" --settle -1
+rq "replay seed" "--seed 4294967296 is out of range" --seed 4294967296
+rq "replay size" "--size 9000x9000 is 81000000 pixels, over the limit" \
+  --size 9000x9000
+rq "replay brick" "--brick-size 7 is out of range; must be 8, 16" \
+  --brick-size 7
+# --plot to a bad path names the plot, not a CSV never asked for.
+rq "replay plot path" "--plot $dir/no/p.png is in no directory" \
+  --plot "$dir/no/p.png"
+if grep -q "\.csv" "$dir/err"; then
+  echo "FAIL: replay plot path: names a CSV"; fails=$((fails + 1))
+else pass=$((pass + 1)); fi
+rq "replay plot form" "--plot $dir/p.svg is a .svg file; must end in .png" \
+  --plot "$dir/p.svg"
+rq "replay csv path" "--csv $dir/no/r.csv is in no directory" \
+  --csv "$dir/no/r.csv"
+refuse "bench quality plot" "raypace bench quality: --plot $dir/no/q.png is in no directory" "$rp" bench quality "$nv" --plot "$dir/no/q.png"
+refuse "bench quality step" "raypace bench quality: --ref-step 0 is out of range" "$rp" bench quality "$nv" --ref-step 0
+refuse "bench quality camera" "raypace bench quality: --camera 0,0,0: DIST 0 is out of range" "$rp" bench quality "$nv" --camera 0,0,0
+refuse "bench overhead target" "raypace bench overhead: --target-ms -5 is out of range; must be in (0, 60000\] ms" "$rp" bench overhead "$nv" \
+  --target-ms -5
+refuse "bench overhead frames" "raypace bench overhead: --frames 0 is out of range; must be a whole number in 1..10000" "$rp" bench overhead "$nv" \
+  --frames 0
+# bench pacing checks the options it passes on before its first replay,
+# in its own name.
+refuse "bench pacing passed" "raypace bench pacing: --frames 0 is out of range" "$rp" bench pacing "$nv" --frames 0
+refuse "bench pacing fov" "raypace bench pacing: --base-step 0 is out of range" "$rp" bench pacing "$nv" --base-step 0
+
+# A camera and its mirror: an 8^3 volume opaque only at x = 6 and 7.
+# From azimuth 0 (the eye on +z looking down -z, +y up) +x is on the
+# image's right; from azimuth 180 on its left; from 90 (eye on +x) the
+# marker faces the eye, left and right alike. The PPM's bytes are read
+# directly: the sum of R+G+B over each half.
+mk="$dir/marker_8x8x8_uint8.raw"
+: >"$mk"
+i=0
+while [ $i -lt 64 ]; do
+  printf '\000\000\000\000\000\000\377\377' >>"$mk"; i=$((i + 1)); done
+halves() { # halves FILE: "LEFT RIGHT" sums of a 16x8 binary PPM
+  tail -c $((16 * 8 * 3)) "$1" | od -An -v -tu1 -w3 |
+    awk '{ s = $1 + $2 + $3; if ((NR - 1) % 16 < 8) l += s; else r += s }
+         END { print l + 0, r + 0 }'
+}
+for az in 0 180 90; do
+  check "marker $az" "$rp" render "$mk" --backend reference --size 16x8 \
+    --camera $az,0,2.5 --no-jitter --tf minmax-bone -o "$dir/m$az.ppm"
+done
+if [ "$(head -c 2 "$dir/m0.ppm")" = P6 ] &&
+   halves "$dir/m0.ppm" | awk '{ exit !($1 == 0 && $2 > 0) }' &&
+   halves "$dir/m180.ppm" | awk '{ exit !($1 > 0 && $2 == 0) }' &&
+   halves "$dir/m90.ppm" | awk '{ exit !($1 > 0 && $1 == $2) }'; then
+  pass=$((pass + 1)); else
+  echo "FAIL: marker sides (left right): az 0 $(halves "$dir/m0.ppm")," \
+    "180 $(halves "$dir/m180.ppm"), 90 $(halves "$dir/m90.ppm")"
+  fails=$((fails + 1)); fi
 
 check "reference backend" "$rp" render gen:phantom:32 --backend reference \
   --size 40x30 --scale 0.5 -o "$dir/d.png" --json
@@ -172,10 +318,10 @@ if awk -F, 'NR > 1 { mse[$1 "@" $2] = $4 }
      END { exit !(mse["preint@4"] * 2 < mse["plain@4"]) }' "$dir/p.csv"
 then pass=$((pass + 1)); else
   echo "FAIL: bench preint iso"; cat "$dir/p.csv"; fails=$((fails + 1)); fi
-refuse "bench bad frames" "bad value '0' for --frames" "$rp" bench quality \
+refuse "bench bad frames" "bench quality: --frames 0 is out of range; must be a whole number in 1..256" "$rp" bench quality \
   gen:ml:8 --quick --sampling --frames 0
 check "bench help" "$rp" bench quality --help; has "bench help" "--ref-step"
-refuse "bench bad runs" "bad value '0' for --runs" "$rp" bench quality \
+refuse "bench bad runs" "bench quality: --runs 0 is out of range" "$rp" bench quality \
   gen:ml:8 --quick --runs 0
 refuse "bench bad option" "unrecognized option" "$rp" bench quality \
   gen:ml:8 --quick --frobnicate
@@ -371,7 +517,7 @@ if awk -v a="$(split_of noise_rms)" -v b="$want" \
   fails=$((fails + 1)); fi
 refuse "replay split needs predicted" "does not play it" "$rp" replay \
   gen:ml:16 --backend reference --controller vtk --split 3
-refuse "replay split repeats" "bad value '1' for --split" "$rp" replay \
+refuse "replay split repeats" "--split 1 is out of range; must be a whole number in 2..50" "$rp" replay \
   gen:ml:16 --backend reference --split 1
 # bench pacing: each sequence's median is the middle of its three runs'
 # figures, picked here from the JSON by awk for two of them.
@@ -400,7 +546,7 @@ check "bench pacing table" "$rp" bench pacing gen:ml:16 --backend reference \
   --sequences orbit --runs 2 --frames 4 --settle 1 --size 16x16 --quiet
 has "bench pacing met" "  met [R.][O.][D.][L.][M.][T.][E.]$"
 has "bench pacing each run" "^orbit #2 "
-refuse "bench pacing runs" "bad value '0' for --runs" "$rp" bench pacing \
+refuse "bench pacing runs" "--runs 0 is out of range; must be a whole number in 1.." "$rp" bench pacing \
   gen:ml:8 --runs 0
 refuse "bench pacing sequence" "no-such-seq" "$rp" bench pacing gen:ml:8 \
   --backend reference --sequences no-such-seq --runs 1 --quiet
@@ -470,9 +616,9 @@ if command -v gnuplot >/dev/null 2>&1; then
        "89504e470d0a1a0a" ]; then pass=$((pass + 1)); else
     echo "FAIL: pareto.png is not a PNG"; fails=$((fails + 1)); fi
 fi
-refuse "pareto headroom range" "bad value '0.95' in --headrooms" "$rp" \
+refuse "pareto headroom range" "--headrooms 0.1,0.95: 0.95 is out of range; must be in (0, 0.9\] of the target, or default" "$rp" \
   bench pacing gen:ml:8 --pareto --headrooms 0.1,0.95
-refuse "pareto miss range" "bad value 'some' in --miss-rates" "$rp" \
+refuse "pareto miss range" "--miss-rates 0.05,some: some is not a number; must be in (0, 0.5\] of the frames, or none" "$rp" \
   bench pacing gen:ml:8 --pareto --miss-rates 0.05,some
 refuse "pareto swept" "--pareto sweeps --headroom itself" "$rp" \
   bench pacing gen:ml:8 --pareto --headroom 0.1
@@ -486,9 +632,9 @@ refuse "replay sequence" "no-such-seq" "$rp" replay gen:ml:8 \
   --backend reference --sequence no-such-seq
 refuse "replay targets" "exclude each other" "$rp" replay gen:ml:8 \
   --target-ms 5 --target-fraction 0.5
-refuse "replay space" "bad value 'diagonal' for --space" "$rp" replay \
+refuse "replay space" "--space diagonal is not a space; must be ray, image or hybrid" "$rp" replay \
   gen:ml:8 --space diagonal
-refuse "replay min step" "over the base step" "$rp" replay gen:ml:8 \
+refuse "replay min step" "--min-step 2 is over the base step; must be at most --base-step (1)" "$rp" replay gen:ml:8 \
   --min-step 2
 # A budget far above any frame's cost, --min-step a quarter of the base
 # step: the predicted controller ends at the finest step (density 4),
@@ -522,7 +668,7 @@ has "overhead share" 'per-frame prediction work'
 check "bench overhead json" "$rp" bench overhead gen:ml:16 --frames 4 \
   --loads 1 --size 32x32 --backend reference --json
 has "overhead json" '"stage":	"train"'
-refuse "bench overhead loads" "loads" "$rp" bench overhead gen:ml:8 \
+refuse "bench overhead loads" "--loads 3 is more than --frames; must be at most --frames (2)" "$rp" bench overhead gen:ml:8 \
   --frames 2 --loads 3 --backend reference
 
 # Device groups (--devices): the list's parser, then renders and a replay.
@@ -558,15 +704,15 @@ is_png() { # is_png NAME FILE
 g="$dir/g.png"
 refuse "devices backend" "backend 'cuda' in 'cuda'" "$rp" render gen:ml:8 \
   --devices cuda -o "$g"
-refuse "devices index" "device index 'x' in 'opencl:x'" "$rp" render \
+refuse "devices index" "raypace: --devices opencl:x: index x is not a device index; must be a whole number in 0..1024" "$rp" render \
   gen:ml:8 --devices reference,opencl:x -o "$g"
-refuse "devices cu" "'cu=0' in 'opencl:0:cu=0'" "$rp" render gen:ml:8 \
+refuse "devices cu" "--devices opencl:0:cu=0: cu 0 is out of range; must be a whole number in 1..65536 (compute units" "$rp" render gen:ml:8 \
   --devices opencl:0:cu=0 -o "$g"
-refuse "devices slow" "'slow=0.5'" "$rp" render gen:ml:8 \
+refuse "devices slow" "--devices reference:0:slow=0.5: slow 0.5 is out of range; must be in \[1, 10000\]" "$rp" render gen:ml:8 \
   --devices reference:0:slow=0.5 -o "$g"
-refuse "devices slow nan" "'slow=nan'" "$rp" render gen:ml:8 \
+refuse "devices slow nan" "reference:slow=nan: slow nan is not a number" "$rp" render gen:ml:8 \
   --devices reference:slow=nan -o "$g"
-refuse "devices fail" "'fail=-1'" "$rp" render gen:ml:8 \
+refuse "devices fail" "reference:fail=-1: fail -1 is out of range; must be a whole number in 0..4294967295" "$rp" render gen:ml:8 \
   --devices reference:fail=-1 -o "$g"
 refuse "devices empty" "empty device" "$rp" render gen:ml:8 \
   --devices reference,,reference -o "$g"
@@ -628,7 +774,7 @@ check "test devices" "$rp" render gen:phantom:32 --size 40x24 \
 regions_ok 40 24 "test devices"
 refuse "seed on reference" "'seed=1' in 'reference:seed=1' is for backend" \
   "$rp" render gen:ml:8 --devices reference:seed=1 -o "$g"
-refuse "test noise range" "'noise=2' in 'test:noise=2'" "$rp" render \
+refuse "test noise range" "--devices test:noise=2: noise 2 is out of range; must be in \[0, 1\]" "$rp" render \
   gen:ml:8 --devices test:noise=2 -o "$g"
 check "replay test" "$rp" replay gen:phantom:24 --backend test \
   --sequence tf-switch --frames 12 --settle 2 --size 32x32 --json --quiet \
@@ -671,7 +817,7 @@ if "$rp" render gen:ml:8 --size 8x8 --backend opencl -o "$g" \
   has "out of core text" "out of core: .* bricks of 16^3"
   refuse "budget too small" "at least 2" "$rp" render gen:phantom:96 \
     --size 16x16 --backend opencl --budget-mb 0.001 -o "$dir/oc.png"
-  refuse "bad brick size" "brick_size 12" "$rp" render gen:phantom:96 \
+  refuse "bad brick size" "--brick-size 12 is not a power of two; must be 8, 16," "$rp" render gen:phantom:96 \
     --size 16x16 --backend opencl --budget-mb 0.2 --brick-size 12 \
     -o "$dir/oc.png"
   check "replay out of core" "$rp" replay gen:phantom:64 --backend opencl \
