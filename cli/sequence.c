@@ -691,9 +691,14 @@ void rp_sequence_camera(const rp_sequence_state *st, const rp_volume *vol,
                                     180.0));
   if (st->pan[0] == 0.0 && st->pan[1] == 0.0)
     return;
-  /* The basis rp__raygen_init builds for a zero up: right = f x up,
-   * up' = right x f, with up = +y, or +z when f is parallel to y. Pan
-   * moves eye and centre together, so f and this basis do not change. */
+  /* The basis rp__raygen_init builds: right = f x up, up' = right x f,
+   * with rp_camera_orbit's up (the way elevation rises; +y, or +z when f
+   * is parallel to y, were it zero). Pan moves eye and centre together,
+   * so f and this basis do not change. */
+  for (a = 0; a < 3; a++)
+    up[a] = (double)cam->up[a];
+  if (norm3(up) == 0.0)
+    up[1] = 1.0;
   for (a = 0; a < 3; a++)
     f[a] = -(double)cam->eye[a];
   len = norm3(f);

@@ -537,7 +537,10 @@ RP_API rp_view rp_view_from_name(const char *name);
 
 /** Points `cam` at the volume centre from azimuth/elevation (degrees) and
  *  a distance in bounding-sphere radii (1.0 touches the sphere; below 1
- *  may put the eye inside the volume). Keeps projection and fov. */
+ *  may put the eye inside the volume). Keeps projection and fov. Up is
+ *  the way elevation rises (+y at elevation 0), so that elevation +-90
+ *  continues the views beside it (0.12; before, the default up's switch
+ *  to +z rolled the pole's view). */
 RP_API void rp_camera_orbit(rp_camera *cam, const rp_volume *vol,
                             float azimuth_deg, float elevation_deg,
                             float distance);

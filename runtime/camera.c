@@ -78,12 +78,15 @@ void rp_camera_orbit(rp_camera *cam, const rp_volume *vol, float azimuth_deg,
   cam->eye[0] = (float)(d * cos(el) * sin(az));
   cam->eye[1] = (float)(d * sin(el));
   cam->eye[2] = (float)(d * cos(el) * cos(az));
-  for (a = 0; a < 3; a++) {
+  /* Up is the way elevation rises (d eye / d el): +y at elevation 0,
+   * the default's projection of +y anywhere off the poles, and at the
+   * poles the limit of the views beside them, so that elevation 90 is
+   * the 89.9 view, not that view turned by the default's switch to +z. */
+  cam->up[0] = (float)(-sin(el) * sin(az));
+  cam->up[1] = (float)cos(el);
+  cam->up[2] = (float)(-sin(el) * cos(az));
+  for (a = 0; a < 3; a++)
     cam->center[a] = 0.0f;
-    /* Zero selects the default, which swaps to +z at the poles; a fixed
-     * +y would make elevation +-90 an invalid camera. */
-    cam->up[a] = 0.0f;
-  }
 }
 
 /* Eye direction and up of each view in patient space (LPS). */

@@ -448,9 +448,23 @@ static void test_camera_rays(void **state) {
   cam = orbit(vol, RP_ORTHOGRAPHIC, 10.0f, 90.0f, 1.5f);
   assert_int_equal(cam.projection, RP_ORTHOGRAPHIC);
   assert_true(fabs(cam.eye[1] - 1.5 * r) < 1e-4);
-  /* Looking straight down y: the default up turns to +z, so it is valid. */
+  /* Looking straight down y: a valid camera whose up is the limit of
+   * the views beside the pole (elevation 89.9 at the same azimuth), not
+   * that view rolled (the default up's switch to +z at the pole). */
   assert_int_equal(rp__raygen_init(ctx, &cam, vol, 4, 4, &rg), 0);
-  assert_true(fabs(rg.u[2]) > 0.999);
+  {
+    rp__raygen near;
+    rp_camera c2 = orbit(vol, RP_ORTHOGRAPHIC, 10.0f, 89.9f, 1.5f);
+    assert_int_equal(rp__raygen_init(ctx, &c2, vol, 4, 4, &near), 0);
+    assert_true(rg.u[0] * near.u[0] + rg.u[1] * near.u[1] +
+                    rg.u[2] * near.u[2] > 0.999);
+    c2 = orbit(vol, RP_ORTHOGRAPHIC, 10.0f, -90.0f, 1.5f);
+    assert_int_equal(rp__raygen_init(ctx, &c2, vol, 4, 4, &near), 0);
+    c2 = orbit(vol, RP_ORTHOGRAPHIC, 10.0f, -89.9f, 1.5f);
+    assert_int_equal(rp__raygen_init(ctx, &c2, vol, 4, 4, &rg), 0);
+    assert_true(rg.u[0] * near.u[0] + rg.u[1] * near.u[1] +
+                    rg.u[2] * near.u[2] > 0.999);
+  }
 
   /* An orthographic camera's default height is the box diagonal. */
   assert_true(fabs(rg.half_h - r) < 1e-9);
