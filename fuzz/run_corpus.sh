@@ -46,8 +46,12 @@ for bin in "$@"; do
     echo "== $bin for $FUZZ_SECONDS s (scratch: $out/$name)"
     # One process (no -jobs): -jobs writes fuzz-N.log into the current
     # directory.
+    # fuzz/NAME.dict, where there is one: the format's keywords.
+    dict=""
+    [ -f "$here/$name.dict" ] && dict="-dict=$here/$name.dict"
+    # shellcheck disable=SC2086
     if ! "$bin" -max_total_time="$FUZZ_SECONDS" -print_final_stats=1 \
-        -artifact_prefix="$out/$name/" \
+        -artifact_prefix="$out/$name/" $dict \
         "$out/$name/new" "$corpus"; then
       echo "FAILED: $bin found a crash; see $out/$name" >&2
       status=1
