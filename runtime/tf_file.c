@@ -3,6 +3,7 @@
  * reference step. A file is small and read whole; every error names the
  * file, the line and what was found there. */
 #include <ctype.h>
+#include <math.h>
 #include <stdio.h>
 #include <string.h>
 
@@ -87,6 +88,9 @@ static int parse_key(tf_parse *p, const char *key, char *value) {
     if (word == 6 && strncmp(value, "window", 6) == 0) {
       if (!(v[0] > 0.0))
         return bad(p, RP_ERANGE, "the window's width must be > 0", value);
+      if (!(fabs(v[1]) + v[0] / 2.0 <= 1e30)) /* rp_tf_create's bound */
+        return bad(p, RP_ERANGE, "the window's ends must lie within "
+                   "[-1e30, 1e30]", value);
       p->desc.range = RP_TF_RANGE_DATA;
       p->desc.range_lo = v[1] - v[0] / 2.0;
       p->desc.range_hi = v[1] + v[0] / 2.0;
