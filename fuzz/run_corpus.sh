@@ -8,7 +8,9 @@
 # fails on the first crash, leak or sanitizer report. With FUZZ_SECONDS=N
 # set, each then fuzzes for N more seconds; new inputs and any crash file go
 # to a scratch folder (FUZZ_OUT, default a mktemp folder), never into the
-# checked-in corpus or the current directory.
+# checked-in corpus or the current directory. To keep what a long run
+# found, add only the inputs that reach new edges, the named seeds kept:
+#   fuzz_NAME -merge=1 -use_counters=0 fuzz/corpus/NAME SCRATCH/NAME/new
 set -eu
 
 here=$(cd "$(dirname "$0")" && pwd)
