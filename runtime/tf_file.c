@@ -189,13 +189,14 @@ int rp__tf_parse(rp_context *ctx, const char *name, const char *buf,
   if (len > RP__TF_FILE_MAX)
     return rp__fail(ctx, RP_ERANGE, "%s: %zu bytes; a transfer function "
                     "file is at most %d", name, len, RP__TF_FILE_MAX);
-  if (memchr(buf, '\0', len) != NULL)
+  if (len > 0 && memchr(buf, '\0', len) != NULL)
     return rp__fail(ctx, RP_EFORMAT, "%s: binary data (a NUL byte); a "
                     "transfer function file is text", name);
   /* The parser cuts lines and tokens in place. */
   if ((text = rp__malloc(ctx, len + 1)) == NULL)
     return rp__fail(ctx, RP_ENOMEM, "%s: out of memory", name);
-  memcpy(text, buf, len);
+  if (len > 0) /* buf may be NULL then */
+    memcpy(text, buf, len);
   text[len] = '\0';
   memset(&p, 0, sizeof p);
   p.ctx = ctx, p.path = name;
