@@ -28,6 +28,27 @@ static inline rp_context *fuzz_context(void) {
   return ctx;
 }
 
+/* A small CT-like volume (4^3 floats, -1000 .. 1000) for what takes one:
+ * a TF's data range (percentile and window ranges read its values), a
+ * sequence's cameras. */
+static inline rp_volume *fuzz_volume(void) {
+  static rp_volume *vol;
+  if (vol == NULL) {
+    static float v[4 * 4 * 4];
+    rp_volume_desc d;
+    size_t i;
+    for (i = 0; i < sizeof v / sizeof v[0]; i++)
+      v[i] = -1000.0f + 2000.0f * (float)i / 63.0f;
+    memset(&d, 0, sizeof d);
+    d.dims[0] = d.dims[1] = d.dims[2] = 4;
+    d.type = RP_F32;
+    d.data = v;
+    if (rp_volume_create(fuzz_context(), &d, &vol) != 0)
+      abort();
+  }
+  return vol;
+}
+
 /* A parse result: 0, or a failure that must carry a message. Returns
  * whether to go on to decoding. */
 static inline int fuzz_parsed(rp_context *ctx, int rc) {
@@ -37,11 +58,11 @@ static inline int fuzz_parsed(rp_context *ctx, int rc) {
 }
 
 /* A load's result against the contract: a failure is negative, leaves
- * *out (`vol`, first set to `untouched`) alone and carries a message.
- * Returns whether the load succeeded. */
-static inline int fuzz_loaded(rp_context *ctx, int rc, const rp_volume *vol,
+ * *out (`obj`, a volume or a TF, first set to `untouched`) alone and
+ * carries a message. Returns whether the load succeeded. */
+static inline int fuzz_loaded(rp_context *ctx, int rc, const void *obj,
                               const void *untouched) {
-  if (rc != 0 && (rc > 0 || (const void *)vol != untouched ||
+  if (rc != 0 && (rc > 0 || obj != untouched ||
                   rp_last_error(ctx)[0] == '\0'))
     abort();
   return rc == 0;

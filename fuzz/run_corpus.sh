@@ -8,7 +8,9 @@
 # fails on the first crash, leak or sanitizer report. With FUZZ_SECONDS=N
 # set, each then fuzzes for N more seconds; new inputs and any crash file go
 # to a scratch folder (FUZZ_OUT, default a mktemp folder), never into the
-# checked-in corpus or the current directory.
+# checked-in corpus or the current directory. To keep what a long run
+# found, add only the inputs that reach new edges, the named seeds kept:
+#   fuzz_NAME -merge=1 -use_counters=0 fuzz/corpus/NAME SCRATCH/NAME/new
 set -eu
 
 here=$(cd "$(dirname "$0")" && pwd)
@@ -46,8 +48,12 @@ for bin in "$@"; do
     echo "== $bin for $FUZZ_SECONDS s (scratch: $out/$name)"
     # One process (no -jobs): -jobs writes fuzz-N.log into the current
     # directory.
+    # fuzz/NAME.dict, where there is one: the format's keywords.
+    dict=""
+    [ -f "$here/$name.dict" ] && dict="-dict=$here/$name.dict"
+    # shellcheck disable=SC2086
     if ! "$bin" -max_total_time="$FUZZ_SECONDS" -print_final_stats=1 \
-        -artifact_prefix="$out/$name/" \
+        -artifact_prefix="$out/$name/" $dict \
         "$out/$name/new" "$corpus"; then
       echo "FAILED: $bin found a crash; see $out/$name" >&2
       status=1

@@ -354,7 +354,8 @@ typedef struct rp_tf rp_tf;
 
 /** One control point. `x` is the position: in [0, 1] over the TF's range
  *  (rp_tf_desc.range; by default the volume's data range [min, max]), or
- *  a data value (HU for CT) when rp_tf_desc.units is RP_TF_DATA. Colour
+ *  a data value (HU for CT) within [-1e30, 1e30] when rp_tf_desc.units
+ *  is RP_TF_DATA. Colour
  *  and alpha in [0, 1]. Alpha is the opacity of one reference step
  *  (rp_tf_desc.reference_step). */
 typedef struct rp_tf_point {
@@ -391,7 +392,8 @@ typedef struct rp_tf_desc {
    * data units and `range` must be RP_TF_RANGE_MINMAX (0). */
   rp_tf_units units;
   rp_tf_range range;
-  double range_lo, range_hi; /* for PERCENTILES and DATA: lo < hi */
+  double range_lo, range_hi; /* for PERCENTILES and DATA: lo < hi; DATA
+                                within [-1e30, 1e30] (\since 0.11) */
 } rp_tf_desc;
 
 /** Builds a transfer function. Piecewise linear between points, constant
@@ -413,8 +415,9 @@ RP_API int rp_tf_create_preset(rp_context *ctx, const char *name,
                                rp_tf **out);
 /** A copy of `src` whose [0, 1] spans the window [level - width / 2,
  *  level + width / 2] in data units (HU for CT): how a radiologist's
- *  window/level is applied to any TF. width must be > 0 and both finite
- *  (RP_ERANGE / RP_ENOTFINITE naming the value otherwise). \since 0.11 */
+ *  window/level is applied to any TF. width must be > 0, both finite and
+ *  the window's ends within [-1e30, 1e30] (RP_ERANGE / RP_ENOTFINITE
+ *  naming the value otherwise). \since 0.11 */
 RP_API int rp_tf_window(rp_context *ctx, const rp_tf *src, double width,
                         double level, rp_tf **out);
 /** The data values [*lo, *hi] over which tf's LUT lies on `vol`: values

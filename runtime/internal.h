@@ -229,6 +229,12 @@ int rp__volume_decode(rp_context *ctx, const char *name,
                       const rp__volume_header *hdr, const uint8_t *payload,
                       size_t len, rp_volume **out);
 
+/* A transfer function file's text (rp_tf_load's format, `len` bytes, no
+ * NUL inside, at most 1 MiB) into a new TF; rp_tf_load after reading the
+ * file, and the fuzz target without one. `name` is used in messages. */
+int rp__tf_parse(rp_context *ctx, const char *name, const char *text,
+                 size_t len, rp_tf **out);
+
 /* ---- transfer.c -------------------------------------------------------- */
 
 /* A value in the volume's data units (HU for CT) in stored units. */

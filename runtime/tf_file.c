@@ -3,6 +3,7 @@
  * reference step. A file is small and read whole; every error names the
  * file, the line and what was found there. */
 #include <ctype.h>
+#include <math.h>
 #include <stdio.h>
 #include <string.h>
 
@@ -87,6 +88,9 @@ static int parse_key(tf_parse *p, const char *key, char *value) {
     if (word == 6 && strncmp(value, "window", 6) == 0) {
       if (!(v[0] > 0.0))
         return bad(p, RP_ERANGE, "the window's width must be > 0", value);
+      if (!(fabs(v[1]) + v[0] / 2.0 <= 1e30)) /* rp_tf_create's bound */
+        return bad(p, RP_ERANGE, "the window's ends must lie within "
+                   "[-1e30, 1e30]", value);
       p->desc.range = RP_TF_RANGE_DATA;
       p->desc.range_lo = v[1] - v[0] / 2.0;
       p->desc.range_hi = v[1] + v[0] / 2.0;
@@ -150,12 +154,14 @@ static int parse(tf_parse *p, char *text) {
   return err;
 }
 
-static int read_all(rp_context *ctx, const char *path, char **out) {
+/* The file whole, at most RP__TF_FILE_MAX bytes, into *out (the caller
+ * frees it) and its length into *len. */
+static int read_all(rp_context *ctx, const char *path, char **out,
+                    size_t *len) {
   uint64_t size = 0;
   int rc = 0;
   FILE *f = rp__open_regular(ctx, path, NULL, &size, &rc);
   char *buf;
-  size_t n;
   if (f == NULL)
     return rc;
   if (size > RP__TF_FILE_MAX) {
@@ -169,31 +175,31 @@ static int read_all(rp_context *ctx, const char *path, char **out) {
     fclose(f);
     return rp__fail(ctx, RP_ENOMEM, "%s: out of memory", path);
   }
-  n = fread(buf, 1, (size_t)size, f);
+  *len = fread(buf, 1, (size_t)size, f);
   fclose(f);
-  buf[n] = '\0';
-  if (memchr(buf, '\0', n) != NULL) {
-    rp__free(ctx, buf);
-    return rp__fail(ctx, RP_EFORMAT, "%s: binary data (a NUL byte); a "
-                    "transfer function file is text", path);
-  }
   *out = buf;
   return 0;
 }
 
-int rp_tf_load(rp_context *ctx, const char *path, rp_tf **out) {
+int rp__tf_parse(rp_context *ctx, const char *name, const char *buf,
+                 size_t len, rp_tf **out) {
   tf_parse p;
-  char *text = NULL;
+  char *text;
   int err;
-  if (ctx == NULL)
-    return RP_EINVAL;
-  if (path == NULL || out == NULL)
-    return rp__fail(ctx, RP_EINVAL, "rp_tf_load: path and out are "
-                    "required");
-  if ((err = read_all(ctx, path, &text)) != 0)
-    return err;
+  if (len > RP__TF_FILE_MAX)
+    return rp__fail(ctx, RP_ERANGE, "%s: %zu bytes; a transfer function "
+                    "file is at most %d", name, len, RP__TF_FILE_MAX);
+  if (len > 0 && memchr(buf, '\0', len) != NULL)
+    return rp__fail(ctx, RP_EFORMAT, "%s: binary data (a NUL byte); a "
+                    "transfer function file is text", name);
+  /* The parser cuts lines and tokens in place. */
+  if ((text = rp__malloc(ctx, len + 1)) == NULL)
+    return rp__fail(ctx, RP_ENOMEM, "%s: out of memory", name);
+  if (len > 0) /* buf may be NULL then */
+    memcpy(text, buf, len);
+  text[len] = '\0';
   memset(&p, 0, sizeof p);
-  p.ctx = ctx, p.path = path;
+  p.ctx = ctx, p.path = name;
   err = parse(&p, text);
   if (err == 0) {
     p.desc.points = p.points;
@@ -201,10 +207,26 @@ int rp_tf_load(rp_context *ctx, const char *path, rp_tf **out) {
     if (err != 0) { /* name the file in rp_tf_create's message */
       char msg[RP__ERRMSG_MAX];
       snprintf(msg, sizeof msg, "%s", rp_last_error(ctx));
-      err = rp__fail(ctx, err, "%s: %s", path, msg);
+      err = rp__fail(ctx, err, "%s: %s", name, msg);
     }
   }
   rp__free(ctx, p.points);
+  rp__free(ctx, text);
+  return err;
+}
+
+int rp_tf_load(rp_context *ctx, const char *path, rp_tf **out) {
+  char *text = NULL;
+  size_t len = 0;
+  int err;
+  if (ctx == NULL)
+    return RP_EINVAL;
+  if (path == NULL || out == NULL)
+    return rp__fail(ctx, RP_EINVAL, "rp_tf_load: path and out are "
+                    "required");
+  if ((err = read_all(ctx, path, &text, &len)) != 0)
+    return err;
+  err = rp__tf_parse(ctx, path, text, len, out);
   rp__free(ctx, text);
   return err;
 }

@@ -14,6 +14,11 @@
 
 #define RP__LUT_DEFAULT 1024
 #define RP__LUT_MAX 65536
+/* Data values a TF may place (points in data units, a data range, a
+ * window's ends): kernels take the span as floats and subtract its ends,
+ * which stays finite within +-1e30 (beyond, a window of 4e41 became an
+ * infinite span and a TF that sampled nothing). */
+#define RP__TF_DATA_MAX 1e30
 
 float rp_opacity_correct(float alpha, float step, float ref_step) {
   double r, a;
@@ -64,6 +69,11 @@ static int check_range(rp_context *ctx, const rp_tf_desc *d) {
     return rp__fail(ctx, RP_ERANGE, "transfer function: fields "
                     "'range_lo', 'range_hi': %g is not below %g",
                     d->range_lo, d->range_hi);
+  if (d->range == RP_TF_RANGE_DATA &&
+      (d->range_lo < -RP__TF_DATA_MAX || d->range_hi > RP__TF_DATA_MAX))
+    return rp__fail(ctx, RP_ERANGE, "transfer function: fields "
+                    "'range_lo', 'range_hi': data values %g, %g are "
+                    "outside [-1e30, 1e30]", d->range_lo, d->range_hi);
   if (d->range == RP_TF_RANGE_PERCENTILES &&
       (d->range_lo < 0.0 || d->range_hi > 100.0))
     return rp__fail(ctx, RP_ERANGE, "transfer function: fields "
@@ -97,6 +107,10 @@ static int validate(rp_context *ctx, const rp_tf_desc *d) {
     if (d->units == RP_TF_DATA && !isfinite(p->x))
       return rp__fail(ctx, RP_ENOTFINITE, "transfer function: point %d "
                       "field 'x': value %g is not finite", i, (double)p->x);
+    if (d->units == RP_TF_DATA && fabsf(p->x) > RP__TF_DATA_MAX)
+      return rp__fail(ctx, RP_ERANGE, "transfer function: point %d field "
+                      "'x': data value %g is outside [-1e30, 1e30]", i,
+                      (double)p->x);
     if ((d->units != RP_TF_DATA && (err = check_unit(ctx, i, "x", p->x)) !=
                                        0) ||
         (err = check_unit(ctx, i, "r", p->r)) != 0 ||
@@ -315,6 +329,10 @@ int rp_tf_window(rp_context *ctx, const rp_tf *src, double width,
   if (!(width > 0.0))
     return rp__fail(ctx, RP_ERANGE, "window/level: width %g must be > 0",
                     width);
+  if (!(fabs(level) + width / 2.0 <= RP__TF_DATA_MAX))
+    return rp__fail(ctx, RP_ERANGE, "window/level: width %g, level %g: "
+                    "the window's ends must lie within [-1e30, 1e30]",
+                    width, level);
   if ((err = rp__tf_clone(ctx, src, out)) != 0)
     return err;
   (*out)->range = RP_TF_RANGE_DATA;

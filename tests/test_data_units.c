@@ -104,6 +104,10 @@ static void window_level_places_the_tf(void **state) {
   assert_int_equal(rp_tf_window(ctx, bone, 0.0, 40.0, &w), RP_ERANGE);
   assert_non_null(strstr(rp_last_error(ctx), "width 0"));
   assert_int_equal(rp_tf_window(ctx, bone, NAN, 40.0, &w), RP_ENOTFINITE);
+  /* Ends beyond +-1e30 (a float span would overflow), either way. */
+  assert_int_equal(rp_tf_window(ctx, bone, 4e41, 40.0, &w), RP_ERANGE);
+  assert_non_null(strstr(rp_last_error(ctx), "width 4e+41"));
+  assert_int_equal(rp_tf_window(ctx, bone, 1.0, -2e30, &w), RP_ERANGE);
   rp_tf_destroy(bone);
   rp_volume_destroy(v);
   rp_context_destroy(ctx);
@@ -282,6 +286,13 @@ static void tf_files_in_data_units(void **state) {
   assert_int_equal(rp_tf_load(ctx, path, &tf), RP_EINVAL);
   assert_non_null(strstr(rp_last_error(ctx), "unord.tf"));
   assert_int_equal(rp_tf_load(ctx, "/nonexistent.tf", &tf), RP_ENOENT);
+  /* fuzz_tf: a window of 4e41 was taken and spanned [-inf, inf]. */
+  path = put("wide.tf", "range: window 401e39 40\n0 0 0 0 0\n");
+  assert_int_equal(rp_tf_load(ctx, path, &tf), RP_ERANGE);
+  assert_non_null(strstr(rp_last_error(ctx), "wide.tf: line 1"));
+  path = put("far.tf", "units: data\n0 0 0 0 0\n2e30 1 1 1 1\n");
+  assert_int_equal(rp_tf_load(ctx, path, &tf), RP_ERANGE);
+  assert_non_null(strstr(rp_last_error(ctx), "point 1 field 'x'"));
   rp_volume_destroy(v);
   rp_context_destroy(ctx);
 }

@@ -68,7 +68,7 @@ static int wait_all(proxy *px, rp_mpi__xfer *x, const char *op,
   MPI_Comm comm = rp_mpi__comm();
   uint32_t us = 0;
   for (;;) {
-    int done = 0, progress = 0, rc, flag = 1;
+    int done = 0, progress = 0, rc, flag = 1, beats;
     double now;
     if ((rc = rp_mpi__test(x, &done, &progress)) != MPI_SUCCESS) {
       char msg[MPI_MAX_ERROR_STRING];
@@ -83,7 +83,10 @@ static int wait_all(proxy *px, rp_mpi__xfer *x, const char *op,
     /* A beat for this request or a late one for an earlier request: the
      * rank is alive either way. */
     rp_mpi__lock();
-    while (flag) {
+    /* At most RP_MPI_BEATS_PER_POLL: a rank that floods beats must not
+     * keep this loop, and the lock, forever; the deadlines below still
+     * run. */
+    for (beats = 0; flag && beats < RP_MPI_BEATS_PER_POLL; beats++) {
       MPI_Message m;
       uint32_t seq;
       if (MPI_Improbe(x->peer, RP_MPI_TAG_BEAT, comm, &flag, &m,
@@ -155,30 +158,21 @@ static int call(proxy *px, rp_mpi__xfer **xp) {
   /* The request's payload is delivered: the staging copy can go. */
   free(x->out);
   x->out = NULL;
-  if (x->rep.magic != RP_MPI_MAGIC || x->rep.op != x->req.op ||
-      x->rep.seq != x->req.seq) {
-    snprintf(why, sizeof why, "its reply to %s (seq %u) reads as op %u "
-             "seq %u: the ranks run different builds?", op, x->req.seq,
-             x->rep.op, x->rep.seq);
+  if (rp_mpi__reply_check(&x->req, &x->rep,
+                          (uint64_t)((rp_mpi__now_ms() - start) * 1e6),
+                          &want, why, sizeof why) != 0)
     return lose(px, x, why);
-  }
   px->last_ns = x->rep.last_ns;
   if (x->rep.status != 0) {
-    x->rep.error[sizeof x->rep.error - 1] = '\0';
     rc = rp__fail(px->ctx, x->rep.status, "mpi: rank %d: %s: %s", px->rank,
                   op, x->rep.error);
     rp_mpi__xfer_free(x);
     return rc;
   }
-  if (rp_mpi__reply_layout(&x->req, &want) != 0 ||
-      x->rep.payload_bytes != want.total) {
-    snprintf(why, sizeof why, "its reply to %s carries %llu bytes where "
-             "%zu were due", op, (unsigned long long)x->rep.payload_bytes,
-             want.total);
-    return lose(px, x, why);
-  }
   if (want.total > 0) {
-    if ((x->in = malloc(want.total)) == NULL) {
+    /* Zeroed: a rank that sends short chunks leaves zeros, not this
+     * process's old memory, in what is copied out. */
+    if ((x->in = calloc(1, want.total)) == NULL) {
       /* The rank has sent, or is sending, what it owes; without a place
        * to put it, the exchange cannot finish. */
       snprintf(why, sizeof why, "no memory for its %zu-byte reply to %s",
@@ -193,7 +187,9 @@ static int call(proxy *px, rp_mpi__xfer **xp) {
       snprintf(why, sizeof why, "receiving %s failed in MPI: %s", op, msg);
       return lose(px, x, why);
     }
-    if (wait_all(px, x, op, start, &life, why, sizeof why) != 0)
+    if (wait_all(px, x, op, start, &life, why, sizeof why) != 0 ||
+        rp_mpi__reply_payload_check(&x->req, &want, x->in, why,
+                                    sizeof why) != 0)
       return lose(px, x, why);
   }
   *xp = x;

@@ -1,6 +1,6 @@
 /* The MPI backend's module: MPI set-up and shutdown (raypace_mpi.h), the
- * server ranks as rank 0 sees them, the payload layouts and the polled,
- * chunked transfers both sides use (mpi_internal.h). */
+ * server ranks as rank 0 sees them and the polled, chunked transfers both
+ * sides use (mpi_internal.h). The payload layouts are mpi_proto.c's. */
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -8,7 +8,6 @@
 #include <uv.h>
 
 #include "mpi_internal.h"
-#include "passes.h"
 #include "raypace_mpi.h"
 
 /* A server rank as rank 0 sees it. */
@@ -245,132 +244,6 @@ int rp_mpi__rank_lost(int rank) {
   lost = mod.ranks[rank].lost;
   uv_mutex_unlock(&mod.lock);
   return lost;
-}
-
-/* ---- Layouts --------------------------------------------------------------- */
-
-/* Appends a piece of count * size bytes; -1 on overflow. */
-static int piece(rp_mpi__layout *l, uint64_t count, uint64_t size) {
-  size_t off = (l->total + 15) / 16 * 16;
-  if (size != 0 && count > SIZE_MAX / size)
-    return -1;
-  if (off < l->total || count * size > SIZE_MAX - off)
-    return -1;
-  l->off[l->n] = off;
-  l->len[l->n] = (size_t)(count * size);
-  l->total = off + l->len[l->n];
-  l->n++;
-  return 0;
-}
-
-void rp_mpi__region_tiles(const rp_region *r, uint32_t *tx0, uint32_t *ty0,
-                          uint32_t *tw, uint32_t *th) {
-  *tx0 = r->x0 / RP_TILE_SIZE;
-  *ty0 = r->y0 / RP_TILE_SIZE;
-  *tw = r->x1 > r->x0 ? (r->x1 + RP_TILE_SIZE - 1) / RP_TILE_SIZE - *tx0
-                      : 0;
-  *th = r->y1 > r->y0 ? (r->y1 + RP_TILE_SIZE - 1) / RP_TILE_SIZE - *ty0
-                      : 0;
-}
-
-int rp_mpi__request_layout(const rp_mpi_request *q, rp_mpi__layout *l) {
-  memset(l, 0, sizeof *l);
-  switch (q->op) {
-  case RP_MPI_UPLOAD_VOLUME: {
-    const rp_mpi_volume_args *a = &q->a.volume;
-    if (a->type != RP_U8 && a->type != RP_U16 && a->type != RP_F32)
-      return -1;
-    return piece(l, a->voxels, rp__voxel_size((rp_voxel_type)a->type));
-  }
-  case RP_MPI_UPLOAD_TF:
-    return piece(l, q->a.tf.lut_size, 4 * sizeof(float));
-  case RP_MPI_UPLOAD_OCCUPANCY: {
-    const uint32_t *b = q->a.occupancy.blocks;
-    uint64_t n = (uint64_t)b[0] * b[1] * b[2];
-    return piece(l, n, 1) || piece(l, n, RP_OPACITY_BINS) ? -1 : 0;
-  }
-  case RP_MPI_COMPUTE_AO: {
-    const rp_ao_job *j = &q->a.ao.job;
-    if (piece(l, j->directions, 4 * sizeof(float)) != 0)
-      return -1;
-    return q->a.ao.has_bricks
-               ? piece(l, (uint64_t)j->brick_grid[0] * j->brick_grid[1] *
-                              j->brick_grid[2],
-                       1)
-               : 0;
-  }
-  case RP_MPI_UPLOAD_AO:
-    return q->a.upload_ao.present ? piece(l, q->a.upload_ao.bytes, 1) : 0;
-  case RP_MPI_UPLOAD_BRICKS: {
-    const rp_mpi_bricks_args *a = &q->a.bricks;
-    if (piece(l, a->count, sizeof(uint32_t)) != 0 ||
-        piece(l, a->count, a->brick_bytes) != 0)
-      return -1;
-    return a->has_table ? piece(l, a->table_entries, sizeof(uint32_t)) : 0;
-  }
-  case RP_MPI_OPEN:
-  case RP_MPI_CLOSE:
-  case RP_MPI_DEPTH_PASS:
-  case RP_MPI_ERT_PREPASS:
-  case RP_MPI_RAYCAST:
-  case RP_MPI_SET_BRICK_POOL:
-  case RP_MPI_SHUTDOWN:
-    return 0;
-  default:
-    return -1;
-  }
-}
-
-int rp_mpi__reply_layout(const rp_mpi_request *q, rp_mpi__layout *l) {
-  const rp_mpi_frame_args *f = &q->a.frame;
-  memset(l, 0, sizeof *l);
-  switch (q->op) {
-  case RP_MPI_DEPTH_PASS:
-    if (!(f->want & RP_MPI_WANT_FRONT_BACK))
-      return 0;
-    return piece(l, (uint64_t)f->p.width * f->p.height, 2 * sizeof(float));
-  case RP_MPI_ERT_PREPASS: {
-    uint32_t gw, gh;
-    rp__ert_grid(f->p.width, f->p.height, &gw, &gh);
-    return piece(l, (uint64_t)gw * gh, sizeof(float));
-  }
-  case RP_MPI_RAYCAST: {
-    uint32_t tx0, ty0, tw, th;
-    uint64_t px = (uint64_t)(f->region.x1 - f->region.x0) *
-                  (f->region.y1 - f->region.y0);
-    if (f->region.x1 < f->region.x0 || f->region.y1 < f->region.y0)
-      return -1;
-    rp_mpi__region_tiles(&f->region, &tx0, &ty0, &tw, &th);
-    if (piece(l, px, 4) != 0)
-      return -1;
-    if ((f->want & RP_MPI_WANT_TILES) &&
-        piece(l, (uint64_t)tw * th, sizeof(rp_tile_stats)) != 0)
-      return -1;
-    if ((f->want & RP_MPI_WANT_FETCHES) &&
-        piece(l, (uint64_t)tw * th, sizeof(uint64_t)) != 0)
-      return -1;
-    return 0;
-  }
-  case RP_MPI_COMPUTE_AO: {
-    const rp_ao_job *j = &q->a.ao.job;
-    uint64_t n = 1;
-    int i;
-    for (i = 0; i < 3; i++)
-      n *= j->end[i] > j->lo[i] ? j->end[i] - j->lo[i] : 0;
-    return piece(l, n, 1);
-  }
-  default:
-    return q->op >= RP_MPI_OPEN && q->op < RP_MPI_OP_END ? 0 : -1;
-  }
-}
-
-const char *rp_mpi__op_name(uint32_t op) {
-  static const char *const names[] = {
-      "?",          "open",           "close",       "upload_volume",
-      "upload_tf",  "upload_occupancy", "depth_pass", "ert_prepass",
-      "raycast",    "compute_ao",     "upload_ao",   "set_brick_pool",
-      "upload_bricks", "shutdown"};
-  return op < sizeof names / sizeof names[0] ? names[op] : "?";
 }
 
 /* ---- Transfers ------------------------------------------------------------- */

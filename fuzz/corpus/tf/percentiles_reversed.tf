@@ -1,0 +1,3 @@
+range: percentiles 99 1
+0 0 0 0 0
+1 1 1 1 1

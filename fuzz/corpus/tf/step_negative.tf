@@ -1,0 +1,3 @@
+reference_step: -1
+0 0 0 0 0
+1 1 1 1 1

@@ -1,0 +1,2 @@
+range: window 0 40
+0 0 0 0 0
