@@ -2,15 +2,19 @@
 # Set-up, build and run on Debian 12.
 #   ./dev.sh demo   install what is missing, build, render the demo image
 #   ./dev.sh test   install what is missing, build, run every test: the
-#                   plain build, then AddressSanitizer + UBSan, clang's
-#                   static analyzer, and each fuzz target over its seed
-#                   corpus; it ends with one line that counts what
-#                   passed, failed and was skipped over every stage
+#                   plain build, then AddressSanitizer + UBSan (each
+#                   fuzz target replays its seed corpus in both),
+#                   ThreadSanitizer, clang's static analyzer; it ends
+#                   with one line that counts what passed, failed and
+#                   was skipped over every stage
+#   ./dev.sh fuzz [SECONDS]
+#                   build the libFuzzer targets with clang and fuzz each
+#                   for SECONDS (default 60) from its corpus
 set -eu
 cd "$(dirname "$0")"
 mode=${1:-}
-case "$mode" in demo|test) ;; *)
-  echo "usage: ./dev.sh demo|test" >&2; exit 2;; esac
+case "$mode" in demo|test|fuzz) ;; *)
+  echo "usage: ./dev.sh demo|test|fuzz [SECONDS]" >&2; exit 2;; esac
 
 PKGS="cmake make gcc clang libclang-rt-14-dev pkg-config zlib1g-dev
 libpng-dev libcjson-dev libuv1-dev libcmocka-dev ocl-icd-opencl-dev
@@ -54,6 +58,13 @@ if [ "$mode" = demo ]; then
     -o out/demo.png
   echo "demo image: $(pwd)/out/demo.png"
   exit 0
+fi
+
+if [ "$mode" = fuzz ]; then
+  CC=clang CXX=clang++ build build-fuzz -DRP_FUZZ=ON -DRP_BUILD_TESTS=OFF \
+    -DRP_BUILD_CLI=OFF -DRP_BUILD_SAMPLES=OFF -DRP_BUILD_BENCH=OFF
+  FUZZ_SECONDS=${2:-60} sh fuzz/run_corpus.sh build-fuzz/fuzz/fuzz_*
+  exit $?
 fi
 
 # Every stage runs even when an earlier one failed, so that one run
@@ -143,14 +154,8 @@ else
   passed=$((passed + 1))
 fi
 
-if CC=clang CXX=clang++ try_build fuzz build-fuzz -DRP_FUZZ=ON \
-  -DRP_BUILD_TESTS=OFF -DRP_BUILD_CLI=OFF -DRP_BUILD_SAMPLES=OFF \
-  -DRP_BUILD_BENCH=OFF; then
-  stage fuzz-corpora build-fuzz
-fi
-
 echo "dev.sh test: $passed passed, $failed failed, $skipped skipped" \
-  "(stages plain, asan+ubsan, tsan, analyzer, fuzz-corpora)"
+  "(stages plain, asan+ubsan, tsan, analyzer)"
 if [ -n "$broken" ]; then
   echo "dev.sh test: failed in:$broken" >&2
   exit 1
