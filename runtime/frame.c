@@ -583,6 +583,8 @@ static double report_devices(rp__engine *e, const rp_group_report *rep,
     if (gd->status != 0)
       snprintf(df->error, sizeof df->error, "%s", gd->error);
     df->dropped = gd->dropped;
+    df->state = gd->state;
+    df->failures = gd->failures;
     *depth |= gd->depth_passes > 0;
   }
   return upload;
