@@ -114,13 +114,16 @@ typedef struct rp_group_device {
   double cost_share;    /* its region's fraction of the predicted tile
                            cost */
   rp_region region;     /* scaled-image pixels it was given; empty: none */
-  double depth_ms;      /* its depth pass, wall; 0 when reused */
+  double depth_ms;      /* its depth pass, wall (a device that keeps its
+                           own clock, the test backend: on that clock,
+                           as busy_ms; since 0.12); 0 when reused */
   uint32_t depth_passes; /* depth passes it ran (0 when reused) */
   double raycast_ms;    /* device time of its raycast */
   double upload_ms;     /* out of core: device time of the bricks it
                            uploaded first (not in raycast_ms) */
   double busy_ms;       /* its worker's wall time for the frame: depth
-                           pass, raycast, readback */
+                           pass, raycast, readback; on its own clock
+                           when it keeps one */
   uint64_t samples;     /* samples its region took */
   double predicted_ms;  /* its model's time for its region, NaN unknown */
   uint32_t strips;      /* tail strips it rendered (rp_group_desc) */

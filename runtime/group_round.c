@@ -18,6 +18,18 @@
 
 static double now_ms(void) { return (double)uv_hrtime() * 1e-6; }
 
+/* Now on w's own clock, for its worker's timings: the device's when it
+ * keeps one (the test backend: a job's time is then its simulated time,
+ * an injected stall included, and a group of test devices learns and
+ * splits the same on every run and machine), else the wall's. Deadlines
+ * stay in wall time: only real time can run late. */
+static double member_ms(const rp__member *w) {
+  uint64_t ns;
+  if (rp__device_clock_ns(w->dev, &ns))
+    return (double)ns * 1e-6;
+  return now_ms();
+}
+
 /* ---- Jobs ---------------------------------------------------------------- */
 
 static int reserve(rp__member *w, void **buf, size_t *cap, size_t bytes) {
@@ -56,10 +68,10 @@ static int do_render(rp__member *w) {
   key.tf_gen = w->tf_gen;
   if (!w->key_valid || memcmp(&key, &w->key, sizeof key) != 0) {
     w->key_valid = 0;
-    t0 = now_ms();
+    t0 = member_ms(w);
     if ((err = rp_device_depth_pass(w->dev, &w->cam, d, NULL)) != 0)
       return err;
-    w->depth_ms = now_ms() - t0;
+    w->depth_ms = member_ms(w) - t0;
     w->depth_passes = 1;
     w->key = key;
     w->key_valid = 1;
@@ -85,7 +97,7 @@ static int do_render(rp__member *w) {
 
 /* Runs one job of w's on the calling thread (its executor's). */
 static void run_job(rp__member *w, int kind) {
-  double t0 = now_ms();
+  double t0 = member_ms(w);
   int err = 0;
   rp__clear_error(w->ctx);
   w->depth_ms = w->raycast_ms = w->upload_ms = 0.0;
@@ -123,7 +135,7 @@ static void run_job(rp__member *w, int kind) {
     w->have_tf_gen = w->tf_gen;
   else if (kind == RP__JOB_AO)
     w->have_ao_gen = w->ao_gen;
-  w->busy_ms = now_ms() - t0;
+  w->busy_ms = member_ms(w) - t0;
   if (kind == RP__JOB_RENDER && err == 0) {
     w->round.depth_ms += w->depth_ms;
     w->round.raycast_ms += w->raycast_ms;

@@ -303,6 +303,12 @@ int rp__backend_open(rp_context *ctx, const char *name, uint32_t index,
  * injection), else 0, and its time is real time (rp__now_ns). The
  * device's owner thread only. */
 int rp__device_clock_ns(const rp_device *dev, uint64_t *ns);
+/* Sets the slowdown of a device opened with fault injection
+ * (rp_fault_desc.slowdown, the same range) from its next operation on:
+ * a test warms a device (its first render builds kernels, which lavapipe
+ * counts as device time) before slowing it a thousandfold. The owner
+ * thread, between operations. RP_EINVAL without fault injection. */
+int rp__device_set_slowdown(rp_device *dev, double slowdown);
 
 /* ---- predict.c: the probe's own cost ------------------------------------ */
 
