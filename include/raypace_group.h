@@ -105,7 +105,9 @@ typedef struct rp_group_desc {
 typedef struct rp_group_device {
   char name[168];       /* backend:device */
   int status;           /* 0, or the RP_E* it failed with this frame (its
-                           region was re-rendered by the others) */
+                           region was re-rendered by the others; or,
+                           since 0.12, coming back at its start: its
+                           re-creation or its uploads failed) */
   int dropped;          /* 1 while it has no share: from the frame it
                            failed or ran late on until it is back
                            (state) */

@@ -58,6 +58,9 @@ typedef struct rp__member {
   uint64_t retry_at;
   double late_cost;
   int gave_up; /* given up on at its deadline this round */
+  /* A failure coming back at this render's start (re-creation, catch-up
+   * or late work), its message in `why`: the report's status. */
+  int back_status;
   /* Its desc, kept to re-create it: the backend's name and the
    * extension structs, copied and chained again. */
   rp_device_desc dd;

@@ -174,6 +174,8 @@ static void readmit(rp_device_group *g, rp__member *w) {
  * when the work failed. */
 static int late_ended(rp_device_group *g, rp__member *w, int status) {
   if (status != 0 && rp__group_loses_device(status, 0)) {
+    w->back_status = status;
+    snprintf(w->why, sizeof w->why, "%s", w->error);
     rp__health_fail(g, w);
     return 0;
   }
@@ -182,7 +184,7 @@ static int late_ended(rp_device_group *g, rp__member *w, int status) {
     if (isfinite(measured))
       rp__rate_add(&w->sm, measured);
   }
-  if (catch_up(g, w) != 0) {
+  if ((w->back_status = catch_up(g, w)) != 0) {
     /* An upload its peers took and it did not: a failure either way. */
     rp__health_fail(g, w);
     return 0;
@@ -195,6 +197,7 @@ uint32_t rp__health_begin(rp_device_group *g) {
   uint32_t i, back = 0;
   for (i = 0; i < g->count; i++) {
     rp__member *w = &g->m[i];
+    w->back_status = 0;
     if (w->state == RP_DEVICE_LATE) {
       int running, status;
       uv_mutex_lock(&g->lock);
@@ -208,6 +211,7 @@ uint32_t rp__health_begin(rp_device_group *g) {
       if (err == 0)
         err = catch_up(g, w);
       if (err != 0) {
+        w->back_status = err;
         rp__health_fail(g, w);
         continue;
       }
@@ -253,6 +257,10 @@ void rp__health_report(const rp_device_group *g, rp_group_report *rep) {
     rp_group_device *rd = &rep->devices[i];
     rd->state = w->state;
     rd->failures = w->failures;
+    if (w->back_status != 0 && rd->status == 0) {
+      rd->status = w->back_status;
+      snprintf(rd->error, sizeof rd->error, "%s", w->why);
+    }
     rd->dropped = w->dropped;
     rd->retry_in = w->state == RP_DEVICE_RETRY && w->retry_at > g->frame_no
                        ? (uint32_t)(w->retry_at - g->frame_no - 1)
