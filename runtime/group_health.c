@@ -121,6 +121,7 @@ static int catch_up(rp_device_group *g, rp__member *w) {
  * asked for count as tried (the frame builds what it needs), so that
  * rp_device_group_prepared does not wait for a device that is gone. */
 static int recreate(rp_device_group *g, rp__member *w) {
+  rp_device *dev = NULL;
   uint32_t set;
   int err;
   uv_mutex_lock(&g->build_lock);
@@ -135,23 +136,29 @@ static int recreate(rp_device_group *g, rp__member *w) {
   }
   w->build_want = 0;
   uv_mutex_unlock(&g->build_lock);
+  /* The new device first: the old one stays, and its executor with it,
+   * until there is one to replace it (an AO run may hold the executor). */
+  rp__clear_error(w->ctx);
+  if ((err = rp_device_create(w->ctx, &w->dd, &dev)) != 0) {
+    snprintf(w->why, sizeof w->why, "re-creating '%s': %s", w->name,
+             rp_last_error(w->ctx));
+    return err;
+  }
   /* Its worker is idle (a failed job ended); a build under way ends
    * first. */
-  rp__executor_destroy(w->ex);
-  w->ex = NULL;
+  err = rp__executor_rebind(w->ex, dev);
   rp_device_destroy(w->dev);
-  w->dev = NULL;
+  w->dev = dev;
   w->build_queued = 0;
   w->warm_sets = 0;
   w->key_valid = 0;
   w->have_vol_gen = w->have_tf_gen = w->have_ao_gen = 0;
   w->ao_bytes = 0;
-  rp__clear_error(w->ctx);
-  if ((err = rp_device_create(w->ctx, &w->dd, &w->dev)) != 0 ||
-      (err = rp__executor_create(w->ctx, w->dev, g->threads, &w->ex)) !=
-          0) {
-    snprintf(w->why, sizeof w->why, "re-creating '%s': %s", w->name,
-             rp_last_error(w->ctx));
+  if (err != 0) {
+    /* No worker: nothing submitted to it would run. Out for good. */
+    snprintf(w->why, sizeof w->why, "re-creating '%s': its worker thread "
+             "would not start", w->name);
+    w->failures = RP_GROUP_MAX_FAILURES - 1;
     return err;
   }
   rp_device_get_caps(w->dev, &w->caps);

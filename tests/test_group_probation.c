@@ -17,6 +17,7 @@
 #include <uv.h>
 
 #include "group_scene.h"
+#include "raypace_ao.h"
 
 #define W 64
 #define H 48
@@ -192,6 +193,87 @@ static void test_lone_device_comes_back(void **state) {
   assert_true(run_failing(1, 5, 14) > 0);
 }
 
+/* ---- Re-created under an AO run, and given the AO -------------------------- */
+
+/* One frame of g against `want`, device 1 expected in `st`. */
+static void frame_as(rp_device_group *g, rp_group_scene *s,
+                     const uint8_t *want, uint8_t *img,
+                     rp_device_state st) {
+  rp_group_report rep;
+  memset(img, 0, W * H * 4);
+  assert_int_equal(rp_group_scene_frame(g, s, img, NULL, &rep), 0);
+  assert_memory_equal(want, img, W * H * 4);
+  if (rep.devices[1].state != st)
+    fail_msg("device 1 %s, expected %s", state_name(rep.devices[1].state),
+             state_name(st));
+}
+
+/* Device 1 fails at the second render of each of its creations. An AO
+ * run begun before it fails goes on after it was re-created (on the
+ * executor it had: the run holds it, and reaches the new device through
+ * it) and computes the reference's AO. Set, that AO reaches the device
+ * re-created next (it was away when it was set): AO frames are one
+ * device's bytes, AO included, before it fails for the third time and is
+ * out. */
+static void test_recreated_under_ao(void **state) {
+  uint8_t *one = malloc(W * H * 4), *img = malloc(W * H * 4);
+  rp_ao_desc desc = {4, 2, 3.0f, 1.0f, 0};
+  rp_ao_plan *plan = NULL;
+  rp_ao *want = NULL, *got = NULL;
+  rp_ao_run *run = NULL;
+  rp_group_scene s;
+  rp_device_group *g;
+  rp_device_desc dd = {0};
+  rp_device *alone = NULL;
+  int f, err;
+  (void)state;
+  rp_group_scene_make(&s, W, H, EFFECTS);
+  rp_group_scene_alone(&s, "reference", one, NULL);
+  g = make_group(&s, 2, 2, 0, 0);
+  assert_int_equal(rp_ao_plan_create(s.ctx, s.vol, s.tf, &desc, &plan), 0);
+  assert_int_equal(rp_ao_compute_reference(s.ctx, s.vol, s.tf, &desc, NULL,
+                                           NULL, &want),
+                   0);
+  frame_as(g, &s, one, img, RP_DEVICE_ACTIVE);
+  assert_int_equal(rp_device_group_ao_begin(g, plan, NULL, &run), 0);
+  frame_as(g, &s, one, img, RP_DEVICE_RETRY); /* its second render */
+  for (f = 0; f < RP_GROUP_RETRY_FRAMES; f++)
+    frame_as(g, &s, one, img, RP_DEVICE_RETRY);
+  frame_as(g, &s, one, img, RP_DEVICE_PROBATION); /* re-created */
+  err = rp_ao_run_step(run, INFINITY, NULL);
+  assert_int_equal(rp_device_group_ao_end(g, run, err, &got, NULL), 0);
+  rp_ao_run_destroy(run);
+  assert_memory_equal(rp_ao_data(got, NULL), rp_ao_data(want, NULL),
+                      48 * 48 * 48);
+  /* AO frames from here: the oracle renders with the same AO. */
+  assert_int_equal(rp_device_group_set_ao(g, got), 0);
+  s.desc.effects |= RP_EFFECT_AO;
+  assert_int_equal(rp_frame_probe_compute(s.ctx, s.vol, s.tf, s.occ,
+                                          &s.cam, &s.desc, 1, 0, &s.probe),
+                   0);
+  dd.backend = "reference";
+  assert_int_equal(rp_device_create(s.ctx, &dd, &alone), 0);
+  assert_int_equal(rp_device_set_volume(alone, s.vol), 0);
+  assert_int_equal(rp_device_set_tf(alone, s.tf, s.occ), 0);
+  assert_int_equal(rp_device_set_ao(alone, got), 0);
+  assert_int_equal(rp_device_render(alone, &s.cam, &s.desc, NULL, one,
+                                    NULL),
+                   0);
+  rp_device_destroy(alone);
+  frame_as(g, &s, one, img, RP_DEVICE_RETRY); /* its second render */
+  for (f = 0; f < (RP_GROUP_RETRY_FRAMES << 1); f++)
+    frame_as(g, &s, one, img, RP_DEVICE_RETRY);
+  frame_as(g, &s, one, img, RP_DEVICE_PROBATION); /* re-created, AO on */
+  frame_as(g, &s, one, img, RP_DEVICE_OUT);
+  rp_ao_destroy(got);
+  rp_ao_destroy(want);
+  rp_ao_plan_destroy(plan);
+  rp_device_group_destroy(g);
+  rp_group_scene_free(&s);
+  free(one);
+  free(img);
+}
+
 /* ---- Stalls --------------------------------------------------------------- */
 
 static int cmp_double(const void *a, const void *b) {
@@ -327,6 +409,7 @@ int main(void) {
       cmocka_unit_test(test_failing_device_stays_out),
       cmocka_unit_test(test_failed_device_comes_back),
       cmocka_unit_test(test_lone_device_comes_back),
+      cmocka_unit_test(test_recreated_under_ao),
       cmocka_unit_test(test_stall_at_first_frame),
       cmocka_unit_test(test_stall_comes_back),
   };
