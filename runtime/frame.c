@@ -104,8 +104,8 @@ struct rp__engine {
   rp_runtime_desc desc; /* defaults resolved; devices not kept */
   rp_space_desc space;
   rp_device_group *group;
-  rp_device *clock_dev; /* the single device whose clock is the
-                           engine's, or NULL: CLOCK_MONOTONIC */
+  int own_clock; /* the single device keeps its own clock, which is the
+                    engine's (rp__group_clock_ns); 0: CLOCK_MONOTONIC */
   pthread_mutex_t count_lock;
   rp_runtime_counters counters; /* the passes'; under count_lock */
   scene s;
@@ -127,7 +127,7 @@ struct rp__engine {
 
 double rp__engine_now_ms(const rp__engine *e) {
   uint64_t ns;
-  if (e->clock_dev != NULL && rp__device_clock_ns(e->clock_dev, &ns))
+  if (e->own_clock && rp__group_clock_ns(e->group, 0, &ns))
     return (double)ns * 1e-6;
   return rp__now_ms();
 }
@@ -413,7 +413,7 @@ static int make_controller(rp__engine *e) {
   cd.rho_start = s->density;
   cd.miss_rate = e->desc.miss_rate;
   cd.headroom = e->desc.headroom;
-  if (e->clock_dev != NULL)
+  if (e->own_clock)
     cd.tune_time_us = VIRTUAL_TUNE_TIME_US;
   if ((err = rp_controller_create(e->ctx, &cd, &c)) != 0)
     return err;
@@ -830,7 +830,6 @@ int rp__engine_create(rp_context *ctx, const rp_runtime_desc *desc,
                       rp__engine **out) {
   rp__engine *e;
   rp_group_desc gd = {0};
-  rp_device *dev;
   uint64_t ns;
   int err;
   e = rp__calloc(ctx, 1, sizeof *e);
@@ -861,10 +860,8 @@ int rp__engine_create(rp_context *ctx, const rp_runtime_desc *desc,
   }
   /* One device that keeps its own clock sets the engine's time; with
    * several, each has its own and the frame's is the wall clock's. */
-  dev = rp_device_group_count(e->group) == 1 ? rp__group_device(e->group, 0)
-                                             : NULL;
-  if (dev != NULL && rp__device_clock_ns(dev, &ns))
-    e->clock_dev = dev;
+  e->own_clock = rp_device_group_count(e->group) == 1 &&
+                 rp__group_clock_ns(e->group, 0, &ns);
   *out = e;
   return 0;
 }

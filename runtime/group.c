@@ -263,6 +263,13 @@ rp_device *rp__group_device(const rp_device_group *g, uint32_t i) {
   return g != NULL && i < g->count ? g->m[i].dev : NULL;
 }
 
+int rp__group_clock_ns(const rp_device_group *g, uint32_t i, uint64_t *ns) {
+  if (g == NULL || i >= g->count || !rp__device_clock_ns(g->m[i].dev, ns))
+    return 0;
+  *ns += g->m[i].clock_base;
+  return 1;
+}
+
 /* ---- Uploads ------------------------------------------------------------- */
 
 /* Runs a job of `kind` on every live device and waits for them all. */

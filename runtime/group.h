@@ -67,6 +67,8 @@ typedef struct rp__member {
   char backend[64];
   rp_fault_desc ext_faults;
   rp_test_backend_desc ext_test;
+  /* Its earlier creations' own clocks, summed (rp__group_clock_ns). */
+  uint64_t clock_base;
   /* What the device holds (the worker sets them when an upload job
    * succeeds): the volume, TF and AO generations; 0: none. */
   uint64_t have_vol_gen, have_tf_gen, have_ao_gen;

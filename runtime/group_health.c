@@ -147,6 +147,13 @@ static int recreate(rp_device_group *g, rp__member *w) {
   /* Its worker is idle (a failed job ended); a build under way ends
    * first. */
   err = rp__executor_rebind(w->ex, dev);
+  {
+    /* Its clock goes on from the old device's (its lanes are stopped:
+     * this thread may read it). */
+    uint64_t ns;
+    if (rp__device_clock_ns(w->dev, &ns))
+      w->clock_base += ns;
+  }
   rp_device_destroy(w->dev);
   w->dev = dev;
   w->build_queued = 0;

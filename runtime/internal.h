@@ -346,6 +346,11 @@ struct rp_device_group;
 /* Member i's device (NULL when i >= count), for code that reads a
  * group's device between frames (the frame engine, its clock). */
 rp_device *rp__group_device(const struct rp_device_group *g, uint32_t i);
+/* Member i's own clock (rp__device_clock_ns) as one clock across its
+ * re-creations (a re-created device's starts again at 0): 1 with *ns,
+ * or 0 when it keeps none. The coordinator's thread, between frames. */
+int rp__group_clock_ns(const struct rp_device_group *g, uint32_t i,
+                       uint64_t *ns);
 
 /* Around a driver's set-up calls (OpenCL's first device query, Vulkan's
  * instance and device creation). Drivers keep what they allocate there
