@@ -335,67 +335,67 @@ static void test_stall_at_first_frame(void **state) {
  * back on probation, its share at most RP_GROUP_PROBATION_SHARE, and
  * RP_GROUP_PROBATION_FRAMES frames on time later active, its share back
  * to at least 0.25 within two more frames (see test_stall_at_first_frame
- * for the bound). A device late once more on
- * probation (a loaded machine) starts its count again: the bound is on
- * the frames from its last return. */
+ * for the bound). Neither device is ever counted as failed. On a
+ * machine loaded by others either device may also run late on some
+ * other frame (and come back the same way): the stall is the episode
+ * away for over a second, and the bounds are on the frames from the
+ * device's last return. */
 static void test_stall_comes_back(void **state) {
   uint8_t *one = malloc(W * H * 4), *img = malloc(W * H * 4);
   rp_group_scene s;
   rp_group_report rep;
   rp_device_group *g;
-  double late_at = 0.0, away_ms = 0.0;
-  int f, late_f = -1, back_f = -1, active_f = -1, share_f = -1;
+  double late_at = -1.0, stall_ms = 0.0;
+  int f, stall_f = -1, back_f = -1, active_f = -1, share_f = -1;
   uint32_t away = 0;
   (void)state;
   rp_group_scene_make(&s, W, H, EFFECTS);
   rp_group_scene_alone(&s, "reference", one, NULL);
   g = make_group(&s, 2, 0, 4, 1);
-  for (f = 0; f < 400 && share_f < 0; f++) {
+  for (f = 0; f < 600 && (stall_f < 0 || share_f < 0); f++) {
     const rp_group_device *rd = &rep.devices[1];
     double t0 = (double)uv_hrtime() * 1e-6;
     memset(img, 0, W * H * 4);
     assert_int_equal(rp_group_scene_frame(g, &s, img, NULL, &rep), 0);
     assert_memory_equal(one, img, W * H * 4);
-    assert_true(rep.devices[0].state == RP_DEVICE_ACTIVE);
-    if (f == 3 && !rd->late)
-      fail_msg("frame 3: the stalled device was not given up on (busy "
-               "%.1f ms)", rd->busy_ms);
-    if (rd->late && late_f < 0) {
-      late_f = f;
+    assert_int_equal(rep.devices[0].failures, 0);
+    assert_int_equal(rd->failures, 0); /* a stall is no failure */
+    if (rd->late) {
       late_at = t0;
+      if (stall_f < 0)
+        stall_f = f; /* the stall's, unless it comes back soon */
     }
-    if (late_f < 0)
-      continue;
     if (rd->state == RP_DEVICE_LATE) {
-      if (f > late_f)
+      if (!rd->late)
         assert_true(rd->share == 0.0);
       assert_int_equal(rep.alive, 1);
       away++;
       uv_sleep(20);
       continue;
     }
-    assert_int_equal(rd->failures, 0); /* a stall is no failure */
-    if (rep.returned > 0) {
+    if (rep.returned > 0 && rd->state == RP_DEVICE_PROBATION) {
+      if (t0 - late_at >= 1000.0) {
+        stall_ms = t0 - late_at;
+      } else if (stall_ms == 0.0) {
+        stall_f = -1; /* a loaded machine's late frame, not the stall */
+      }
       back_f = f;
-      active_f = -1;
-      if (away_ms == 0.0)
-        away_ms = t0 - late_at;
+      active_f = share_f = -1;
     }
     if (rd->state == RP_DEVICE_PROBATION)
       assert_true(rd->share <= RP_GROUP_PROBATION_SHARE + 1e-12);
-    if (rd->state == RP_DEVICE_ACTIVE && active_f < 0)
+    if (back_f >= 0 && rd->state == RP_DEVICE_ACTIVE && active_f < 0)
       active_f = f;
-    if (active_f >= 0 && rd->share >= 0.25)
+    if (active_f >= 0 && share_f < 0 && rd->share >= 0.25)
       share_f = f;
   }
-  print_message("stall at frame 3: late for %u frames (%.0f ms), back on "
-                "probation at frame %d, active at %d, share %.2f at %d\n",
-                away, away_ms, back_f, active_f, rep.devices[1].share,
-                share_f);
-  assert_int_equal(late_f, 3);
-  /* It was away for the stall, less the deadline it was given up at. */
-  assert_true(away_ms >= STALL_MS - 1000.0);
-  assert_true(back_f > late_f);
+  print_message("stall from frame %d: late for %.0f ms (%u frames away in "
+                "all), back on probation at frame %d, active at %d, share "
+                "%.2f at %d\n", stall_f, stall_ms, away, back_f, active_f,
+                rep.devices[1].share, share_f);
+  /* Away for the stall, less the deadline it was given up at. */
+  assert_true(stall_f >= 3 && stall_ms >= STALL_MS - 1000.0);
+  assert_true(back_f > stall_f);
   assert_int_equal(active_f - back_f, RP_GROUP_PROBATION_FRAMES - 1);
   assert_true(share_f >= active_f && share_f - active_f <= 2);
   rp_device_group_destroy(g);

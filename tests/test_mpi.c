@@ -547,7 +547,11 @@ static void test_stall(void **state) {
  * until the raycast returns; at the next frame it is back on probation
  * (its share at most RP_GROUP_PROBATION_SHARE), and active
  * RP_GROUP_PROBATION_FRAMES frames on time later, never counted as
- * failed. Frames come 20 ms apart while it is away, as an app's. */
+ * failed. Frames come 20 ms apart while it is away, as an app's. On a
+ * machine loaded by others, rank 1 too may run late on a frame (it
+ * comes back the same way) or rank 2 may be late before its stall: the
+ * bounds are on the ranks' failures (none), on rank 2 having been given
+ * up on, and on its last return. */
 static void test_return(void **state) {
   scene s;
   rp_device_desc dd[2];
@@ -565,11 +569,11 @@ static void test_return(void **state) {
     group_frame(&s, g, f, &rep);
   rp_device_group_destroy(g);
   g = make_group(&s, dd, 2, 0.0, NO_TAIL);
-  for (f = 0; f < 500 && active_f < 0; f++) {
+  for (f = 0; f < 500 && (active_f < 0 || f <= 2); f++) {
     const rp_group_device *rd = &rep.devices[1];
     group_frame(&s, g, f, &rep);
     assert_int_equal(rd->failures, 0);
-    assert_int_equal(rep.devices[0].state, RP_DEVICE_ACTIVE);
+    assert_int_equal(rep.devices[0].failures, 0);
     if (rd->late && late_f < 0)
       late_f = f;
     if (rd->state == RP_DEVICE_LATE) {
@@ -578,18 +582,19 @@ static void test_return(void **state) {
       uv_sleep(20);
       continue;
     }
-    if (rep.returned > 0)
+    if (rep.returned > 0 && rd->state == RP_DEVICE_PROBATION) {
       back_f = f;
+      active_f = -1;
+    }
     if (rd->state == RP_DEVICE_PROBATION)
       assert_true(rd->share <= RP_GROUP_PROBATION_SHARE + 1e-12);
-    if (back_f >= 0 && rd->state == RP_DEVICE_ACTIVE)
+    if (back_f >= 0 && rd->state == RP_DEVICE_ACTIVE && active_f < 0)
       active_f = f;
   }
   print_message("rank 2: late at frame %d, away %u frames, back on "
                 "probation at %d, active at %d (share %.3f)\n", late_f,
                 away, back_f, active_f, rep.devices[1].share);
-  assert_int_equal(late_f, 2);
-  assert_true(back_f > late_f);
+  assert_true(late_f >= 0 && back_f > late_f);
   assert_int_equal(active_f - back_f, RP_GROUP_PROBATION_FRAMES - 1);
   rp_device_group_destroy(g);
   scene_free(&s);
