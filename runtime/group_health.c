@@ -117,6 +117,14 @@ static int catch_up(rp_device_group *g, rp__member *w) {
   return 0;
 }
 
+/* Why re-creating w failed, into w->why (through a buffer of its own:
+ * the message may lie in w too). */
+static void recreate_failed(rp__member *w, const char *what) {
+  char why[sizeof w->why];
+  snprintf(why, sizeof why, "re-creating '%s': %s", w->name, what);
+  memcpy(w->why, why, sizeof why);
+}
+
 /* Re-creates w's device and executor from its kept desc. Builds it was
  * asked for count as tried (the frame builds what it needs), so that
  * rp_device_group_prepared does not wait for a device that is gone. */
@@ -140,8 +148,7 @@ static int recreate(rp_device_group *g, rp__member *w) {
    * until there is one to replace it (an AO run may hold the executor). */
   rp__clear_error(w->ctx);
   if ((err = rp_device_create(w->ctx, &w->dd, &dev)) != 0) {
-    snprintf(w->why, sizeof w->why, "re-creating '%s': %s", w->name,
-             rp_last_error(w->ctx));
+    recreate_failed(w, rp_last_error(w->ctx));
     return err;
   }
   /* Its worker is idle (a failed job ended); a build under way ends
@@ -163,8 +170,7 @@ static int recreate(rp_device_group *g, rp__member *w) {
   w->ao_bytes = 0;
   if (err != 0) {
     /* No worker: nothing submitted to it would run. Out for good. */
-    snprintf(w->why, sizeof w->why, "re-creating '%s': its worker thread "
-             "would not start", w->name);
+    recreate_failed(w, "its worker thread would not start");
     w->failures = RP_GROUP_MAX_FAILURES - 1;
     return err;
   }
@@ -189,7 +195,7 @@ static void readmit(rp_device_group *g, rp__member *w) {
 static int late_ended(rp_device_group *g, rp__member *w, int status) {
   if (status != 0 && rp__group_loses_device(status, 0)) {
     w->back_status = status;
-    snprintf(w->why, sizeof w->why, "%s", w->error);
+    memcpy(w->why, w->error, sizeof w->why);
     rp__health_fail(g, w);
     return 0;
   }
