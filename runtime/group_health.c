@@ -219,13 +219,13 @@ uint32_t rp__health_begin(rp_device_group *g) {
     rp__member *w = &g->m[i];
     w->back_status = 0;
     if (w->state == RP_DEVICE_LATE) {
-      int running, status;
+      int running;
       uv_mutex_lock(&g->lock);
       running = w->running;
-      status = w->status;
       uv_mutex_unlock(&g->lock);
+      /* Ended: what its worker wrote before it said so is ours now. */
       if (!running)
-        back += (uint32_t)late_ended(g, w, status);
+        back += (uint32_t)late_ended(g, w, w->status);
     } else if (w->state == RP_DEVICE_RETRY && g->frame_no >= w->retry_at) {
       int err = recreate(g, w);
       if (err == 0)
