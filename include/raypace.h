@@ -704,6 +704,37 @@ typedef struct rp_device_desc {
   const void *next;
 } rp_device_desc;
 
+/** Where a device of several (a device group, raypace_group.h; the
+ *  runtime's devices, rp_device_frame) stands after a frame. A stall is
+ *  not a failure: a device given up on at its deadline comes back on
+ *  probation once its late work ends; one that fails is re-created after
+ *  a back-off, and stays out only after failing again and again.
+ *  \since 0.12 */
+typedef enum rp_device_state {
+  /* Rendering its full share, in proportion to its rate. */
+  RP_DEVICE_ACTIVE = 0,
+  /* Back after running late or being re-created: its share is at most
+   * RP_GROUP_PROBATION_SHARE until it has been on time for
+   * RP_GROUP_PROBATION_FRAMES frames in a row. */
+  RP_DEVICE_PROBATION = 1,
+  /* Given up on at its deadline and still busy with that work: no share
+   * until it ends (then probation, or a failure if the work failed). */
+  RP_DEVICE_LATE = 2,
+  /* Failed (RP_EDEVICE): re-created, its volume, TF and AO uploaded
+   * again, after a back-off of RP_GROUP_RETRY_FRAMES << (failures - 1)
+   * frames. */
+  RP_DEVICE_RETRY = 3,
+  /* Failed RP_GROUP_MAX_FAILURES times in a row (a failed re-creation
+   * counts): out for good. */
+  RP_DEVICE_OUT = 4
+} rp_device_state;
+
+/* The rules the states above follow. \since 0.12 */
+#define RP_GROUP_PROBATION_SHARE 0.1 /* at most this share on probation */
+#define RP_GROUP_PROBATION_FRAMES 3  /* on time this many frames: back */
+#define RP_GROUP_RETRY_FRAMES 2      /* the first back-off, in frames */
+#define RP_GROUP_MAX_FAILURES 3      /* failures in a row: out for good */
+
 /** How a device holds its volume (rp_device_get_brick_stats). Counters
  *  run from the last rp_device_set_volume; the last_ fields are of the
  *  last render. */

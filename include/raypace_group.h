@@ -14,9 +14,17 @@
  *   strips of the tail until none is left -> regions and strips are
  *   copied into one image.
  * A device that fails, or is still rendering past its deadline, is
- * dropped: the devices left re-render its region in the same frame (the
- * frame is late, never missing or corrupt) and the shares re-converge
- * over the devices left. A frame fails only when no device is left.
+ * dropped from the frame: the devices left re-render its region in the
+ * same frame (the frame is late, never missing or corrupt) and the
+ * shares re-converge over the devices left. A frame fails only when no
+ * device is left. Dropped is not gone (rp_device_state, since 0.12): a
+ * device late on a frame returns on probation once that work ends, at
+ * most RP_GROUP_PROBATION_SHARE of the frame until it has been on time
+ * for RP_GROUP_PROBATION_FRAMES frames in a row; a device that fails is
+ * re-created after a back-off, and stays out after
+ * RP_GROUP_MAX_FAILURES failures in a row. A device's first render of
+ * an effect set since its volume upload (a kernel build) and a render
+ * while its build lane builds have no deadline.
  *
  * A group of one device does exactly what that device alone does, on the
  * caller's thread.
@@ -70,8 +78,11 @@ typedef struct rp_group_desc {
   rp_cost_model_desc model;      /* every device's cost model */
   /* A device still rendering deadline_factor times its predicted time
    * (at least deadline_min_ms) after the frame's render began is given
-   * up on and dropped. Only devices whose model has learned from a frame
-   * have a deadline. deadline_factor 0: 4; negative: no deadline.
+   * up on, dropped for the frame and left to end its work; then it comes
+   * back on probation (rp_device_state). A device yet without a model
+   * has deadline_factor times its slowest peer's time. Never on a cold
+   * render (a kernel build). deadline_factor 0: 4; negative: no
+   * deadline.
    * deadline_min_ms 0: 200. */
   double deadline_factor;
   double deadline_min_ms;
@@ -94,33 +105,49 @@ typedef struct rp_group_desc {
 typedef struct rp_group_device {
   char name[168];       /* backend:device */
   int status;           /* 0, or the RP_E* it failed with this frame (its
-                           region was re-rendered by the others) */
-  int dropped;          /* 1 from the frame it failed or ran late on */
+                           region was re-rendered by the others; or,
+                           since 0.12, coming back at its start: its
+                           re-creation or its uploads failed) */
+  int dropped;          /* 1 while it has no share: from the frame it
+                           failed or ran late on until it is back
+                           (state) */
   int late;             /* 1 if it was given up on at its deadline */
   double share;         /* its share this frame, [0, 1] */
   double cost_share;    /* its region's fraction of the predicted tile
                            cost */
   rp_region region;     /* scaled-image pixels it was given; empty: none */
-  double depth_ms;      /* its depth pass, wall; 0 when reused */
+  double depth_ms;      /* its depth pass, wall (a device that keeps its
+                           own clock, the test backend: on that clock,
+                           as busy_ms; since 0.12); 0 when reused */
   uint32_t depth_passes; /* depth passes it ran (0 when reused) */
   double raycast_ms;    /* device time of its raycast */
   double upload_ms;     /* out of core: device time of the bricks it
                            uploaded first (not in raycast_ms) */
   double busy_ms;       /* its worker's wall time for the frame: depth
-                           pass, raycast, readback */
+                           pass, raycast, readback; on its own clock
+                           when it keeps one */
   uint64_t samples;     /* samples its region took */
   double predicted_ms;  /* its model's time for its region, NaN unknown */
   uint32_t strips;      /* tail strips it rendered (rp_group_desc) */
   double strip_cost_share; /* their fraction of the predicted tile cost */
   char error[256];      /* why it failed this frame (status != 0): its
                            own message, the device's context's; "" else */
+  /* Where it stands after this frame; its failures in a row (RETRY and
+   * OUT); in RETRY, the renders it still sits out before it is
+   * re-created (0: at the next render). \since 0.12 */
+  rp_device_state state;
+  uint32_t failures;
+  uint32_t retry_in;
 } rp_group_device;
 
 /** What a frame's render did, per device. */
 typedef struct rp_group_report {
   uint32_t count;         /* devices in the group, dropped ones included */
-  uint32_t alive;         /* devices not dropped after this frame */
+  uint32_t alive;         /* devices not dropped after this frame
+                             (active or on probation) */
   uint32_t lost;          /* devices dropped during this frame */
+  uint32_t returned;      /* devices back on probation at its start (late
+                             work ended, or re-created). \since 0.12 */
   double render_ms;       /* wall: dispatch to the last region in, the
                              re-render included */
   double rerender_ms;     /* wall spent re-rendering lost regions (0
@@ -149,7 +176,8 @@ RP_API int rp_device_group_create(rp_context *ctx, const rp_group_desc *desc,
  *  devices. NULL: no-op. \since 0.1 */
 RP_API void rp_device_group_destroy(rp_device_group *g);
 
-/** Devices in the group, and those not dropped. \since 0.1 */
+/** Devices in the group, and those not dropped (active or on
+ *  probation). \since 0.1 */
 RP_API uint32_t rp_device_group_count(const rp_device_group *g);
 RP_API uint32_t rp_device_group_alive(const rp_device_group *g);
 /** Device i's caps (i < count). \since 0.1 */

@@ -118,7 +118,14 @@ typedef struct rp_device_frame {
   double strip_share;   /* their share of the frame's predicted cost */
   int status;           /* 0, or the RP_E* it was lost with */
   char error[256];      /* why, when status != 0; "" otherwise */
-  int dropped;          /* 1 once lost: it renders no more */
+  int dropped;          /* 1 while it has no share: from the frame it
+                           was lost in until it is back (state) */
+  /* Where it stands after the frame, and its failures in a row
+   * (rp_device_state: late devices come back on probation, failed ones
+   * are re-created after a back-off and stay out after
+   * RP_GROUP_MAX_FAILURES). \since 0.12 */
+  rp_device_state state;
+  uint32_t failures;
 } rp_device_frame;
 
 /** What a frame cost and what the runtime expected. Times in ms. */

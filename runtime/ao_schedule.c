@@ -61,7 +61,6 @@ typedef struct ao_lane {
 struct rp_ao_run {
   rp_context *ctx;
   const rp_ao_plan *plan;
-  rp_device *devs[RP_AO_MAX_DEVICES];
   rp__executor *ex[RP_AO_MAX_DEVICES]; /* device i's owner */
   int own_ex;          /* made for the run (rp_ao_run_create) */
   ao_lane lanes[RP_AO_MAX_DEVICES];
@@ -145,7 +144,9 @@ static int report_progress(rp_ao_run *s) {
 static void device_job(rp__job *lane_job, rp_context *dctx) {
   ao_lane *w = RP__JOB_OWNER(lane_job, ao_lane, job);
   rp_ao_run *s = w->s;
-  rp_device *dev = s->devs[w->index];
+  /* The executor's device now: a device group may have re-created a
+   * device that failed since the run began (rp__executor_rebind). */
+  rp_device *dev = rp__executor_device(s->ex[w->index]);
   /* An inline executor runs this on the caller's thread, which reports
    * progress between jobs itself. */
   int inline_run = !rp__executor_threaded(s->ex[w->index]);
@@ -636,7 +637,6 @@ static int run_make(rp_context *ctx, rp__executor *const *ex, uint32_t count,
   s->rep.device_count = count;
   for (i = 0; i < count; i++) {
     s->ex[i] = ex[i];
-    s->devs[i] = rp__executor_device(ex[i]);
     s->alive[i] = 1;
     s->lanes[i].job.run = device_job;
     s->lanes[i].s = s;

@@ -330,6 +330,15 @@ int rp__device_clock_ns(const rp_device *dev, uint64_t *ns) {
  * running the device meanwhile, so the front end's scene fields are not
  * this call's to look at; the backend checks its own state under its
  * lock. */
+int rp__device_set_slowdown(rp_device *dev, double slowdown) {
+  if (dev == NULL)
+    return RP_EINVAL;
+  if (dev->faults == NULL)
+    return rp__fail(dev->ctx, RP_EINVAL, "rp__device_set_slowdown: the "
+                    "device was opened without fault injection");
+  return rp__faults_set_slowdown(dev->faults, slowdown);
+}
+
 int rp__device_builds_ahead(const rp_device *dev) {
   return dev->ops->prepare != NULL;
 }

@@ -92,5 +92,7 @@ int rp__faults_render_begin(rp__faults *f);
  * ns, already waited (0 when none), which the front end adds to the
  * render's reported time. NULL: 0. */
 uint64_t rp__faults_render_end(rp__faults *f);
+/* rp__device_set_slowdown's work: checked as rp__faults_check does. */
+int rp__faults_set_slowdown(rp__faults *f, double slowdown);
 
 #endif /* RP_DEVICE_H */

@@ -117,10 +117,9 @@ int rp__executor_create(rp_context *ctx, rp_device *dev, int threaded,
   return 0;
 }
 
-void rp__executor_destroy(rp__executor *ex) {
+/* Runs what the lanes hold and joins their threads. */
+static void lanes_stop(rp__executor *ex) {
   int k;
-  if (ex == NULL)
-    return;
   uv_mutex_lock(&ex->lock);
   ex->quit = 1;
   for (k = 0; k < LANES; k++)
@@ -129,8 +128,25 @@ void rp__executor_destroy(rp__executor *ex) {
   for (k = 0; k < LANES; k++) {
     if (ex->lanes[k].started)
       uv_thread_join(&ex->lanes[k].thread);
-    uv_cond_destroy(&ex->lanes[k].wake);
+    ex->lanes[k].started = 0;
   }
+}
+
+int rp__executor_rebind(rp__executor *ex, rp_device *dev) {
+  lanes_stop(ex);
+  ex->quit = 0; /* no lane runs: nothing else reads it */
+  ex->dev = dev;
+  ex->lanes[LANE_DEVICE].ctx = rp__device_context(dev);
+  return ex->threaded ? lane_start(ex, &ex->lanes[LANE_DEVICE]) : 0;
+}
+
+void rp__executor_destroy(rp__executor *ex) {
+  int k;
+  if (ex == NULL)
+    return;
+  lanes_stop(ex);
+  for (k = 0; k < LANES; k++)
+    uv_cond_destroy(&ex->lanes[k].wake);
   uv_mutex_destroy(&ex->lock);
   rp_context_destroy(ex->build_ctx);
   rp__free(ex->ctx, ex);

@@ -59,6 +59,14 @@ int rp__executor_create(rp_context *ctx, rp_device *dev, int threaded,
  * given up on at its deadline) included -- then joins the threads. Jobs
  * may not be submitted meanwhile. NULL: no-op. */
 void rp__executor_destroy(rp__executor *ex);
+/* Gives the executor a new device (a device group re-creating one that
+ * failed): runs what both lanes hold, stops them, and starts the worker
+ * again on `dev`; the build lane starts again on its next job. The
+ * executor stays the same object, so whoever holds it (an AO run) still
+ * may. The creator's thread; the caller destroys the old device after.
+ * \returns 0, RP_EDEVICE (the worker would not start: jobs submitted
+ * then never run, so the device must not be used again). */
+int rp__executor_rebind(rp__executor *ex, rp_device *dev);
 /* Queues `job` for the worker; an inline executor runs it before it
  * returns. */
 void rp__executor_submit(rp__executor *ex, rp__job *job);

@@ -229,6 +229,16 @@ int rp__faults_render_begin(rp__faults *f) {
   return 0;
 }
 
+int rp__faults_set_slowdown(rp__faults *f, double slowdown) {
+  rp_fault_desc d = f->d;
+  int err;
+  d.slowdown = slowdown;
+  if ((err = rp__faults_check(f->ctx, &d)) != 0)
+    return err;
+  f->d.slowdown = slowdown;
+  return 0;
+}
+
 uint64_t rp__faults_render_end(rp__faults *f) {
   uint64_t ns;
   if (f == NULL || f->d.stall_at_render == 0 ||

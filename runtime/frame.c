@@ -105,8 +105,8 @@ struct rp__engine {
   rp_runtime_desc desc; /* defaults resolved; devices not kept */
   rp_space_desc space;
   rp_device_group *group;
-  rp_device *clock_dev; /* the single device whose clock is the
-                           engine's, or NULL: CLOCK_MONOTONIC */
+  int own_clock; /* the single device keeps its own clock, which is the
+                    engine's (rp__group_clock_ns); 0: CLOCK_MONOTONIC */
   pthread_mutex_t count_lock;
   rp_runtime_counters counters; /* the passes'; under count_lock */
   scene s;
@@ -130,7 +130,7 @@ rp_device_group *rp__engine_group(rp__engine *e) { return e->group; }
 
 double rp__engine_now_ms(const rp__engine *e) {
   uint64_t ns;
-  if (e->clock_dev != NULL && rp__device_clock_ns(e->clock_dev, &ns))
+  if (e->own_clock && rp__group_clock_ns(e->group, 0, &ns))
     return (double)ns * 1e-6;
   return rp__now_ms();
 }
@@ -416,7 +416,7 @@ static int make_controller(rp__engine *e) {
   cd.rho_start = s->density;
   cd.miss_rate = e->desc.miss_rate;
   cd.headroom = e->desc.headroom;
-  if (e->clock_dev != NULL)
+  if (e->own_clock)
     cd.tune_time_us = VIRTUAL_TUNE_TIME_US;
   if ((err = rp_controller_create(e->ctx, &cd, &c)) != 0)
     return err;
@@ -589,6 +589,8 @@ static double report_devices(rp__engine *e, const rp_group_report *rep,
     if (gd->status != 0)
       snprintf(df->error, sizeof df->error, "%s", gd->error);
     df->dropped = gd->dropped;
+    df->state = gd->state;
+    df->failures = gd->failures;
     *depth |= gd->depth_passes > 0;
   }
   return upload;
@@ -834,7 +836,6 @@ int rp__engine_create(rp_context *ctx, const rp_runtime_desc *desc,
                       rp__engine **out) {
   rp__engine *e;
   rp_group_desc gd = {0};
-  rp_device *dev;
   uint64_t ns;
   int err;
   e = rp__calloc(ctx, 1, sizeof *e);
@@ -865,10 +866,8 @@ int rp__engine_create(rp_context *ctx, const rp_runtime_desc *desc,
   }
   /* One device that keeps its own clock sets the engine's time; with
    * several, each has its own and the frame's is the wall clock's. */
-  dev = rp_device_group_count(e->group) == 1 ? rp__group_device(e->group, 0)
-                                             : NULL;
-  if (dev != NULL && rp__device_clock_ns(dev, &ns))
-    e->clock_dev = dev;
+  e->own_clock = rp_device_group_count(e->group) == 1 &&
+                 rp__group_clock_ns(e->group, 0, &ns);
   *out = e;
   return 0;
 }

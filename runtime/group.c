@@ -163,6 +163,7 @@ static int open_member(rp_device_group *g, const rp_group_desc *desc,
   if ((err = rp_device_create(w->ctx, &desc->devices[i], &w->dev)) != 0)
     return rp__fail(g->ctx, err, "%s: device %u: %s", fn, i,
                     rp_last_error(w->ctx));
+  rp__health_keep_desc(w, &desc->devices[i]);
   rp_device_get_caps(w->dev, &w->caps);
   w->builds_ahead = rp__device_builds_ahead(w->dev);
   g->can_prepare |= w->builds_ahead;
@@ -262,6 +263,13 @@ rp_device *rp__group_device(const rp_device_group *g, uint32_t i) {
   return g != NULL && i < g->count ? g->m[i].dev : NULL;
 }
 
+int rp__group_clock_ns(const rp_device_group *g, uint32_t i, uint64_t *ns) {
+  if (g == NULL || i >= g->count || !rp__device_clock_ns(g->m[i].dev, ns))
+    return 0;
+  *ns += g->m[i].clock_base;
+  return 1;
+}
+
 /* ---- Uploads ------------------------------------------------------------- */
 
 /* Runs a job of `kind` on every live device and waits for them all. */
@@ -290,10 +298,9 @@ static int upload(rp_device_group *g, int kind, const char *fn) {
       continue;
     if (!rp__group_loses_device(w->outcome, 1))
       return rp__fail(g->ctx, w->outcome, "%s: %s", fn, w->why);
-    w->dropped = 1;
+    rp__health_fail(g, w);
     last = w->outcome;
     why = w->why;
-    g->have_prev = 0;
   }
   if (rp_device_group_alive(g) == 0)
     return rp__fail(g->ctx, last != 0 ? last : RP_ENODEV,
@@ -310,7 +317,12 @@ int rp_device_group_set_volume(rp_device_group *g, const rp_volume *vol) {
                     "rp_device_group_set_volume: vol is NULL");
   g->vol_gen++;
   g->can_train = 0;
+  g->vol = vol;
+  /* A late worker still reads its own inputs: it gets the volume when
+   * it comes back (group_health.c). */
   for (i = 0; i < g->count; i++) {
+    if (g->m[i].state == RP_DEVICE_LATE)
+      continue;
     g->m[i].vol = vol;
     g->m[i].vol_gen = g->vol_gen;
   }
@@ -335,7 +347,11 @@ int rp_device_group_set_tf(rp_device_group *g, const rp_tf *tf,
     return rp__fail(g->ctx, RP_EINVAL, "rp_device_group_set_tf: %s is NULL",
                     tf == NULL ? "tf" : "occ");
   g->tf_gen++;
+  g->tf = tf;
+  g->occ = occ;
   for (i = 0; i < g->count; i++) {
+    if (g->m[i].state == RP_DEVICE_LATE)
+      continue;
     g->m[i].tf = tf;
     g->m[i].occ = occ;
     g->m[i].tf_gen = g->tf_gen;
@@ -347,8 +363,14 @@ int rp_device_group_set_ao(rp_device_group *g, const rp_ao *ao) {
   uint32_t i;
   if (g == NULL)
     return RP_EINVAL;
-  for (i = 0; i < g->count; i++)
+  g->ao_gen++;
+  g->ao = ao;
+  for (i = 0; i < g->count; i++) {
+    if (g->m[i].state == RP_DEVICE_LATE)
+      continue;
     g->m[i].ao = ao;
+    g->m[i].ao_gen = g->ao_gen;
+  }
   return upload(g, RP__JOB_AO, "rp_device_group_set_ao");
 }
 
@@ -524,8 +546,7 @@ static void ao_learn(rp_device_group *g, const rp_ao_report *rep, int err) {
     rp__member *w = &g->m[g->ao_members[i]];
     if (rp__group_loses_device(rep->devices[i].status, 0) ||
         err == RP_EDEVICE) {
-      w->dropped = 1;
-      g->have_prev = 0;
+      rp__health_fail(g, w);
     } else if (err == 0 && rep->devices[i].busy_ms > 0.0 &&
                rep->devices[i].full_bricks > 0) {
       w->ao_speed =
@@ -576,13 +597,18 @@ static void live_models(const rp_device_group *g,
     m[i] = g->m[i].dropped ? NULL : &g->m[i].sm;
 }
 
-/* This frame's shares (rp__frame_shares) over the live members. */
+/* This frame's shares (rp__frame_shares) over the live members, those
+ * on probation capped (group_health.c). */
 static int frame_shares(rp_device_group *g, double cost, double *shares) {
   const rp__split_model *m[RP_GROUP_MAX_DEVICES];
+  int err;
   live_models(g, m);
-  return rp__frame_shares(&g->desc, m, g->count,
-                          g->have_prev ? g->prev_shares : NULL, cost,
-                          shares);
+  if ((err = rp__frame_shares(&g->desc, m, g->count,
+                              g->have_prev ? g->prev_shares : NULL, cost,
+                              shares)) != 0)
+    return err;
+  rp__health_cap_shares(g, shares);
+  return 0;
 }
 
 /* Each live device's whole-frame estimate, split (rp__device_cost). */
@@ -964,7 +990,7 @@ int rp_device_group_render(rp_device_group *g, const rp_camera *cam,
   rp_group_report local;
   rp_group_report *rep = report != NULL ? report : &local;
   rp__frame f;
-  uint32_t i, rounds = 0;
+  uint32_t i, rounds = 0, returned;
   double start, t_rr = 0.0;
   int err, last;
   if (g == NULL)
@@ -976,14 +1002,24 @@ int rp_device_group_render(rp_device_group *g, const rp_camera *cam,
     return rp__fail(g->ctx, RP_EINVAL, "%s: a zero image size", fn);
   g->can_train = 0;
   f.d = rp__render_desc_defaults(desc);
+  g->frame_no++;
+  returned = rp__health_begin(g);
   frame_reset(g, &f, rep);
-  if ((err = plan_frame(g, probe, &f, rep)) != 0)
+  rep->returned = returned;
+  if ((err = plan_frame(g, probe, &f, rep)) != 0) {
+    rp__health_report(g, rep);
     return err;
+  }
   start = f.start = now_ms();
   uv_mutex_lock(&g->lock);
   g->tail_active = g->strip_n > 0;
   uv_mutex_unlock(&g->lock);
   last = rp__group_round(g, cam, &f, rgba, tiles, rep, 1);
+  /* Those on probation that came through the first round, the one with
+   * deadlines, were on time. */
+  for (i = 0; i < g->count; i++)
+    if (!g->m[i].dropped)
+      rp__health_on_time(g, &g->m[i]);
   if (f.refused == 0) {
     learn_frame(g, &f, rep);
     t_rr = now_ms();
@@ -992,6 +1028,7 @@ int rp_device_group_render(rp_device_group *g, const rp_camera *cam,
       last = err;
   }
   rep->alive = rp_device_group_alive(g);
+  rp__health_report(g, rep);
   if (f.refused != 0)
     return f.refused;
   if (f.n_lost > 0 || rep->alive == 0) {

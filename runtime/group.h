@@ -1,7 +1,8 @@
 /* A device group's insides, shared by group.c (the group's lifetime, its
  * uploads, builds and AO, and the frame: plan -> round -> learn ->
- * re-render) and group_round.c (one round of jobs on the devices'
- * executors: regions, the tail's strips, deadlines). */
+ * re-render), group_round.c (one round of jobs on the devices'
+ * executors: regions, the tail's strips, deadlines) and group_health.c
+ * (devices that come back: probation, re-creation, back-off). */
 #ifndef RP_GROUP_INTERNAL_H
 #define RP_GROUP_INTERNAL_H
 
@@ -10,6 +11,7 @@
 
 #include "executor.h"
 #include "internal.h"
+#include "raypace_testing.h"
 #include "raypace_group.h"
 #include "shares.h"
 
@@ -45,6 +47,31 @@ typedef struct rp__member {
   char name[168];
   rp_cost_model *model;
   int dropped, trained;
+  /* Health (group_health.c), the coordinator's: its state
+   * (rp_device_state; dropped is 1 in LATE, RETRY and OUT), failures in
+   * a row, the group frame a RETRY re-creates it at, its frames on time
+   * on probation, and, LATE, the predicted tile cost of the work it was
+   * given up on (0: none known), whose time teaches its rate when it
+   * ends. */
+  rp_device_state state;
+  uint32_t failures, on_time;
+  uint64_t retry_at;
+  double late_cost;
+  int gave_up; /* given up on at its deadline this round */
+  /* A failure coming back at this render's start (re-creation, catch-up
+   * or late work), its message in `why`: the report's status. */
+  int back_status;
+  /* Its desc, kept to re-create it: the backend's name and the
+   * extension structs, copied and chained again. */
+  rp_device_desc dd;
+  char backend[64];
+  rp_fault_desc ext_faults;
+  rp_test_backend_desc ext_test;
+  /* Its earlier creations' own clocks, summed (rp__group_clock_ns). */
+  uint64_t clock_base;
+  /* What the device holds (the worker sets them when an upload job
+   * succeeds): the volume, TF and AO generations; 0: none. */
+  uint64_t have_vol_gen, have_tf_gen, have_ao_gen;
   /* Effect sets it has rendered since its volume upload, bit (1 << set):
    * a set's first render builds a kernel variant, which no deadline may
    * count as the device being slow. */
@@ -64,7 +91,7 @@ typedef struct rp__member {
   rp_camera cam;
   rp_render_desc desc;
   rp_region region;
-  uint64_t vol_gen, tf_gen;
+  uint64_t vol_gen, tf_gen, ao_gen;
 
   /* Results, the worker's during a job, the coordinator's after it. */
   int status;
@@ -127,7 +154,14 @@ struct rp_device_group {
   uv_mutex_t lock;
   uv_cond_t done;
   int threads; /* the executors have workers (count >= 2) */
-  uint64_t vol_gen, tf_gen;
+  uint64_t vol_gen, tf_gen, ao_gen;
+  /* The last volume, TF and AO set: a device that comes back gets them
+   * (catch-up, group_health.c). */
+  const rp_volume *vol;
+  const rp_tf *tf;
+  const rp_occupancy *occ;
+  const rp_ao *ao;
+  uint64_t frame_no; /* renders asked for: the back-off's clock */
   double prev_shares[RP_GROUP_MAX_DEVICES];
   int have_prev;
   /* The members an AO run (rp_device_group_ao_begin) computes on: run
@@ -161,7 +195,7 @@ struct rp_device_group {
   int can_prepare;
   uv_mutex_t build_lock;
   uint32_t build_asked, build_done;
-  uint8_t build_left[16];
+  uint8_t build_left[32]; /* one per effect set (RP__KNOWN_EFFECTS) */
   uint64_t build_gen;
 };
 
@@ -198,6 +232,37 @@ void rp__group_start_job(rp_device_group *g, rp__member *w, int kind);
  * (no report of who was late). */
 void rp__group_wait(rp_device_group *g, rp_group_report *rep,
                     double start);
+/* Whether w renders effect set `effects` warm: not its first render of
+ * the set since its volume upload (a kernel build), and no build under
+ * way on its build lane. Only a warm render has a deadline. */
+int rp__member_warm(rp_device_group *g, rp__member *w, uint32_t effects);
+/* Runs a job of `kind` on w alone and waits for it; its outcome. */
+int rp__group_run_one(rp_device_group *g, rp__member *w, int kind);
+
+/* ---- Health (group_health.c) ---- */
+
+/* Keeps what re-creating member w needs from `dd`. */
+void rp__health_keep_desc(rp__member *w, const rp_device_desc *dd);
+/* At a render's start: members whose late work ended come back on
+ * probation (or fail, if it failed), and those whose back-off is over
+ * are re-created; each brought up to date. Returns how many came back. */
+uint32_t rp__health_begin(rp_device_group *g);
+/* w failed (an RP_E* that loses a device): dropped, and RETRY after its
+ * back-off or OUT after RP_GROUP_MAX_FAILURES. */
+void rp__health_fail(rp_device_group *g, rp__member *w);
+/* w was given up on at its deadline, with work of predicted tile cost
+ * `cost` left running: LATE. */
+void rp__health_late(rp_device_group *g, rp__member *w, double cost);
+/* w finished its first-round work this frame (or had none): on
+ * probation, one more frame on time, and ACTIVE after
+ * RP_GROUP_PROBATION_FRAMES of them. */
+void rp__health_on_time(rp_device_group *g, rp__member *w);
+/* Caps the shares of members on probation at RP_GROUP_PROBATION_SHARE,
+ * the rest going to the active ones in proportion to theirs. */
+void rp__health_cap_shares(const rp_device_group *g, double *shares);
+/* Each member's state into the report. */
+void rp__health_report(const rp_device_group *g, rp_group_report *rep);
+
 /* One round of frame f: every live device renders f->px[i] and, with a
  * tail (g->tail_active), takes strips; finished regions and strips are
  * copied into rgba/tiles; what no device finished is appended to

@@ -18,6 +18,18 @@
 
 static double now_ms(void) { return (double)uv_hrtime() * 1e-6; }
 
+/* Now on w's own clock, for its worker's timings: the device's when it
+ * keeps one (the test backend: a job's time is then its simulated time,
+ * an injected stall included, and a group of test devices learns and
+ * splits the same on every run and machine), else the wall's. Deadlines
+ * stay in wall time: only real time can run late. */
+static double member_ms(const rp__member *w) {
+  uint64_t ns;
+  if (rp__device_clock_ns(w->dev, &ns))
+    return (double)ns * 1e-6;
+  return now_ms();
+}
+
 /* ---- Jobs ---------------------------------------------------------------- */
 
 static int reserve(rp__member *w, void **buf, size_t *cap, size_t bytes) {
@@ -56,10 +68,10 @@ static int do_render(rp__member *w) {
   key.tf_gen = w->tf_gen;
   if (!w->key_valid || memcmp(&key, &w->key, sizeof key) != 0) {
     w->key_valid = 0;
-    t0 = now_ms();
+    t0 = member_ms(w);
     if ((err = rp_device_depth_pass(w->dev, &w->cam, d, NULL)) != 0)
       return err;
-    w->depth_ms = now_ms() - t0;
+    w->depth_ms = member_ms(w) - t0;
     w->depth_passes = 1;
     w->key = key;
     w->key_valid = 1;
@@ -85,7 +97,7 @@ static int do_render(rp__member *w) {
 
 /* Runs one job of w's on the calling thread (its executor's). */
 static void run_job(rp__member *w, int kind) {
-  double t0 = now_ms();
+  double t0 = member_ms(w);
   int err = 0;
   rp__clear_error(w->ctx);
   w->depth_ms = w->raycast_ms = w->upload_ms = 0.0;
@@ -117,7 +129,13 @@ static void run_job(rp__member *w, int kind) {
   w->status = err;
   if (err != 0)
     snprintf(w->error, sizeof w->error, "%s", rp_last_error(w->ctx));
-  w->busy_ms = now_ms() - t0;
+  else if (kind == RP__JOB_VOLUME)
+    w->have_vol_gen = w->vol_gen;
+  else if (kind == RP__JOB_TF)
+    w->have_tf_gen = w->tf_gen;
+  else if (kind == RP__JOB_AO)
+    w->have_ao_gen = w->ao_gen;
+  w->busy_ms = member_ms(w) - t0;
   if (kind == RP__JOB_RENDER && err == 0) {
     w->round.depth_ms += w->depth_ms;
     w->round.raycast_ms += w->raycast_ms;
@@ -165,6 +183,27 @@ void rp__group_start_job(rp_device_group *g, rp__member *w, int kind) {
   w->running = 1;
   uv_mutex_unlock(&g->lock);
   rp__executor_submit(w->ex, &w->job);
+}
+
+int rp__group_run_one(rp_device_group *g, rp__member *w, int kind) {
+  w->deadline = INFINITY;
+  w->by_peers = 0;
+  rp__group_start_job(g, w, kind);
+  rp__group_wait(g, NULL, 0.0);
+  return w->outcome;
+}
+
+int rp__member_warm(rp_device_group *g, rp__member *w, uint32_t effects) {
+  int building;
+  if (!((w->warm_sets >> (effects & 31u)) & 1u))
+    return 0;
+  /* A build on its lane competes with its render for the device (and
+   * for the host's cores, with a CPU device): not the device's own
+   * speed either. */
+  uv_mutex_lock(&g->build_lock);
+  building = w->build_queued;
+  uv_mutex_unlock(&g->build_lock);
+  return !building;
 }
 
 /* ---- The tail ------------------------------------------------------------ */
@@ -233,7 +272,7 @@ static int claim_strip(rp_device_group *g, rp__member *w, double now,
     w->job_len += w->sm.depth_freq * w->sm.depth_est;
   w->job_end = w->sm.rate > 0.0 ? now + w->job_len : INFINITY;
   if (g->desc.deadline_factor > 0.0 && w->sm.rate > 0.0 &&
-      ((w->warm_sets >> (w->desc.effects & 15u)) & 1u))
+      rp__member_warm(g, w, w->desc.effects))
     w->deadline = now + fmax(g->desc.deadline_min_ms,
                              g->desc.deadline_factor * w->job_len);
   w->started = 1;
@@ -327,6 +366,10 @@ static double give_up_late(rp_device_group *g, rp_group_report *rep,
       snprintf(why, sizeof why, "device '%s' still rendering %.1f ms "
                "after its deadline", w->name, now - w->deadline);
       memcpy(w->why, why, sizeof why);
+      /* What its late work will have cost when it ends: a strip's
+       * predicted cost, or (-1) its region's, which the round knows. */
+      w->gave_up = 1;
+      w->late_cost = w->strip >= 0 ? g->strip_cost[w->strip] : -1.0;
       if (w->strip >= 0)
         g->strip_state[w->strip] = RP__STRIP_FREE;
       w->strip = -1;
@@ -414,7 +457,7 @@ static void region_job(rp_device_group *g, rp__member *w,
     w->job_end = f->start + w->job_len;
   }
   if (g->desc.deadline_factor > 0.0 && !isinf(predicted) &&
-      ((w->warm_sets >> (f->d.effects & 15u)) & 1u)) {
+      rp__member_warm(g, w, f->d.effects)) {
     if (w->trained && isfinite(predicted))
       w->deadline = f->start + fmax(g->desc.deadline_min_ms,
                                     g->desc.deadline_factor * predicted);
@@ -434,6 +477,7 @@ static void round_start(rp_device_group *g, const rp_camera *cam,
   uv_mutex_lock(&g->lock);
   for (i = 0; i < g->count; i++) {
     g->m[i].pending = g->m[i].started = g->m[i].region_done = 0;
+    g->m[i].gave_up = 0;
     g->m[i].strip = -1;
   }
   uv_mutex_unlock(&g->lock);
@@ -460,16 +504,20 @@ static void round_start(rp_device_group *g, const rp_camera *cam,
 }
 
 /* What member i's round came to: its region taken, or lost (its region
- * added to f->lost and the member dropped). Returns the error it was
- * lost with, 0 otherwise. */
+ * added to f->lost and the member dropped: late or failed, as
+ * group_health.c says). Returns the error it was lost with, 0
+ * otherwise. */
 static int round_settle(rp_device_group *g, uint32_t i, rp__frame *f,
                         uint8_t *rgba, rp_tile_stats *tiles,
                         rp_group_report *rep) {
   rp__member *w = &g->m[i];
   rp_group_device *rd = &rep->devices[i];
   if (w->outcome != 0) {
-    w->dropped = 1;
-    g->have_prev = 0;
+    if (w->gave_up)
+      rp__health_late(g, w, w->late_cost >= 0.0 ? w->late_cost
+                                                 : f->cost_abs[i]);
+    else
+      rp__health_fail(g, w);
     rd->status = w->outcome;
     snprintf(rd->error, sizeof rd->error, "%s", w->why);
     rd->dropped = 1;
@@ -487,7 +535,7 @@ static int round_settle(rp_device_group *g, uint32_t i, rp__frame *f,
     return 0; /* no region, and no strip came its way */
   if (!rp__region_empty(&f->px[i]))
     take_region(w, &f->px[i], f->sw, f->tx, rgba, tiles);
-  w->warm_sets |= 1u << (f->d.effects & 15u);
+  w->warm_sets |= 1u << (f->d.effects & 31u);
   rd->depth_ms += w->round.depth_ms;
   rd->depth_passes += w->round.depth_passes;
   rd->raycast_ms += w->round.raycast_ms;

@@ -323,6 +323,12 @@ int rp__backend_open(rp_context *ctx, const char *name, uint32_t index,
  * injection), else 0, and its time is real time (rp__now_ns). The
  * device's owner thread only. */
 int rp__device_clock_ns(const rp_device *dev, uint64_t *ns);
+/* Sets the slowdown of a device opened with fault injection
+ * (rp_fault_desc.slowdown, the same range) from its next operation on:
+ * a test warms a device (its first render builds kernels, which lavapipe
+ * counts as device time) before slowing it a thousandfold. The owner
+ * thread, between operations. RP_EINVAL without fault injection. */
+int rp__device_set_slowdown(rp_device *dev, double slowdown);
 
 /* ---- predict.c: the probe's own cost ------------------------------------ */
 
@@ -360,6 +366,11 @@ struct rp_device_group;
 /* Member i's device (NULL when i >= count), for code that reads a
  * group's device between frames (the frame engine, its clock). */
 rp_device *rp__group_device(const struct rp_device_group *g, uint32_t i);
+/* Member i's own clock (rp__device_clock_ns) as one clock across its
+ * re-creations (a re-created device's starts again at 0): 1 with *ns,
+ * or 0 when it keeps none. The coordinator's thread, between frames. */
+int rp__group_clock_ns(const struct rp_device_group *g, uint32_t i,
+                       uint64_t *ns);
 
 /* Around a driver's set-up calls (OpenCL's first device query, Vulkan's
  * instance and device creation). Drivers keep what they allocate there

@@ -8,6 +8,9 @@
  *   stall  rank 2 is started with RP_MPI_STALL_AT: it stalls on a
  *          raycast, is dropped at its deadline and given up on at the
  *          proxy's timeout; every frame is still whole and right
+ *   return rank 2 is started with RP_MPI_STALL_AT and a stall under the
+ *          proxy's timeout: dropped at its deadline, it comes back on
+ *          probation when the raycast returns, then active
  *   kill   rank 2 is started with RP_MPI_DIE_AT (and mpirun with
  *          --enable-recovery): it dies on a raycast; the same holds
  *   device ranks 1 and 2 are started with RP_MPI_DEVICE=1 and 99: rank
@@ -22,6 +25,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <uv.h>
 
 #include "passes.h"
 #include "raypace_ao.h"
@@ -450,10 +454,11 @@ static void test_group_frames(void **state) {
 
 /* Rank 2 fails on a raycast of the group (stalls or dies, as the launch
  * set it up): the frame it fails in is whole and right, rank 2 is
- * dropped, later frames are rank 1's, and afterwards rank 2 is given up
- * on for good. `warm`: frames of a group without deadlines first, so that
- * kernels are built before deadlines and timeouts count; `timeout` is
- * set as the proxies' RP_MPI_TIMEOUT_MS for the group that fails. */
+ * dropped, later frames are rank 1's, the group reports it out for good
+ * after its re-creations fail, and the proxy has given it up. `warm`:
+ * frames of a group without deadlines first, so that kernels are built
+ * before deadlines and timeouts count; `timeout` is set as the proxies'
+ * RP_MPI_TIMEOUT_MS for the group that fails. */
 static void lose_rank_2(int warm, const char *timeout) {
   scene s;
   rp_device_desc dd[2];
@@ -496,8 +501,22 @@ static void lose_rank_2(int warm, const char *timeout) {
   }
   if (lost_at < 0)
     fail_msg("rank 2 was never lost");
-  /* Waits for the proxy's verdict on rank 2 (its worker is still in the
-   * raycast): after that it is given up on. */
+  /* Once the proxy's verdict is in (its worker is still in the raycast),
+   * the late work has failed: each re-creation after a back-off fails
+   * too (the rank is given up on), and after RP_GROUP_MAX_FAILURES the
+   * report says it is out for good. Frames 20 ms apart meanwhile. */
+  for (f = 8; f < 600 && rep.devices[1].state != RP_DEVICE_OUT; f++) {
+    group_frame(&s, g, f, &rep);
+    assert_int_equal(rep.alive, 1);
+    if (rep.devices[1].status != 0)
+      assert_non_null(strstr(rep.devices[1].error, "rank 2"));
+    uv_sleep(20);
+  }
+  print_message("frame %d: rank 2 %s after %u failures: %s\n", f - 1,
+                rep.devices[1].state == RP_DEVICE_OUT ? "out" : "not out",
+                rep.devices[1].failures, rep.devices[1].error);
+  assert_int_equal(rep.devices[1].state, RP_DEVICE_OUT);
+  assert_int_equal(rep.devices[1].failures, RP_GROUP_MAX_FAILURES);
   rp_device_group_destroy(g);
   dd[1].backend = "mpi";
   assert_int_equal(rp_device_create(s.ctx, &dd[1], &dev), RP_EDEVICE);
@@ -517,6 +536,68 @@ static void lose_rank_2(int warm, const char *timeout) {
 static void test_stall(void **state) {
   (void)state;
   lose_rank_2(2, "1500");
+}
+
+/* Rank 2 runs with RP_MPI_STALL_AT=5 and RP_MPI_STALL_MS=2000, well
+ * under the proxy's timeout (RP_MPI_TIMEOUT_MS, 60 s): a rank that
+ * stalls and returns (its heartbeat goes on). After two warm-up frames
+ * its 5th raycast is the third frame of the deadline group: the group
+ * gives it up at its deadline (that frame whole and right, rank 1
+ * re-rendering its region) and it is LATE, rank 1 carrying every frame,
+ * until the raycast returns; at the next frame it is back on probation
+ * (its share at most RP_GROUP_PROBATION_SHARE), and active
+ * RP_GROUP_PROBATION_FRAMES frames on time later, never counted as
+ * failed. Frames come 20 ms apart while it is away, as an app's. On a
+ * machine loaded by others, rank 1 too may run late on a frame (it
+ * comes back the same way) or rank 2 may be late before its stall: the
+ * bounds are on the ranks' failures (none), on rank 2 having been given
+ * up on, and on its last return. */
+static void test_return(void **state) {
+  scene s;
+  rp_device_desc dd[2];
+  rp_device_group *g;
+  rp_group_report rep;
+  int f, late_f = -1, back_f = -1, active_f = -1;
+  uint32_t away = 0;
+  (void)state;
+  scene_make(&s);
+  memset(dd, 0, sizeof dd);
+  dd[0].backend = dd[1].backend = "mpi";
+  dd[1].index = 1;
+  g = make_group(&s, dd, 2, -1.0, NO_TAIL);
+  for (f = 0; f < 2; f++)
+    group_frame(&s, g, f, &rep);
+  rp_device_group_destroy(g);
+  g = make_group(&s, dd, 2, 0.0, NO_TAIL);
+  for (f = 0; f < 500 && (active_f < 0 || f <= 2); f++) {
+    const rp_group_device *rd = &rep.devices[1];
+    group_frame(&s, g, f, &rep);
+    assert_int_equal(rd->failures, 0);
+    assert_int_equal(rep.devices[0].failures, 0);
+    if (rd->late && late_f < 0)
+      late_f = f;
+    if (rd->state == RP_DEVICE_LATE) {
+      assert_int_equal(rep.alive, 1);
+      away++;
+      uv_sleep(20);
+      continue;
+    }
+    if (rep.returned > 0 && rd->state == RP_DEVICE_PROBATION) {
+      back_f = f;
+      active_f = -1;
+    }
+    if (rd->state == RP_DEVICE_PROBATION)
+      assert_true(rd->share <= RP_GROUP_PROBATION_SHARE + 1e-12);
+    if (back_f >= 0 && rd->state == RP_DEVICE_ACTIVE && active_f < 0)
+      active_f = f;
+  }
+  print_message("rank 2: late at frame %d, away %u frames, back on "
+                "probation at %d, active at %d (share %.3f)\n", late_f,
+                away, back_f, active_f, rep.devices[1].share);
+  assert_true(late_f >= 0 && back_f > late_f);
+  assert_int_equal(active_f - back_f, RP_GROUP_PROBATION_FRAMES - 1);
+  rp_device_group_destroy(g);
+  scene_free(&s);
 }
 
 /* Rank 2 runs with RP_MPI_DIE_AT=3 and dies (SIGKILL) in the third frame:
@@ -592,6 +673,7 @@ int main(int argc, char **argv) {
   };
   static const struct CMUnitTest stall[] = {cmocka_unit_test(test_stall)};
   static const struct CMUnitTest kill[] = {cmocka_unit_test(test_kill)};
+  static const struct CMUnitTest back[] = {cmocka_unit_test(test_return)};
   static const struct CMUnitTest device[] = {
       cmocka_unit_test(test_device_choice)};
   const char *mode;
@@ -619,6 +701,8 @@ int main(int argc, char **argv) {
   }
   if (strcmp(mode, "stall") == 0)
     rc = cmocka_run_group_tests_name("mpi stall", stall, NULL, NULL);
+  else if (strcmp(mode, "return") == 0)
+    rc = cmocka_run_group_tests_name("mpi return", back, NULL, NULL);
   else if (strcmp(mode, "kill") == 0)
     rc = cmocka_run_group_tests_name("mpi kill", kill, NULL, NULL);
   else if (strcmp(mode, "device") == 0)

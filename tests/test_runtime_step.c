@@ -364,6 +364,69 @@ static void test_min_step(void **state) {
   free(s);
 }
 
+/* A lone test device failing at its 4th render since each creation: the
+ * frames fail while it is away (their stats say which device, and that
+ * it waits to be re-created), then it is re-created and the frames are
+ * the reference's again. The engine's time is the device's own clock,
+ * which goes on across the re-creation (a new device's starts at 0): no
+ * frame measures a negative time, nor one beyond the target. */
+static void test_lone_device_recreated(void **state) {
+  rp_context *ctx = rp_test_context();
+  rp_tf *tfs[2] = {NULL, NULL};
+  seen *s = calloc(1, sizeof *s);
+  rp_runtime_desc d;
+  rp_test_backend_desc t;
+  rp_fault_desc fd;
+  rp_runtime *rt = NULL;
+  rp_volume *vol;
+  rp_camera cam;
+  int f, failed = 0, back = 0;
+  (void)state;
+  assert_non_null(s);
+  assert_int_equal(rp_tf_create_preset(ctx, "minmax-bone", &tfs[0]), 0);
+  memset(&t, 0, sizeof t);
+  t.header.type = RP_EXT_TEST_BACKEND;
+  t.seed = 7;
+  t.noise_sd = -1.0;
+  memset(&fd, 0, sizeof fd);
+  fd.fail_at_render = 4;
+  base_desc(&d, s, RP_PACE_MANUAL);
+  d.device.backend = "test";
+  d.device.next = &t;
+  rp_test_faults(&d.device, &fd);
+  assert_int_equal(rp_runtime_create(ctx, &d, &rt), 0);
+  post_events(rt, ctx, 0, tfs);
+  vol = make_volume(ctx, 24);
+  cam = orbit(vol, 20.0f);
+  for (f = 0; f < 16; f++) {
+    const rp_device_frame *df = &s->last.devices[0];
+    (void)rp_runtime_step(rt);
+    assert_true(s->last.measured_ms >= 0.0 &&
+                s->last.measured_ms <= d.target_ms);
+    if (s->last.status != 0) {
+      failed++;
+      assert_true(df->state == RP_DEVICE_RETRY);
+      assert_false(s->has_image);
+      continue;
+    }
+    if (failed > 0) {
+      back++;
+      assert_true(df->state == RP_DEVICE_PROBATION ||
+                  df->state == RP_DEVICE_ACTIVE);
+      rp_test_expect_reference(ctx, vol, tfs[0], NULL, &cam, W, H, EFFECTS,
+                               s->last.jitter_seed, s->latest);
+    }
+  }
+  print_message("%d frames failed while the device was away, %d right "
+                "after it came back\n", failed, back);
+  assert_true(failed > 0 && back > 0);
+  assert_int_equal(rp_runtime_destroy(rt), 0);
+  rp_volume_destroy(vol);
+  rp_tf_destroy(tfs[0]);
+  rp_context_destroy(ctx);
+  free(s);
+}
+
 /* Plays an n-frame orbit (3 degrees a frame, the TF switched at frame
  * 30 and then every 150) under `kind` at `target` and returns the
  * frames' measured times over the target in ratio[], their densities in
@@ -607,6 +670,7 @@ int main(void) {
       cmocka_unit_test(test_density),
       cmocka_unit_test(test_ao_switch_back),
       cmocka_unit_test(test_min_step),
+      cmocka_unit_test(test_lone_device_recreated),
       cmocka_unit_test(test_pacing_deterministic),
       cmocka_unit_test(test_pacing_holds_target),
       cmocka_unit_test(test_pacing_miss_rates),
