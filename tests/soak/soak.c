@@ -121,6 +121,9 @@ static void drive_manual(session *s) {
       soak_bad(s->v, "rp_runtime_step returned %d after %llu frames "
                "delivered, 1 expected", err,
                (unsigned long long)(s->v->delivered - before));
+    else if (err != s->v->last_status)
+      soak_bad(s->v, "rp_runtime_step returned %d, its frame's status was "
+               "%d", err, s->v->last_status);
     uv_mutex_unlock(&s->v->lock);
   }
 }
@@ -132,7 +135,9 @@ static void drive_request(session *s) {
     uint64_t got;
     maybe_check(s, i);
     if (rp_runtime_request_frame(s->rt) != 0) {
+      uv_mutex_lock(&s->v->lock);
       soak_bad(s->v, "rp_runtime_request_frame refused");
+      uv_mutex_unlock(&s->v->lock);
       return;
     }
     got = wait_delivered(s->v, i + 1);

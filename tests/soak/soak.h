@@ -78,6 +78,7 @@ typedef struct soak_verify {
   /* This session. */
   uint64_t next_id;      /* the frame id expected next */
   uint64_t delivered;    /* frames delivered */
+  int last_status;       /* the last frame's stats.status */
   uint32_t dropped[RP_RUNTIME_MAX_DEVICES]; /* seen dropped */
 
   int ending;            /* the session is closing: posters stay paused */

@@ -337,6 +337,7 @@ void soak_on_frame(rp_runtime *rt, const rp_frame *f, void *user) {
              (unsigned long long)st->frame,
              (unsigned long long)st->counters.frames);
   v->next_id = st->frame + 1;
+  v->last_status = st->status;
   v->delivered++;
   v->frames++;
   v->two_pass += st->passes > 1;
