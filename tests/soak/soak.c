@@ -438,7 +438,7 @@ static int report(const options *o, const totals *t, const soak_verify *v,
       " \"faults\": {\"fail_armed\": %llu, \"fail_render\": %llu, "
       "\"ao_fail_armed\": %llu, \"fail_ao\": %llu, \"stall_armed\": %llu, "
       "\"stall_reached\": %llu, \"stall_long_armed\": %llu, "
-      "\"dropped_other\": %llu},\n"
+      "\"dropped_other\": %llu, \"dropped_unexplained\": %llu},\n"
       " \"events\": {\"total\": %llu, \"camera\": %llu, \"tf\": %llu, "
       "\"viewport\": %llu, \"target\": %llu, \"effects\": %llu, "
       "\"controller\": %llu, \"density\": %llu, \"volume\": %llu, "
@@ -464,7 +464,8 @@ static int report(const options *o, const totals *t, const soak_verify *v,
       (unsigned long long)t->stall_armed,
       (unsigned long long)t->stall_reached,
       (unsigned long long)t->stall_long,
-      (unsigned long long)v->drops_other, (unsigned long long)events,
+      (unsigned long long)v->drops_other,
+      (unsigned long long)v->drops_unexplained, (unsigned long long)events,
       (unsigned long long)t->posts.camera, (unsigned long long)t->posts.tf,
       (unsigned long long)t->posts.viewport,
       (unsigned long long)t->posts.target,
@@ -501,6 +502,10 @@ static int report(const options *o, const totals *t, const soak_verify *v,
     fprintf(stderr, "soak: live memory grows over the second half: the "
             "library's heap %.1f, malloc's %.1f KiB per 10^4 frames; the "
             "bound is %.1f\n", sl.heap, sl.malloc_, o->max_heap_slope);
+  if (v->drops_unexplained > 0)
+    fprintf(stderr, "soak: note: %llu devices were dropped with no status "
+            "and no message in their frame's stats (AO job failures: "
+            "docs/soak.md)\n", (unsigned long long)v->drops_unexplained);
   if (v->checks == 0)
     fprintf(stderr, "soak: no frame was held to the oracle\n");
   printf("soak: %s\n", failed ? "FAILED" : "passed");

@@ -94,7 +94,8 @@ typedef struct soak_verify {
   /* All sessions. */
   uint64_t frames, failed_frames, bad;
   uint64_t checks, checks_skipped, check_mismatch;
-  uint64_t fail_render, fail_ao, drops_other; /* devices dropped, by why */
+  /* Devices dropped, by why; unexplained: no status, no message. */
+  uint64_t fail_render, fail_ao, drops_other, drops_unexplained;
   uint64_t two_pass;      /* frames of two render passes */
   uint64_t renders[RP_RUNTIME_MAX_DEVICES]; /* this session, per device */
   uint64_t rss_every;

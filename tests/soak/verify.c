@@ -300,9 +300,11 @@ static void check_image(soak_verify *v, const rp_frame *f) {
 }
 
 /* Devices dropped this frame, by cause: the injected failures say so in
- * their message (runtime/faults.c); anything else (a device given up on
- * as late) counts apart. Renders are counted per device to tell which
- * armed stalls were reached. */
+ * their message (runtime/faults.c). A device dropped with neither status
+ * nor message is counted apart: the runtime does not yet say why it lost
+ * a device in an AO job (its frame, when it fails, does); see
+ * docs/soak.md. Renders are counted per device to tell which armed
+ * stalls were reached. */
 static void count_devices(soak_verify *v, const rp_frame_stats *st) {
   uint32_t i;
   if (st->device_count != v->devices)
@@ -319,6 +321,8 @@ static void count_devices(soak_verify *v, const rp_frame_stats *st) {
       v->fail_render++;
     else if (strstr(d->error, "injected at AO") != NULL)
       v->fail_ao++;
+    else if (d->status == 0 && d->error[0] == '\0')
+      v->drops_unexplained++;
     else
       v->drops_other++;
   }
