@@ -310,7 +310,11 @@ int rp_device_group_set_volume(rp_device_group *g, const rp_volume *vol) {
                     "rp_device_group_set_volume: vol is NULL");
   g->vol_gen++;
   g->can_train = 0;
+  /* Not a dropped member's inputs: a late worker may still be running
+   * its render, which reads them (as the round leaves its camera). */
   for (i = 0; i < g->count; i++) {
+    if (g->m[i].dropped)
+      continue;
     g->m[i].vol = vol;
     g->m[i].vol_gen = g->vol_gen;
   }
@@ -336,6 +340,8 @@ int rp_device_group_set_tf(rp_device_group *g, const rp_tf *tf,
                     tf == NULL ? "tf" : "occ");
   g->tf_gen++;
   for (i = 0; i < g->count; i++) {
+    if (g->m[i].dropped)
+      continue; /* a late job may read them (set_volume) */
     g->m[i].tf = tf;
     g->m[i].occ = occ;
     g->m[i].tf_gen = g->tf_gen;
@@ -348,7 +354,8 @@ int rp_device_group_set_ao(rp_device_group *g, const rp_ao *ao) {
   if (g == NULL)
     return RP_EINVAL;
   for (i = 0; i < g->count; i++)
-    g->m[i].ao = ao;
+    if (!g->m[i].dropped)
+      g->m[i].ao = ao; /* a late job may read them (set_volume) */
   return upload(g, RP__JOB_AO, "rp_device_group_set_ao");
 }
 
