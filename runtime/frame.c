@@ -10,6 +10,7 @@
 #include "ao.h"
 #include "bounds.h"
 #include "frame.h"
+#include "group.h"
 #include "internal.h"
 #include "passes.h"
 #include "raypace_group.h"
@@ -781,6 +782,22 @@ static int render_frame(rp__engine *e) {
   return 0;
 }
 
+/* A frame that ended before any render pass reported its devices (an
+ * upload found none left, say) still says which devices the runtime
+ * opened and which of them are lost, as rp_frame_stats promises: the
+ * app learns of a loss from every frame, not only from rendered ones. */
+static void report_members(rp__engine *e) {
+  rp_frame_stats *st = &e->stats;
+  uint32_t i, n = rp_device_group_count(e->group);
+  st->device_count = n;
+  st->devices_alive = rp_device_group_alive(e->group);
+  for (i = 0; i < n && i < RP_RUNTIME_MAX_DEVICES; i++) {
+    snprintf(st->devices[i].name, sizeof st->devices[i].name, "%s",
+             e->group->m[i].name);
+    st->devices[i].dropped = e->group->m[i].dropped;
+  }
+}
+
 void rp__engine_frame(rp__engine *e, rp__events *in, uint64_t frame_no,
                       uint64_t events, rp_frame *out) {
   rp_frame_stats *st = &e->stats;
@@ -803,6 +820,8 @@ void rp__engine_frame(rp__engine *e, rp__events *in, uint64_t frame_no,
     err = render_frame(e);
   st->effects = e->s.render_effects;
   st->effects_wanted = e->s.effects;
+  if (st->device_count == 0)
+    report_members(e);
   if (err != 0) {
     st->status = err;
     snprintf(st->error, sizeof st->error, "%s", rp_last_error(e->ctx));

@@ -663,6 +663,58 @@ static void test_probe_follows_target(void **state) {
   rp_context_destroy(ctx);
 }
 
+/* Every frame says which devices the runtime opened and which are lost,
+ * also one that fails before a render pass could report them: two
+ * devices that fail from their first render lose frame 0 in its render;
+ * frame 1's TF upload then finds no device left. Both frames must count
+ * the two devices opened (the desc's count), none alive, both dropped.
+ * (The soak found frames after the last loss reporting 0 devices.) */
+static void test_lost_devices_reported(void **state) {
+  rp_context *ctx = rp_test_context();
+  rp_runtime_desc d;
+  rp_runtime *rt = NULL;
+  rp_device_desc dd[2];
+  rp_fault_desc fd[2];
+  rp_tf *tf = NULL;
+  rp_volume *vol = make_volume(ctx, 16);
+  rp_camera cam = orbit(vol, 30.0f);
+  seen *s = calloc(1, sizeof *s);
+  int i, f;
+  (void)state;
+  assert_non_null(s);
+  memset(dd, 0, sizeof dd);
+  memset(fd, 0, sizeof fd);
+  for (i = 0; i < 2; i++) {
+    dd[i].backend = "reference";
+    fd[i].fail_at_render = 1;
+    rp_test_faults(&dd[i], &fd[i]);
+  }
+  base_desc(&d, s, RP_PACE_MANUAL);
+  d.devices = dd;
+  d.device_count = 2;
+  assert_int_equal(rp_runtime_create(ctx, &d, &rt), 0);
+  assert_int_equal(rp_tf_create_preset(ctx, "minmax-soft", &tf), 0);
+  assert_int_equal(rp_runtime_set_volume(rt, vol), 0);
+  for (f = 0; f < 2; f++) {
+    assert_int_equal(rp_runtime_set_tf(rt, tf), 0);
+    assert_int_equal(rp_runtime_set_camera(rt, &cam), 0);
+    /* RP_EDEVICE or, once none is left, RP_ENODEV. */
+    assert_int_not_equal(rp_runtime_step(rt), 0);
+    assert_int_equal(s->last.frame, (uint64_t)f);
+    assert_false(s->has_image);
+    assert_int_equal(s->last.device_count, 2);
+    assert_int_equal(s->last.devices_alive, 0);
+    for (i = 0; i < 2; i++) {
+      assert_int_equal(s->last.devices[i].dropped, 1);
+      assert_non_null(strstr(s->last.devices[i].name, "reference"));
+    }
+  }
+  assert_int_equal(rp_runtime_destroy(rt), 0);
+  rp_tf_destroy(tf);
+  rp_context_destroy(ctx);
+  free(s);
+}
+
 int main(void) {
   const struct CMUnitTest tests[] = {
       cmocka_unit_test(test_step),
@@ -676,6 +728,7 @@ int main(void) {
       cmocka_unit_test(test_pacing_miss_rates),
       cmocka_unit_test(test_probe_follows_target),
       cmocka_unit_test(test_first_set_prepared),
+      cmocka_unit_test(test_lost_devices_reported),
   };
   return cmocka_run_group_tests(tests, NULL, NULL);
 }
