@@ -1,4 +1,4 @@
-/* The soak (docs/robustness.md): N frames through rp_runtime, in
+/* The soak (docs/soak.md): N frames through rp_runtime, in
  * sessions of a few hundred frames. Each session draws at random
  *
  * - how frames are paced, as the apps that embed the runtime do:
@@ -378,7 +378,7 @@ static int parse(int argc, char **argv, options *o) {
     }
     if (!ok) {
       fprintf(stderr, "soak: bad value '%s' for --%s (see "
-              "docs/robustness.md)\n", optarg, opts[li].name);
+              "docs/soak.md)\n", optarg, opts[li].name);
       return 1;
     }
   }

@@ -1,4 +1,4 @@
-/* The soak (docs/robustness.md, "Soak"): many frames through the runtime
+/* The soak (docs/soak.md): many frames through the runtime
  * an app embeds, with events posted from several threads at once and
  * device faults injected at random, checking that every frame comes out
  * once, in order and right, and that resident memory stays flat.
