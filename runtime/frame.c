@@ -792,9 +792,18 @@ static void report_members(rp__engine *e) {
   st->device_count = n;
   st->devices_alive = rp_device_group_alive(e->group);
   for (i = 0; i < n && i < RP_RUNTIME_MAX_DEVICES; i++) {
-    snprintf(st->devices[i].name, sizeof st->devices[i].name, "%s",
-             e->group->m[i].name);
-    st->devices[i].dropped = e->group->m[i].dropped;
+    const rp__member *w = &e->group->m[i];
+    rp_device_frame *df = &st->devices[i];
+    snprintf(df->name, sizeof df->name, "%s", w->name);
+    df->dropped = w->dropped;
+    df->state = w->state;
+    df->failures = w->failures;
+    /* Lost in an AO job since its last render: why, as the next render's
+     * report will say it. */
+    if (w->ao_lost != 0) {
+      df->status = w->ao_lost;
+      snprintf(df->error, sizeof df->error, "%s", w->why);
+    }
   }
 }
 

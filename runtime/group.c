@@ -544,8 +544,15 @@ static void ao_learn(rp_device_group *g, const rp_ao_report *rep, int err) {
   uint32_t i;
   for (i = 0; i < g->ao_count; i++) {
     rp__member *w = &g->m[g->ao_members[i]];
+    int lost = rep->devices[i].status != 0 ? rep->devices[i].status : err;
     if (rp__group_loses_device(rep->devices[i].status, 0) ||
         err == RP_EDEVICE) {
+      /* Through a buffer of its own: name and why are w's both. */
+      char why[sizeof w->why];
+      snprintf(why, sizeof why, "%s: lost in an ambient-occlusion job "
+               "(%s)", w->name, rp_err_name(lost));
+      memcpy(w->why, why, sizeof why);
+      w->ao_lost = lost;
       rp__health_fail(g, w);
     } else if (err == 0 && rep->devices[i].busy_ms > 0.0 &&
                rep->devices[i].full_bricks > 0) {

@@ -61,6 +61,9 @@ typedef struct rp__member {
   /* A failure coming back at this render's start (re-creation, catch-up
    * or late work), its message in `why`: the report's status. */
   int back_status;
+  /* Lost in an AO job between renders (ao_learn), message in `why`: the
+   * next render's back_status, so that its report says why it went. */
+  int ao_lost;
   /* Its desc, kept to re-create it: the backend's name and the
    * extension structs, copied and chained again. */
   rp_device_desc dd;

@@ -217,7 +217,8 @@ uint32_t rp__health_begin(rp_device_group *g) {
   uint32_t i, back = 0;
   for (i = 0; i < g->count; i++) {
     rp__member *w = &g->m[i];
-    w->back_status = 0;
+    w->back_status = w->ao_lost;
+    w->ao_lost = 0;
     if (w->state == RP_DEVICE_LATE) {
       int running;
       uv_mutex_lock(&g->lock);

@@ -274,6 +274,66 @@ static void test_recreated_under_ao(void **state) {
   free(img);
 }
 
+/* A device lost in an AO job (between renders) is failed like one lost
+ * in a render, and the next frame's report says so: its status and a
+ * message naming the AO job, once; the AO comes out whole from the
+ * other device. (Before, it showed as dropped with status 0 and no
+ * message: the soak's "dropped_unexplained".) */
+static void test_lost_in_ao_reported(void **state) {
+  uint8_t *one = malloc(W * H * 4), *img = malloc(W * H * 4);
+  rp_ao_desc desc = {4, 2, 3.0f, 1.0f, 0};
+  rp_ao_plan *plan = NULL;
+  rp_ao *want = NULL, *got = NULL;
+  rp_group_scene s;
+  rp_device_group *g = NULL;
+  rp_device_desc dd[2];
+  rp_fault_desc fd;
+  rp_group_desc gd = {0};
+  rp_group_report rep;
+  (void)state;
+  rp_group_scene_make(&s, W, H, EFFECTS);
+  rp_group_scene_alone(&s, "reference", one, NULL);
+  memset(dd, 0, sizeof dd);
+  memset(&fd, 0, sizeof fd);
+  dd[0].backend = dd[1].backend = "reference";
+  fd.fail_at_ao = 1;
+  rp_test_faults(&dd[1], &fd);
+  gd.devices = dd;
+  gd.count = 2;
+  gd.tail_fraction = -1.0;
+  gd.deadline_factor = -1.0;
+  assert_int_equal(rp_device_group_create(s.ctx, &gd, &g), 0);
+  assert_int_equal(rp_device_group_set_volume(g, s.vol), 0);
+  assert_int_equal(rp_device_group_set_tf(g, s.tf, s.occ), 0);
+  frame_as(g, &s, one, img, RP_DEVICE_ACTIVE);
+  assert_int_equal(rp_ao_plan_create(s.ctx, s.vol, s.tf, &desc, &plan), 0);
+  assert_int_equal(rp_ao_compute_reference(s.ctx, s.vol, s.tf, &desc, NULL,
+                                           NULL, &want),
+                   0);
+  assert_int_equal(rp_device_group_compute_ao(g, plan, NULL, &got, NULL), 0);
+  assert_memory_equal(rp_ao_data(got, NULL), rp_ao_data(want, NULL),
+                      48 * 48 * 48);
+  memset(img, 0, W * H * 4);
+  assert_int_equal(rp_group_scene_frame(g, &s, img, NULL, &rep), 0);
+  assert_memory_equal(one, img, W * H * 4);
+  assert_int_equal(rep.devices[1].state, RP_DEVICE_RETRY);
+  assert_int_equal(rep.devices[1].failures, 1);
+  assert_true(rep.devices[1].dropped);
+  assert_int_not_equal(rep.devices[1].status, 0);
+  if (strstr(rep.devices[1].error, "ambient-occlusion job") == NULL)
+    fail_msg("device 1's message: '%s'", rep.devices[1].error);
+  /* Said once: the frame after has no status of its own to report. */
+  assert_int_equal(rp_group_scene_frame(g, &s, img, NULL, &rep), 0);
+  assert_int_equal(rep.devices[1].status, 0);
+  rp_ao_destroy(got);
+  rp_ao_destroy(want);
+  rp_ao_plan_destroy(plan);
+  rp_device_group_destroy(g);
+  rp_group_scene_free(&s);
+  free(one);
+  free(img);
+}
+
 /* ---- Stalls --------------------------------------------------------------- */
 
 static int cmp_double(const void *a, const void *b) {
@@ -410,6 +470,7 @@ int main(void) {
       cmocka_unit_test(test_failed_device_comes_back),
       cmocka_unit_test(test_lone_device_comes_back),
       cmocka_unit_test(test_recreated_under_ao),
+      cmocka_unit_test(test_lost_in_ao_reported),
       cmocka_unit_test(test_stall_at_first_frame),
       cmocka_unit_test(test_stall_comes_back),
   };

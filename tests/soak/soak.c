@@ -502,10 +502,6 @@ static int report(const options *o, const totals *t, const soak_verify *v,
     fprintf(stderr, "soak: live memory grows over the second half: the "
             "library's heap %.1f, malloc's %.1f KiB per 10^4 frames; the "
             "bound is %.1f\n", sl.heap, sl.malloc_, o->max_heap_slope);
-  if (v->drops_unexplained > 0)
-    fprintf(stderr, "soak: note: %llu devices were dropped with no status "
-            "and no message in their frame's stats (AO job failures: "
-            "docs/soak.md)\n", (unsigned long long)v->drops_unexplained);
   if (v->checks == 0)
     fprintf(stderr, "soak: no frame was held to the oracle\n");
   printf("soak: %s\n", failed ? "FAILED" : "passed");

@@ -300,11 +300,11 @@ static void check_image(soak_verify *v, const rp_frame *f) {
 }
 
 /* Devices dropped this frame, by cause: the injected failures say so in
- * their message (runtime/faults.c). A device dropped with neither status
- * nor message is counted apart: the runtime does not yet say why it lost
- * a device in an AO job (its frame, when it fails, does); see
- * docs/soak.md. Renders are counted per device to tell which armed
- * stalls were reached. */
+ * their message (runtime/faults.c); a device lost in an AO job is said
+ * to be in the next frame's report ("lost in an ambient-occlusion job":
+ * the AO report has a status per device but no message). A device
+ * dropped with neither status nor message is a problem. Renders are
+ * counted per device to tell which armed stalls were reached. */
 static void count_devices(soak_verify *v, const rp_frame_stats *st) {
   uint32_t i;
   if (st->device_count != v->devices)
@@ -319,10 +319,17 @@ static void count_devices(soak_verify *v, const rp_frame_stats *st) {
     v->dropped[i] = 1;
     if (strstr(d->error, "injected at render") != NULL)
       v->fail_render++;
-    else if (strstr(d->error, "injected at AO") != NULL)
+    else if (strstr(d->error, "injected at AO") != NULL ||
+             strstr(d->error, "ambient-occlusion job") != NULL)
       v->fail_ao++;
-    else if (d->status == 0 && d->error[0] == '\0')
+    else if (d->status == 0 && d->error[0] == '\0' &&
+             d->state != RP_DEVICE_LATE) {
       v->drops_unexplained++;
+      soak_bad(v, "frame %llu: device %u dropped with no status and no "
+               "message (state %d, %u failures)",
+               (unsigned long long)st->frame, i, (int)d->state,
+               d->failures);
+    }
     else
       v->drops_other++;
   }
