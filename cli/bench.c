@@ -520,6 +520,49 @@ static int report_quality(const quality_opts *o, const rp_caps *caps,
   return rc;
 }
 
+/* The bench's context, volume, TF, occupancy and devices (the measured
+ * one, and the reference's when --ref-backend names another), each
+ * uploaded. What it made is the caller's to free, failed or not. */
+static int open_quality(bench *b, const quality_opts *o, rp_histograms **h,
+                        rp_device **dev, rp_device **ref_dev, rp_caps *caps,
+                        rp_caps *ref_caps) {
+  int err;
+  if ((err = rp_context_create(NULL, &b->ctx)) != 0) {
+    cli_error(b->ctx, "context", err);
+    return 1;
+  }
+  /* The reference's step is the finest the bench renders. */
+  if (cli_open_volume(b->ctx, o->volume, &b->vol) != 0 ||
+      cli_check_work(CMD, "--ref-step", b->vol, o->ref_step, o->width,
+                     o->height, 1.0f) != 0)
+    return 1;
+  {
+    /* A preset or a TF file, as render takes them. */
+    cli_tf spec = {o->tf, 0, 0.0, 0.0};
+    if (cli_make_tf(b->ctx, b->vol, &spec, &b->tf) != 0)
+      return 1;
+  }
+  if ((err = rp_histograms_build(b->ctx, b->vol, h)) != 0 ||
+      (err = rp_occupancy_build(b->ctx, *h, b->tf, &b->occ)) != 0) {
+    cli_error(b->ctx, "occupancy", err);
+    return 1;
+  }
+  if (cli_open_device(b->ctx, "--backend", o->backend, o->device, NULL,
+                      dev) != 0 ||
+      upload(b, *dev) != 0)
+    return 1;
+  rp_device_get_caps(*dev, caps);
+  *ref_caps = *caps;
+  if (o->ref_backend != NULL) {
+    if (cli_open_device(b->ctx, "--ref-backend", o->ref_backend, 0, NULL,
+                        ref_dev) != 0 ||
+        upload(b, *ref_dev) != 0)
+      return 1;
+    rp_device_get_caps(*ref_dev, ref_caps);
+  }
+  return 0;
+}
+
 static int bench_quality(int argc, char **argv) {
   quality_opts o;
   bench b;
@@ -533,7 +576,7 @@ static int bench_quality(int argc, char **argv) {
   uint8_t *ref = NULL;
   uint32_t sw, sh;
   double ref_ms = 0, t1;
-  int per_space, n, i, err, rc;
+  int per_space, n, i, rc;
   if ((rc = parse_quality(argc, argv, &o)) != 0)
     return rc == 1 ? 0 : rc;
   rc = 1;
@@ -552,39 +595,8 @@ static int bench_quality(int argc, char **argv) {
     fprintf(stderr, "raypace bench: --csv: cannot write %s\n", o.csv);
     return 1;
   }
-  if ((err = rp_context_create(NULL, &b.ctx)) != 0) {
-    cli_error(b.ctx, "context", err);
+  if (open_quality(&b, &o, &h, &dev, &ref_dev, &caps, &ref_caps) != 0)
     goto out;
-  }
-  /* The reference's step is the finest the bench renders. */
-  if (cli_open_volume(b.ctx, o.volume, &b.vol) != 0 ||
-      cli_check_work(CMD, "--ref-step", b.vol, o.ref_step, o.width,
-                     o.height, 1.0f) != 0)
-    goto out;
-  {
-    /* A preset or a TF file, as render takes them. */
-    cli_tf spec = {o.tf, 0, 0.0, 0.0};
-    if (cli_make_tf(b.ctx, b.vol, &spec, &b.tf) != 0)
-      goto out;
-  }
-  if ((err = rp_histograms_build(b.ctx, b.vol, &h)) != 0 ||
-      (err = rp_occupancy_build(b.ctx, h, b.tf, &b.occ)) != 0) {
-    cli_error(b.ctx, "occupancy", err);
-    goto out;
-  }
-  if (cli_open_device(b.ctx, "--backend", o.backend, o.device, NULL,
-                      &dev) != 0 ||
-      upload(&b, dev) != 0)
-    goto out;
-  rp_device_get_caps(dev, &caps);
-  ref_caps = caps;
-  if (o.ref_backend != NULL) {
-    if (cli_open_device(b.ctx, "--ref-backend", o.ref_backend, 0, NULL,
-                        &ref_dev) != 0 ||
-        upload(&b, ref_dev) != 0)
-      goto out;
-    rp_device_get_caps(ref_dev, &ref_caps);
-  }
   b.cam.projection = RP_PERSPECTIVE;
   rp_camera_orbit(&b.cam, b.vol, o.orbit[0], o.orbit[1], o.orbit[2]);
   b.rd.width = o.width;

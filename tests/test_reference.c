@@ -1006,6 +1006,57 @@ static void expect_fail(rp_context *ctx, const rp_volume *vol,
   assert_true(tiles[0].samples == 0x5A5A5A5Au);
 }
 
+/* Cameras the reference refuses, each naming the field. */
+static void test_bad_cameras(void **state) {
+  rp_context *ctx = rp_test_context();
+  rp_volume *vol = const_volume(ctx, 8, 8, 8, NULL);
+  rp_tf *tf = const_tf(ctx, 1, 1, 1, 0.5f);
+  rp_camera good = orbit(vol, RP_PERSPECTIVE, 10, 10, 2), cam;
+  rp_render_desc ok = {4, 4, 0.0f, 0, 0.0f, 0.0f, RP_JITTER_DEFAULT, 0};
+  uint8_t rgba[4 * 4 * 4];
+  (void)state;
+  memset(rgba, 0x33, sizeof rgba);
+#define CAM_CASE(stmt, needle)                                                \
+  do {                                                                        \
+    bad_case bc = {#stmt, RP_EINVAL, needle};                                 \
+    cam = good;                                                               \
+    stmt;                                                                     \
+    expect_fail(ctx, vol, tf, NULL, &cam, &ok, rgba, &bc);                    \
+  } while (0)
+  CAM_CASE(memcpy(cam.center, cam.eye, sizeof cam.eye), "center");
+  CAM_CASE(cam.eye[1] = NAN, "eye[1]");
+  CAM_CASE(cam.center[2] = INFINITY, "center[2]");
+  CAM_CASE(cam.up[0] = NAN, "up[0]");
+  CAM_CASE(cam.fov_y_deg = 180.0f, "fov_y_deg");
+  CAM_CASE(cam.fov_y_deg = -5.0f, "fov_y_deg");
+  CAM_CASE(cam.fov_y_deg = NAN, "fov_y_deg");
+  CAM_CASE(cam.ortho_height = -1.0f, "ortho_height");
+  CAM_CASE(cam.projection = (rp_projection)7, "projection");
+  CAM_CASE((cam.up[0] = cam.center[0] - cam.eye[0],
+            cam.up[1] = cam.center[1] - cam.eye[1],
+            cam.up[2] = cam.center[2] - cam.eye[2]),
+           "up");
+#undef CAM_CASE
+  rp_tf_destroy(tf);
+  rp_volume_destroy(vol);
+  rp_context_destroy(ctx);
+}
+
+/* Tiles of 8x8 pixels: ceil(w / 8) x ceil(h / 8), NULL outputs allowed. */
+static void test_tile_grid(void **state) {
+  uint32_t tx, ty;
+  (void)state;
+  rp_tile_grid(0, 0, &tx, &ty);
+  assert_true(tx == 0 && ty == 0);
+  rp_tile_grid(1, 8, &tx, &ty);
+  assert_true(tx == 1 && ty == 1);
+  rp_tile_grid(9, 17, &tx, &ty);
+  assert_true(tx == 2 && ty == 3);
+  rp_tile_grid(UINT32_MAX, 16, &tx, &ty);
+  assert_true(tx == 536870912u && ty == 2);
+  rp_tile_grid(5, 5, NULL, NULL);
+}
+
 static void test_bad_arguments(void **state) {
   rp_context *ctx = rp_test_context();
   rp_volume *vol = const_volume(ctx, 8, 8, 8, NULL);
@@ -1013,10 +1064,9 @@ static void test_bad_arguments(void **state) {
   rp_tf *tf = const_tf(ctx, 1, 1, 1, 0.5f), *tf2 = const_tf(ctx, 1, 0, 0, 1);
   occ_pair o = make_occ(ctx, vol, tf), o2 = make_occ(ctx, vol, tf2);
   occ_pair o3 = make_occ(ctx, other, tf);
-  rp_camera good = orbit(vol, RP_PERSPECTIVE, 10, 10, 2), cam;
+  rp_camera good = orbit(vol, RP_PERSPECTIVE, 10, 10, 2);
   rp_render_desc ok = {4, 4, 0.0f, 0, 0.0f, 0.0f, RP_JITTER_DEFAULT, 0}, d;
   uint8_t rgba[4 * 4 * 4];
-  uint32_t tx, ty;
   (void)state;
   memset(rgba, 0x33, sizeof rgba);
   assert_int_equal(rp_render_reference(NULL, vol, tf, NULL, NULL, &good, &ok, rgba,
@@ -1099,27 +1149,6 @@ static void test_bad_arguments(void **state) {
     free_occ(ot);
     rp_volume_destroy(twin);
   }
-#define CAM_CASE(stmt, needle)                                                \
-  do {                                                                        \
-    bad_case bc = {#stmt, RP_EINVAL, needle};                                 \
-    cam = good;                                                               \
-    stmt;                                                                     \
-    expect_fail(ctx, vol, tf, NULL, &cam, &ok, rgba, &bc);                    \
-  } while (0)
-  CAM_CASE(memcpy(cam.center, cam.eye, sizeof cam.eye), "center");
-  CAM_CASE(cam.eye[1] = NAN, "eye[1]");
-  CAM_CASE(cam.center[2] = INFINITY, "center[2]");
-  CAM_CASE(cam.up[0] = NAN, "up[0]");
-  CAM_CASE(cam.fov_y_deg = 180.0f, "fov_y_deg");
-  CAM_CASE(cam.fov_y_deg = -5.0f, "fov_y_deg");
-  CAM_CASE(cam.fov_y_deg = NAN, "fov_y_deg");
-  CAM_CASE(cam.ortho_height = -1.0f, "ortho_height");
-  CAM_CASE(cam.projection = (rp_projection)7, "projection");
-  CAM_CASE((cam.up[0] = cam.center[0] - cam.eye[0],
-            cam.up[1] = cam.center[1] - cam.eye[1],
-            cam.up[2] = cam.center[2] - cam.eye[2]),
-           "up");
-#undef CAM_CASE
   /* An invalid argument is reported before the unsupported effect. */
   {
     bad_case bc = {"AO and bad step", RP_EINVAL, "step"};
@@ -1133,15 +1162,6 @@ static void test_bad_arguments(void **state) {
                                        NULL),
                    0);
 
-  rp_tile_grid(0, 0, &tx, &ty);
-  assert_true(tx == 0 && ty == 0);
-  rp_tile_grid(1, 8, &tx, &ty);
-  assert_true(tx == 1 && ty == 1);
-  rp_tile_grid(9, 17, &tx, &ty);
-  assert_true(tx == 2 && ty == 3);
-  rp_tile_grid(UINT32_MAX, 16, &tx, &ty);
-  assert_true(tx == 536870912u && ty == 2);
-  rp_tile_grid(5, 5, NULL, NULL);
 
   free_occ(o);
   free_occ(o2);
@@ -1205,6 +1225,8 @@ int main(void) {
       cmocka_unit_test(test_odd_sizes),
       cmocka_unit_test(test_camera_inside),
       cmocka_unit_test(test_bad_arguments),
+      cmocka_unit_test(test_bad_cameras),
+      cmocka_unit_test(test_tile_grid),
       cmocka_unit_test(test_bonsai_skip),
   };
   return cmocka_run_group_tests(tests, NULL, NULL);
