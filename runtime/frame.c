@@ -175,6 +175,10 @@ static void take_events(rp__engine *e, rp__events *in) {
     s->ao_tf_id = 0;
     rp__ao_ranges_destroy(s->ao_ranges);
     s->ao_ranges = NULL;
+    /* The group gives the AO it was last set to a device it re-creates:
+     * not this one, about to be freed (the devices' own copies are of
+     * the old volume and go with it). */
+    rp__group_forget_ao(e->group);
     rp_ao_destroy(s->ao_spare);
     s->ao_spare = NULL;
     rp_occupancy_destroy(s->occ);
@@ -279,7 +283,9 @@ static int update_ao(rp__engine *e) {
   s->ao_ready = 0;
   s->ao_waits = 0;
   if (!(s->effects & RP_EFFECT_AO)) {
-    if (rp_device_group_ao_bytes(e->group) != 0)
+    /* Also when no device holds AO memory: the group still refers to
+     * the AO freed below, for devices it re-creates. */
+    if (s->ao_spare != NULL || rp_device_group_ao_bytes(e->group) != 0)
       err = rp_device_group_set_ao(e->group, NULL);
     rp_tf_destroy(s->ao_tf);
     s->ao_tf = NULL;
@@ -299,11 +305,14 @@ static int update_ao(rp__engine *e) {
     if (err == 0)
       err = rp__ao_plan_create(e->ctx, s->vol, s->tf, &e->desc.ao,
                                s->ao_ranges, &s->ao_plan);
-    if (err == 0) {
+    /* Into a new AO, not over the one the devices hold (ao_spare): the
+     * group gives that one to a device it re-creates, and a TF switched
+     * back before the run ends renders with it. Overwriting it in place
+     * saved an allocation but gave a device re-created mid-run a half
+     * computed AO, or a freed one (the soak, under ASan). */
+    if (err == 0)
       err = rp__group_ao_begin(e->group, s->ao_plan, &e->desc.ao_schedule,
-                               s->ao_spare, &s->ao_run);
-      s->ao_spare = NULL; /* taken */
-    }
+                               NULL, &s->ao_run);
     if (err != 0)
       drop_ao_run(s);
   }
@@ -909,6 +918,10 @@ void rp__engine_destroy(rp__engine *e) {
   s = &e->s;
   drop_ao_run(s);
   rp_controller_destroy(s->controller);
+  /* The group first: it holds the volume, TF and AO below for devices
+   * that come back, and a late worker may still read them until the
+   * group has joined it. */
+  rp_device_group_destroy(e->group);
   rp_occupancy_destroy(s->occ);
   rp_histograms_destroy(s->h);
   rp_tf_destroy(s->tf);
@@ -916,7 +929,6 @@ void rp__engine_destroy(rp__engine *e) {
   rp__ao_ranges_destroy(s->ao_ranges);
   rp_ao_destroy(s->ao_spare);
   rp_volume_destroy(s->vol);
-  rp_device_group_destroy(e->group);
   rp__free(ctx, e->scaled);
   rp__free(ctx, e->image);
   rp__free(ctx, e->tiles);

@@ -374,6 +374,11 @@ int rp_device_group_set_ao(rp_device_group *g, const rp_ao *ao) {
   return upload(g, RP__JOB_AO, "rp_device_group_set_ao");
 }
 
+void rp__group_forget_ao(rp_device_group *g) {
+  if (g != NULL)
+    g->ao = NULL;
+}
+
 uint64_t rp_device_group_ao_bytes(const rp_device_group *g) {
   rp_device_group *mg = (rp_device_group *)(uintptr_t)g; /* its lock */
   uint64_t sum = 0;

@@ -250,6 +250,11 @@ void rp__health_keep_desc(rp__member *w, const rp_device_desc *dd);
  * probation (or fail, if it failed), and those whose back-off is over
  * are re-created; each brought up to date. Returns how many came back. */
 uint32_t rp__health_begin(rp_device_group *g);
+
+/* The group no longer refers to the AO it was last set to (its owner is
+ * about to free it): a device re-created from now on gets none until the
+ * next rp_device_group_set_ao. The devices keep their own copies. */
+void rp__group_forget_ao(rp_device_group *g);
 /* w failed (an RP_E* that loses a device): dropped, and RETRY after its
  * back-off or OUT after RP_GROUP_MAX_FAILURES. */
 void rp__health_fail(rp_device_group *g, rp__member *w);

@@ -663,6 +663,71 @@ static void test_probe_follows_target(void **state) {
   rp_context_destroy(ctx);
 }
 
+/* A device re-created after a new volume was posted while AO was on:
+ * the group gives a re-created device the AO it was last set to, and the
+ * new volume freed that AO (the soak, under ASan: a use after free in
+ * rp_device_set_ao). Device 1 fails from its 20th render since each
+ * creation; once AO is on the frames and device 1 is waiting out its
+ * back-off, a new volume is posted, whose AO takes several frames (a
+ * block a frame); device 1 comes back during them.
+ * Every frame succeeds (device 0 carries them); ASan and UBSan (dev.sh)
+ * hold the rest. */
+static void test_ao_device_back_after_new_volume(void **state) {
+  rp_context *ctx = rp_test_context();
+  rp_runtime_desc d;
+  rp_runtime *rt = NULL;
+  rp_device_desc dd[2];
+  rp_fault_desc fd;
+  rp_tf *tf = NULL;
+  rp_volume *shape = make_volume(ctx, 48); /* the cameras' (the runtime
+                                             owns what it is given) */
+  rp_camera cam;
+  seen *s = calloc(1, sizeof *s);
+  int f, posted = -1, back = -1;
+  (void)state;
+  assert_non_null(s);
+  memset(dd, 0, sizeof dd);
+  memset(&fd, 0, sizeof fd);
+  dd[0].backend = dd[1].backend = "reference";
+  fd.fail_at_render = 20;
+  rp_test_faults(&dd[1], &fd);
+  base_desc(&d, s, RP_PACE_MANUAL);
+  d.devices = dd;
+  d.device_count = 2;
+  d.effects = EFFECTS | RP_EFFECT_AO;
+  d.ao_frame_share = 0.002; /* 2 ms of the target: a block a frame, so
+                               that the new volume's run spans frames */
+  assert_int_equal(rp_runtime_create(ctx, &d, &rt), 0);
+  assert_int_equal(rp_tf_create_preset(ctx, "minmax-soft", &tf), 0);
+  assert_int_equal(rp_runtime_set_volume(rt, make_volume(ctx, 48)), 0);
+  assert_int_equal(rp_runtime_set_tf(rt, tf), 0);
+  for (f = 0; f < 160 && back < 0; f++) {
+    cam = orbit(shape, 30.0f + (float)f);
+    assert_int_equal(rp_runtime_set_camera(rt, &cam), 0);
+    if (rp_runtime_step(rt) != 0 || s->last.status != 0)
+      fail_msg("frame %d: %s", f, s->last.error);
+    if (posted < 0 && (s->last.effects & RP_EFFECT_AO) &&
+        s->last.devices[1].state == RP_DEVICE_RETRY) {
+      assert_int_equal(rp_runtime_set_volume(rt, make_volume(ctx, 48)), 0);
+      posted = f;
+    } else if (posted >= 0 &&
+               s->last.devices[1].state == RP_DEVICE_PROBATION) {
+      back = f;
+      print_message("new volume at frame %d; device 1 back at %d, its AO "
+                    "%.0f %% done\n", posted, back,
+                    100.0 * s->last.ao_progress);
+    }
+  }
+  if (posted < 0 || back < 0)
+    fail_msg("new volume posted at frame %d, device 1 back at %d", posted,
+             back);
+  assert_int_equal(rp_runtime_destroy(rt), 0);
+  rp_volume_destroy(shape);
+  rp_tf_destroy(tf);
+  rp_context_destroy(ctx);
+  free(s);
+}
+
 /* Every frame says which devices the runtime opened and which are lost,
  * also one that fails before a render pass could report them: two
  * devices that fail from their first render lose frame 0 in its render;
@@ -729,6 +794,7 @@ int main(void) {
       cmocka_unit_test(test_probe_follows_target),
       cmocka_unit_test(test_first_set_prepared),
       cmocka_unit_test(test_lost_devices_reported),
+      cmocka_unit_test(test_ao_device_back_after_new_volume),
   };
   return cmocka_run_group_tests(tests, NULL, NULL);
 }
