@@ -72,26 +72,20 @@ static const char *state_name(rp_device_state s) {
   return (unsigned)s < 5 ? names[s] : "?";
 }
 
-/* `count` reference devices, the last failing at its fail_at-th render
- * (0: never) or stalling STALL_MS at its stall_at-th; without a tail (one
- * render a frame) and with the default deadline unless `deadline` is 0
- * (none: only the injected faults count). */
-static rp_device_group *make_group(rp_group_scene *s, uint32_t count,
-                                   uint32_t fail_at, uint32_t stall_at,
-                                   int deadline) {
+/* `count` reference devices, the last with the faults `fd` (chained on
+ * it; the group keeps its own copy); without a tail (one render a frame)
+ * and with the default deadline unless `deadline` is 0 (none: only the
+ * injected faults count). */
+static rp_device_group *make_group_faults(rp_group_scene *s, uint32_t count,
+                                          rp_fault_desc *fd, int deadline) {
   rp_device_desc dd[3];
-  rp_fault_desc fd;
   rp_group_desc gd = {0};
   rp_device_group *g = NULL;
   uint32_t i;
   memset(dd, 0, sizeof dd);
-  memset(&fd, 0, sizeof fd);
   for (i = 0; i < count; i++)
     dd[i].backend = "reference";
-  fd.fail_at_render = fail_at;
-  fd.stall_at_render = stall_at;
-  fd.stall_ms = stall_at != 0 ? STALL_MS : 0.0;
-  rp_test_faults(&dd[count - 1], &fd);
+  rp_test_faults(&dd[count - 1], fd);
   gd.devices = dd;
   gd.count = count;
   gd.tail_fraction = -1.0;
@@ -101,6 +95,19 @@ static rp_device_group *make_group(rp_group_scene *s, uint32_t count,
   assert_int_equal(rp_device_group_set_volume(g, s->vol), 0);
   assert_int_equal(rp_device_group_set_tf(g, s->tf, s->occ), 0);
   return g;
+}
+
+/* The same, the last device failing at its fail_at-th render (0: never)
+ * or stalling STALL_MS at its stall_at-th. */
+static rp_device_group *make_group(rp_group_scene *s, uint32_t count,
+                                   uint32_t fail_at, uint32_t stall_at,
+                                   int deadline) {
+  rp_fault_desc fd;
+  memset(&fd, 0, sizeof fd);
+  fd.fail_at_render = fail_at;
+  fd.stall_at_render = stall_at;
+  fd.stall_ms = stall_at != 0 ? STALL_MS : 0.0;
+  return make_group_faults(s, count, &fd, deadline);
 }
 
 /* `frames` renders of a group whose last device fails at its fail_at-th
@@ -285,26 +292,15 @@ static void test_lost_in_ao_reported(void **state) {
   rp_ao_plan *plan = NULL;
   rp_ao *want = NULL, *got = NULL;
   rp_group_scene s;
-  rp_device_group *g = NULL;
-  rp_device_desc dd[2];
+  rp_device_group *g;
   rp_fault_desc fd;
-  rp_group_desc gd = {0};
   rp_group_report rep;
   (void)state;
   rp_group_scene_make(&s, W, H, EFFECTS);
   rp_group_scene_alone(&s, "reference", one, NULL);
-  memset(dd, 0, sizeof dd);
   memset(&fd, 0, sizeof fd);
-  dd[0].backend = dd[1].backend = "reference";
   fd.fail_at_ao = 1;
-  rp_test_faults(&dd[1], &fd);
-  gd.devices = dd;
-  gd.count = 2;
-  gd.tail_fraction = -1.0;
-  gd.deadline_factor = -1.0;
-  assert_int_equal(rp_device_group_create(s.ctx, &gd, &g), 0);
-  assert_int_equal(rp_device_group_set_volume(g, s.vol), 0);
-  assert_int_equal(rp_device_group_set_tf(g, s.tf, s.occ), 0);
+  g = make_group_faults(&s, 2, &fd, 0);
   frame_as(g, &s, one, img, RP_DEVICE_ACTIVE);
   assert_int_equal(rp_ao_plan_create(s.ctx, s.vol, s.tf, &desc, &plan), 0);
   assert_int_equal(rp_ao_compute_reference(s.ctx, s.vol, s.tf, &desc, NULL,
