@@ -340,23 +340,9 @@ static void ref_layers(uint32_t begin, uint32_t end, void *user) {
                        j->z0 + begin, j->z0 + end, j->out);
 }
 
-int rp__ao_new(rp_context *ctx, const rp_ao_plan *plan, rp_ao *reuse,
-               rp_ao **out) {
+int rp__ao_new(rp_context *ctx, const rp_ao_plan *plan, rp_ao **out) {
   size_t n = (size_t)plan->dims[0] * plan->dims[1] * plan->dims[2];
   rp_ao *ao;
-  if (reuse != NULL) {
-    if (reuse->ctx == ctx &&
-        memcmp(reuse->dims, plan->dims, sizeof reuse->dims) == 0) {
-      reuse->vol_id = plan->vol_id;
-      reuse->tf_id = plan->tf_id;
-      reuse->desc = plan->desc;
-      reuse->bricks_computed = plan->full;
-      reuse->bricks_total = plan->total;
-      *out = reuse;
-      return 0;
-    }
-    rp_ao_destroy(reuse);
-  }
   /* Failures return their code here rather than rp__fail's, so that the
    * analyzer sees *out set on every path that returns 0. */
   if (rp__check_memory(ctx, "ambient occlusion: a byte per voxel", n) != 0)
@@ -514,7 +500,7 @@ int rp_ao_compute_reference(rp_context *ctx, const rp_volume *vol,
                        "rp_ao_compute_reference: vol, tf and out are required");
   if ((err = rp_ao_plan_create(ctx, vol, tf, desc, &plan)) != 0)
     return err;
-  if ((err = rp__ao_new(ctx, plan, NULL, &ao)) != 0) {
+  if ((err = rp__ao_new(ctx, plan, &ao)) != 0) {
     rp_ao_plan_destroy(plan);
     return err;
   }

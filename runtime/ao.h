@@ -88,13 +88,8 @@ void rp__ao_reference_box(const rp_volume *vol, const rp_tf *tf,
 void rp__ao_job(const rp_ao_plan *plan, const uint32_t lo[3],
                 const uint32_t end[3], float ref_step, double value_min,
                 double value_max, uint32_t lut_size, rp_ao_job *job);
-/* An rp_ao for the plan's volume and TF, data uninitialised. `reuse`
- * (may be NULL) is an AO volume the new one replaces, taken in any case:
- * of the same size, its memory is the new one's (a volume-sized
- * allocation is tens of milliseconds of page faults on a VM, each AO
- * run), else it is freed. */
-int rp__ao_new(rp_context *ctx, const rp_ao_plan *plan, rp_ao *reuse,
-               rp_ao **out);
+/* An rp_ao for the plan's volume and TF, data uninitialised. */
+int rp__ao_new(rp_context *ctx, const rp_ao_plan *plan, rp_ao **out);
 
 /* RP_EINVAL with a message unless `ao` was computed for this volume and
  * transfer function. */
@@ -114,14 +109,7 @@ int rp__ao_schedule_resolve(rp_context *ctx, const char *fn,
  * device is a job on its executor. */
 int rp__ao_run_create(rp_context *ctx, rp__executor *const *ex,
                       uint32_t count, const rp_ao_plan *plan,
-                      const rp_ao_schedule *schedule, rp_ao *reuse,
-                      rp_ao_run **out);
-/* rp_device_group_ao_begin, the run assembling its AO in `reuse` (taken,
- * see rp__ao_new; may be NULL). */
-struct rp_device_group;
-int rp__group_ao_begin(struct rp_device_group *g, const rp_ao_plan *plan,
-                       const rp_ao_schedule *schedule, rp_ao *reuse,
-                       rp_ao_run **out);
+                      const rp_ao_schedule *schedule, rp_ao_run **out);
 
 /* backend.c: the context a device was made from, and whether it holds
  * this volume and transfer function. */

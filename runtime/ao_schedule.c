@@ -619,16 +619,13 @@ static int check_args(rp_context *ctx, rp_device *const *devs, uint32_t n,
  * which it owns when own_ex. On failure the caller keeps the executors. */
 static int run_make(rp_context *ctx, rp__executor *const *ex, uint32_t count,
                     int own_ex, const rp_ao_plan *plan,
-                    const rp_ao_schedule *sc, rp_ao *reuse,
-                    rp_ao_run **out) {
+                    const rp_ao_schedule *sc, rp_ao_run **out) {
   rp_ao_run *s;
   double balance_ms = 0.0;
   uint32_t i;
   int err;
-  if ((s = rp__calloc(ctx, 1, sizeof *s)) == NULL) {
-    rp_ao_destroy(reuse);
+  if ((s = rp__calloc(ctx, 1, sizeof *s)) == NULL)
     return RP__AO_FAIL(ctx, RP_ENOMEM, "rp_ao_run_create: out of memory");
-  }
   s->ctx = ctx;
   s->plan = plan;
   s->n = count;
@@ -643,7 +640,7 @@ static int run_make(rp_context *ctx, rp__executor *const *ex, uint32_t count,
     s->lanes[i].index = i;
   }
   s->alive_count = count;
-  if ((err = rp__ao_new(ctx, plan, reuse, &s->ao)) != 0) {
+  if ((err = rp__ao_new(ctx, plan, &s->ao)) != 0) {
     rp__free(ctx, s);
     return err;
   }
@@ -670,8 +667,7 @@ static int run_make(rp_context *ctx, rp__executor *const *ex, uint32_t count,
 
 int rp__ao_run_create(rp_context *ctx, rp__executor *const *ex,
                       uint32_t count, const rp_ao_plan *plan,
-                      const rp_ao_schedule *schedule, rp_ao *reuse,
-                      rp_ao_run **out) {
+                      const rp_ao_schedule *schedule, rp_ao_run **out) {
   rp_device *devs[RP_AO_MAX_DEVICES];
   rp_ao_schedule sc = {0};
   uint32_t i;
@@ -679,11 +675,9 @@ int rp__ao_run_create(rp_context *ctx, rp__executor *const *ex,
   *out = NULL;
   for (i = 0; i < count && i < RP_AO_MAX_DEVICES; i++)
     devs[i] = rp__executor_device(ex[i]);
-  if ((err = check_args(ctx, devs, count, plan, schedule, &sc)) != 0) {
-    rp_ao_destroy(reuse);
+  if ((err = check_args(ctx, devs, count, plan, schedule, &sc)) != 0)
     return err;
-  }
-  return run_make(ctx, ex, count, 0, plan, &sc, reuse, out);
+  return run_make(ctx, ex, count, 0, plan, &sc, out);
 }
 
 int rp_ao_run_create(rp_context *ctx, rp_device *const *devices,
@@ -708,7 +702,7 @@ int rp_ao_run_create(rp_context *ctx, rp_device *const *devices,
     if ((err = rp__executor_create(ctx, devices[made], 1, &ex[made])) != 0)
       break;
   if (err == 0 &&
-      (err = run_make(ctx, ex, count, 1, plan, &sc, NULL, out)) == 0)
+      (err = run_make(ctx, ex, count, 1, plan, &sc, out)) == 0)
     return 0;
   for (i = 0; i < made; i++)
     rp__executor_destroy(ex[i]);

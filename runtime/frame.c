@@ -84,10 +84,10 @@ typedef struct scene {
   rp_tf *ao_tf;
   /* The volume's brick value ranges, built with its first AO plan: a
    * TF change's plan then reads them, not the voxels. And the last AO
-   * volume the devices were given, whose memory the next run assembles
-   * in (rp__ao_new); both go with the volume or when AO is turned off. */
+   * volume the devices were given, which the group hands to a device it
+   * re-creates; both go with the volume or when AO is turned off. */
   rp__ao_ranges *ao_ranges;
-  rp_ao *ao_spare;
+  rp_ao *ao_given;
   int ao_waits;  /* the run's first step waits for the build lanes to build
                     the AO kernels (rp_device_group_prepare) */
 } scene;
@@ -179,8 +179,8 @@ static void take_events(rp__engine *e, rp__events *in) {
      * not this one, about to be freed (the devices' own copies are of
      * the old volume and go with it). */
     rp__group_forget_ao(e->group);
-    rp_ao_destroy(s->ao_spare);
-    s->ao_spare = NULL;
+    rp_ao_destroy(s->ao_given);
+    s->ao_given = NULL;
     rp_occupancy_destroy(s->occ);
     rp_histograms_destroy(s->h);
     rp_volume_destroy(s->vol);
@@ -285,13 +285,13 @@ static int update_ao(rp__engine *e) {
   if (!(s->effects & RP_EFFECT_AO)) {
     /* Also when no device holds AO memory: the group still refers to
      * the AO freed below, for devices it re-creates. */
-    if (s->ao_spare != NULL || rp_device_group_ao_bytes(e->group) != 0)
+    if (s->ao_given != NULL || rp_device_group_ao_bytes(e->group) != 0)
       err = rp_device_group_set_ao(e->group, NULL);
     rp_tf_destroy(s->ao_tf);
     s->ao_tf = NULL;
     s->ao_tf_id = 0;
-    rp_ao_destroy(s->ao_spare);
-    s->ao_spare = NULL;
+    rp_ao_destroy(s->ao_given);
+    s->ao_given = NULL;
   } else if (s->ao_tf_id == s->tf->id) {
     s->ao_ready = 1; /* back to the TF whose AO the devices hold */
   } else {
@@ -305,14 +305,14 @@ static int update_ao(rp__engine *e) {
     if (err == 0)
       err = rp__ao_plan_create(e->ctx, s->vol, s->tf, &e->desc.ao,
                                s->ao_ranges, &s->ao_plan);
-    /* Into a new AO, not over the one the devices hold (ao_spare): the
+    /* Into a new AO, not over the one the devices hold (ao_given): the
      * group gives that one to a device it re-creates, and a TF switched
      * back before the run ends renders with it. Overwriting it in place
      * saved an allocation but gave a device re-created mid-run a half
      * computed AO, or a freed one (the soak, under ASan). */
     if (err == 0)
-      err = rp__group_ao_begin(e->group, s->ao_plan, &e->desc.ao_schedule,
-                               NULL, &s->ao_run);
+      err = rp_device_group_ao_begin(e->group, s->ao_plan,
+                                     &e->desc.ao_schedule, &s->ao_run);
     if (err != 0)
       drop_ao_run(s);
   }
@@ -346,8 +346,8 @@ static int advance_ao(rp__engine *e) {
   err = rp_device_group_ao_end(e->group, s->ao_run, err, &ao, NULL);
   if (err == 0)
     err = rp_device_group_set_ao(e->group, ao);
-  rp_ao_destroy(s->ao_spare);
-  s->ao_spare = ao; /* the devices hold their copies */
+  rp_ao_destroy(s->ao_given);
+  s->ao_given = ao; /* the devices hold their copies */
   drop_ao_run(s);
   publish_ao_bytes(e);
   /* The AO the devices held before is replaced (or, failed, unknown). */
@@ -927,7 +927,7 @@ void rp__engine_destroy(rp__engine *e) {
   rp_tf_destroy(s->tf);
   rp_tf_destroy(s->ao_tf);
   rp__ao_ranges_destroy(s->ao_ranges);
-  rp_ao_destroy(s->ao_spare);
+  rp_ao_destroy(s->ao_given);
   rp_volume_destroy(s->vol);
   rp__free(ctx, e->scaled);
   rp__free(ctx, e->image);

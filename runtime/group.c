@@ -498,21 +498,13 @@ int rp_device_group_prepared(rp_device_group *g, uint32_t effects) {
 int rp_device_group_ao_begin(rp_device_group *g, const rp_ao_plan *plan,
                              const rp_ao_schedule *schedule,
                              rp_ao_run **out) {
-  return rp__group_ao_begin(g, plan, schedule, NULL, out);
-}
-
-int rp__group_ao_begin(rp_device_group *g, const rp_ao_plan *plan,
-                       const rp_ao_schedule *schedule, rp_ao *reuse,
-                       rp_ao_run **out) {
   rp__executor *ex[RP_AO_MAX_DEVICES];
   uint32_t n = 0, i, known = 0;
   rp_ao_schedule sc;
   double sum = 0.0;
   int given = 0;
-  if (g == NULL) {
-    rp_ao_destroy(reuse);
+  if (g == NULL)
     return RP_EINVAL;
-  }
   memset(&sc, 0, sizeof sc);
   if (schedule != NULL)
     sc = *schedule;
@@ -521,11 +513,9 @@ int rp__group_ao_begin(rp_device_group *g, const rp_ao_plan *plan,
       g->ao_members[n] = i;
       ex[n++] = g->m[i].ex;
     }
-  if (n == 0) {
-    rp_ao_destroy(reuse);
+  if (n == 0)
     return rp__fail(g->ctx, RP_ENODEV, "rp_device_group_ao_begin: no "
                     "device left");
-  }
   g->ao_count = n;
   for (i = 0; i < RP_AO_MAX_DEVICES; i++)
     given |= sc.speed[i] != 0.0;
@@ -540,7 +530,7 @@ int rp__group_ao_begin(rp_device_group *g, const rp_ao_plan *plan,
       sc.speed[i] = v > 0.0 ? v : sum / known;
     }
   }
-  return rp__ao_run_create(g->ctx, ex, n, plan, &sc, reuse, out);
+  return rp__ao_run_create(g->ctx, ex, n, plan, &sc, out);
 }
 
 /* A device the run lost is dropped, as a lost upload would drop it; the
